@@ -1,0 +1,55 @@
+"""The ``rehab-hil`` command line. Each subcommand lives in its own module and registers here.
+
+Errors that are the user's (bad config, malformed CSV, bad arguments) print one line naming
+the file and key or line, and exit with status 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+__all__ = ["main", "SUBCOMMANDS", "UserError"]
+
+# module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
+SUBCOMMANDS = ["simulate"]
+
+
+class UserError(Exception):
+    """An error in what the user asked for; printed as one line."""
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from rehab_hil.config import ConfigError
+    from rehab_hil.interchange import CsvError
+    from rehab_hil.models.system import DiagramError
+
+    return (UserError, ConfigError, CsvError, DiagramError)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rehab-hil", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name in SUBCOMMANDS:
+        mod = importlib.import_module(f"rehab_hil.cli.{name}")
+        p = mod.add_parser(sub)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except _user_errors() as e:
+        print(f"rehab-hil {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rehab-hil {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,175 @@
+"""Load and validate ``configs/*.toml``: every error names the file and the dotted key.
+
+Each plant declares its schema as pydantic models (strict types, no unknown keys, no NaN or
+infinity, ranges as field constraints) and registers it under the value of the file's
+top-level ``plant`` key. Units are in the key names (``radius_m``, ``kt_nm_per_a``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+__all__ = [
+    "ConfigError",
+    "Section",
+    "SimulationSection",
+    "RigSection",
+    "RigLimitsSection",
+    "register_plant",
+    "load_config",
+    "load_toml",
+    "plant_names",
+    "Field",
+    "model_validator",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration file is unreadable or invalid; the message names file and key."""
+
+    def __init__(self, path: str | Path, key: str, message: str) -> None:
+        self.path, self.key, self.message = str(path), key, message
+        where = f"{self.path}: {key}: " if key else f"{self.path}: "
+        super().__init__(where + message)
+
+
+class Section(BaseModel):
+    """Base of every config table: strict types, unknown keys refused, finite numbers only."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+class SimulationSection(Section):
+    """Fixed-step integration: the step is the one the real-time loop uses."""
+
+    step_s: float = Field(gt=0.0, le=0.1, description="sample step of the simulation and loop [s]")
+    substeps: int = Field(ge=1, le=100, description="RK4 substeps per sample step")
+
+
+class RigLimitsSection(Section):
+    """Host-side safety limits (the firmware enforces its own copy; see docs/configs.md)."""
+
+    max_duty: float = Field(ge=0.0, le=1.0, description="largest PWM duty the host will command [0..1]")
+    min_angle_deg: float = Field(ge=-360.0, le=360.0)
+    max_angle_deg: float = Field(ge=-360.0, le=360.0)
+    max_force_n: float = Field(gt=0.0, le=1000.0, description="contact-force trip level [N]")
+    max_heating_s: float = Field(gt=0.0, le=600.0, description="longest continuous PWM-on time [s]")
+    max_temperature_c: float = Field(gt=-50.0, le=300.0, description="estimated actuator temperature trip [C]")
+    link_loss_periods: int = Field(ge=1, le=10000, description="missing samples before link loss")
+
+    @model_validator(mode="after")
+    def _range(self) -> RigLimitsSection:
+        if self.min_angle_deg >= self.max_angle_deg:
+            raise ValueError("min_angle_deg must be below max_angle_deg")
+        return self
+
+
+class RigSection(Section):
+    """How the host reaches the device and how fast the loop runs."""
+
+    port: str = Field(min_length=1, description='serial device path, or "sim" / "avr" for simulated devices')
+    baud: int = Field(ge=9600, le=4_000_000, description="serial baud rate [bit/s]")
+    sample_rate_hz: float = Field(gt=0.0, le=2000.0, description="device sample and loop rate [Hz]")
+    watchdog_ms: int = Field(ge=5, le=10_000, description="firmware watchdog: PWM off without a command [ms]")
+    limits: RigLimitsSection
+
+
+T = TypeVar("T", bound=BaseModel)
+_PLANTS: dict[str, type[BaseModel]] = {}
+
+
+def register_plant(name: str) -> Callable[[type[T]], type[T]]:
+    """Class decorator: the schema of config files whose ``plant`` key equals ``name``."""
+
+    def deco(cls: type[T]) -> type[T]:
+        _PLANTS[name] = cls
+        return cls
+
+    return deco
+
+
+def plant_names() -> list[str]:
+    _import_plants()
+    return sorted(_PLANTS)
+
+
+def _import_plants() -> None:
+    import rehab_hil.plants  # noqa: F401  (registers the schemas)
+
+
+def _dotted(loc: tuple[Any, ...]) -> str:
+    return ".".join(str(p) for p in loc)
+
+
+def _message(err: dict[str, Any]) -> str:
+    kind = err["type"]
+    if kind == "missing":
+        return "missing key"
+    if kind == "extra_forbidden":
+        return "unknown key"
+    if kind == "finite_number":
+        return "must be a finite number (no nan or inf)"
+    got = err.get("input")
+    msg = err["msg"]
+    if kind.endswith("_type"):
+        return f"wrong type: {msg.lower()}, got {type(got).__name__} {got!r}"
+    return f"{msg.lower()} (got {got!r})" if not isinstance(got, dict) else msg.lower()
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file; unreadable or malformed files raise ``ConfigError``."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(path, "", "file not found") from None
+    except OSError as e:
+        raise ConfigError(path, "", f"cannot read: {e.strerror}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(path, "", f"not valid TOML: {e}") from None
+
+
+def validate(path: str | Path, data: dict[str, Any], schema: type[T]) -> T:
+    """Validate ``data`` against ``schema``; the first error becomes a ``ConfigError``."""
+    _reject_non_finite(path, data, ())
+    try:
+        return schema.model_validate(data)
+    except ValidationError as e:
+        errs = e.errors()
+        first = errs[0]
+        key = _dotted(first["loc"])
+        more = f" (and {len(errs) - 1} more errors)" if len(errs) > 1 else ""
+        raise ConfigError(path, key, _message(first) + more) from None
+
+
+def _reject_non_finite(path: str | Path, data: Any, loc: tuple[Any, ...]) -> None:
+    # pydantic accepts nan for a float field that is only range-checked in some modes: refuse early.
+    if isinstance(data, dict):
+        for k, v in data.items():
+            _reject_non_finite(path, v, (*loc, k))
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            _reject_non_finite(path, v, (*loc, i))
+    elif isinstance(data, float) and not math.isfinite(data):
+        raise ConfigError(path, _dotted(loc), f"must be a finite number, got {data!r}")
+
+
+def load_config(path: str | Path, expect: str | None = None) -> BaseModel:
+    """Load a plant config; its top-level ``plant`` key selects the schema."""
+    _import_plants()
+    data = load_toml(path)
+    plant = data.get("plant")
+    if plant is None:
+        raise ConfigError(path, "plant", f"missing key (one of {sorted(_PLANTS)})")
+    if not isinstance(plant, str) or plant not in _PLANTS:
+        raise ConfigError(path, "plant", f"unknown plant {plant!r}; known plants: {sorted(_PLANTS)}")
+    if expect is not None and plant != expect:
+        raise ConfigError(path, "plant", f"this command needs a {expect!r} config, the file is {plant!r}")
+    return validate(path, data, _PLANTS[plant])

@@ -1,0 +1,68 @@
+"""What every plant provides: canonical signal names, a diagram builder and scenarios."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rehab_hil.models.system import Diagram, Part, SimulationResult
+
+__all__ = ["PlantSpec", "Scenario", "PLANTS", "register", "get_plant", "run_scenario"]
+
+
+@dataclass
+class Scenario:
+    """A closed- or open-loop experiment: extra parts (reference, controller), external input
+    arrays per step, and a function that turns the result into metrics."""
+
+    name: str
+    n_steps: int
+    parts: list[Part] = field(default_factory=list)
+    inputs: Mapping[str, float | np.ndarray] = field(default_factory=dict)
+    extra_outputs: tuple[str, ...] = ()
+    metrics: Callable[[SimulationResult], dict[str, float]] | None = None
+
+
+@dataclass
+class PlantSpec:
+    """A plant: CSV signal names (inputs, outputs), its parts, its scenarios."""
+
+    name: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    build: Callable[[Any], list[Part]]
+    scenarios: dict[str, Callable[..., Scenario]]
+    step: Callable[[Any], tuple[float, int]]  # config -> (step_s, substeps)
+
+
+PLANTS: dict[str, PlantSpec] = {}
+
+
+def register(spec: PlantSpec) -> PlantSpec:
+    PLANTS[spec.name] = spec
+    return spec
+
+
+def get_plant(name: str) -> PlantSpec:
+    if name not in PLANTS:
+        raise KeyError(f"unknown plant {name!r}; known: {sorted(PLANTS)}")
+    return PLANTS[name]
+
+
+def run_scenario(spec: PlantSpec, cfg: Any, scenario: Scenario,
+                 extra_parts: list[Part] | None = None) -> SimulationResult:
+    """Compile plant + scenario (+ extra effect parts) and simulate; records CSV signals."""
+    diagram = Diagram([*spec.build(cfg), *(extra_parts or []), *scenario.parts])
+    step_s, substeps = spec.step(cfg)
+    system = diagram.compile(step_s, substeps)
+    record = [*spec.inputs, *spec.outputs, *scenario.extra_outputs]
+    record = [s for s in dict.fromkeys(record) if s in diagram.producers]
+    external = {k: v for k, v in scenario.inputs.items() if k in system.input_names}
+    res = system.simulate(scenario.n_steps, external, outputs=record)
+    for name in spec.inputs:  # external inputs are recorded as given
+        if name not in res.signals and name in system.input_names:
+            res.signals[name] = system.input_matrix(scenario.n_steps, external)[:, system.input_names.index(name)]
+    return res

@@ -1,0 +1,254 @@
+"""1-DOF Finger Extensor: iris mechanism driven by a geared 24 V DC motor (seed 002).
+
+Model, derived anew from seed 002 eq 1-11 on the iris axis (angle theta, rad):
+
+    (J2 + N^2 J_m) theta'' = k_t i - (b1 + N^2 B_v) theta' - k1 theta - T_f - T_e
+    L di/dt = V - R i - k_v theta'
+
+with J2 = m r^2 / 2 (solid cylinder, r = 0.055 m), T_f Coulomb friction F_c sgn(theta')
+with stiction, and T_e the patient's torque (opposing opening, eq 3). States
+[theta, theta', i] are equivalent to the paper's [theta, theta', theta''] (eq 13, 17).
+
+Corrections to seed 002, section 3.2-3.3:
+- the printed A_B has row 2 = [0 1 0]; for states [theta, theta', theta''] it must be
+  [0 0 1] (theta'' is the derivative of theta'), and row 1 must be [0 1 0];
+- a_32 reads (-k_v k_t + B_v R)/(J_m L); it is -(k_v k_t + B_v R)/(J_m L), likewise
+  a_33 = -(B_v L + J_m R)/(J_m L): both damping terms must have the same sign;
+- in eq 12 the gear ratio enters k_t and k_v; seed 002 measured k_t = 0.791 N m/A and
+  k_v = 0.886 V s/rad from the motor's characteristic curves at the gearbox output
+  (24 V / 0.886 = 27 rad/s no-load at the output is what a 32.5:1 gearmotor does), so here
+  they act on the output axis directly; reflected motor inertia and viscous friction carry N^2.
+Parameters seed 002 takes from its reference [20] (J_m, B_v, R, L, masses, friction levels) are
+not given there: configs/finger_extensor.toml documents the physically plausible values chosen.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+
+from rehab_hil import metrics
+from rehab_hil.config import Field, RigSection, Section, SimulationSection, register_plant
+from rehab_hil.control.pid import PIDController
+from rehab_hil.control.trajectories import OpenCloseReference, StepReference
+from rehab_hil.models.dc_motor import DCMotorArmature
+from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSpring, ViscousFriction
+from rehab_hil.models.sensors import Gain, QuadratureEncoder
+from rehab_hil.models.system import Part, SimulationResult
+from rehab_hil.plants.base import PlantSpec, Scenario, register
+
+__all__ = ["FingerExtensorConfig", "build", "linear_model", "iris_inertia_kg_m2", "SPEC"]
+
+INPUTS = ("motor_voltage_v", "patient_torque_nm")
+OUTPUTS = ("iris_angle_deg", "motor_current_a")
+
+
+class IrisSection(Section):
+    radius_m: float = Field(gt=0.0, le=1.0, description="iris radius, seed 002 sec 3.1: 0.055 m")
+    mass_kg: float = Field(gt=0.0, le=20.0, description="mass of the rotating iris (chosen)")
+    spring_nm_per_rad: float = Field(ge=0.0, le=100.0, description="k1, seed 002 eq 2")
+    viscous_nm_s_per_rad: float = Field(ge=0.0, le=100.0, description="b1 / V_c, seed 002 eq 6")
+    coulomb_nm: float = Field(ge=0.0, le=100.0, description="F_c, seed 002 eq 6")
+    stick_velocity_rad_s: float = Field(gt=0.0, le=1.0, description="stiction band of the friction model")
+    stick_damping_nm_s_per_rad: float = Field(ge=0.0, le=1000.0, description="settles motion inside the band")
+
+
+class MotorSection(Section):
+    supply_v: float = Field(gt=0.0, le=60.0, description="H-bridge supply, seed 002: 24 V")
+    gear_ratio: float = Field(ge=1.0, le=1000.0, description="N, seed 002: 32.5:1 planetary")
+    kt_nm_per_a: float = Field(gt=0.0, le=100.0, description="torque constant at the gearbox output")
+    kv_v_s_per_rad: float = Field(gt=0.0, le=100.0, description="back-EMF constant at the gearbox output")
+    resistance_ohm: float = Field(gt=0.0, le=1000.0)
+    inductance_h: float = Field(gt=0.0, le=10.0)
+    rotor_inertia_kg_m2: float = Field(ge=0.0, le=1.0, description="J_m at the motor shaft")
+    rotor_viscous_nm_s_per_rad: float = Field(ge=0.0, le=10.0, description="B_v at the motor shaft")
+
+
+class EncoderSection(Section):
+    counts_per_rev: int = Field(ge=4, le=10_000_000, description="edges per iris revolution (500 CPR x4)")
+
+
+class PIDSection(Section):
+    kp_v_per_deg: float = Field(ge=0.0, le=1000.0)
+    ki_v_per_deg_s: float = Field(ge=0.0, le=10000.0)
+    kd_v_s_per_deg: float = Field(ge=0.0, le=100.0)
+    derivative_filter_s: float = Field(ge=0.0, le=1.0)
+
+
+class StepScenarioSection(Section):
+    start_deg: float = Field(ge=-360.0, le=360.0)
+    target_deg: float = Field(ge=-360.0, le=360.0, description="seed 002 Fig. 11: 59.58 deg")
+    duration_s: float = Field(gt=0.0, le=3600.0)
+
+
+class CycleScenarioSection(Section):
+    closed_deg: float = Field(ge=-360.0, le=360.0, description="seed 002 Fig. 10: 7.89 deg")
+    open_deg: float = Field(ge=-360.0, le=360.0, description="seed 002 Fig. 10: 121 deg")
+    move_s: float = Field(gt=0.0, le=600.0)
+    hold_open_s: float = Field(ge=0.0, le=600.0)
+    hold_closed_s: float = Field(ge=0.0, le=600.0)
+    duration_s: float = Field(gt=0.0, le=3600.0)
+
+
+class ScenariosSection(Section):
+    step: StepScenarioSection
+    cycle: CycleScenarioSection
+
+
+@register_plant("finger_extensor")
+class FingerExtensorConfig(Section):
+    plant: str
+    simulation: SimulationSection
+    iris: IrisSection
+    motor: MotorSection
+    encoder: EncoderSection
+    pid: PIDSection
+    scenarios: ScenariosSection
+    rig: RigSection
+
+
+def iris_inertia_kg_m2(cfg: FingerExtensorConfig) -> float:
+    """J2 of a solid cylinder (seed 002 sec 3.1)."""
+    return 0.5 * cfg.iris.mass_kg * cfg.iris.radius_m**2
+
+
+def total_inertia_kg_m2(cfg: FingerExtensorConfig) -> float:
+    return iris_inertia_kg_m2(cfg) + cfg.motor.gear_ratio**2 * cfg.motor.rotor_inertia_kg_m2
+
+
+def build(cfg: FingerExtensorConfig) -> list[Part]:
+    """The plant as parts; external inputs motor_voltage_v, patient_torque_nm.
+
+    Every torque on the iris axis is summed on ``drive_torque_nm`` (except Coulomb friction,
+    which needs that sum to decide stick or slip)."""
+    m, iris = cfg.motor, cfg.iris
+    n2 = m.gear_ratio**2
+    return [
+        RotaryInertia(
+            "iris",
+            connect={"torque_nm": ["drive_torque_nm", "friction_torque_nm"]},
+            rename={"angle_rad": "iris_angle_rad", "velocity_rad_s": "iris_velocity_rad_s"},
+            inertia_kg_m2=total_inertia_kg_m2(cfg),
+        ),
+        DCMotorArmature(
+            "motor",
+            connect={"voltage_v": "motor_voltage_v", "velocity_rad_s": "iris_velocity_rad_s"},
+            rename={"torque_nm": "drive_torque_nm", "current_a": "motor_current_a"},
+            kt_nm_per_a=m.kt_nm_per_a, kv_v_s_per_rad=m.kv_v_s_per_rad,
+            resistance_ohm=m.resistance_ohm, inductance_h=m.inductance_h,
+        ),
+        ViscousFriction(
+            "rotor_viscous", connect={"velocity_rad_s": "iris_velocity_rad_s"},
+            rename={"torque_nm": "drive_torque_nm"}, damping_nm_s_per_rad=n2 * m.rotor_viscous_nm_s_per_rad,
+        ),
+        ViscousFriction(
+            "iris_viscous", connect={"velocity_rad_s": "iris_velocity_rad_s"},
+            rename={"torque_nm": "drive_torque_nm"}, damping_nm_s_per_rad=iris.viscous_nm_s_per_rad,
+        ),
+        TorsionSpring(
+            "spring", connect={"angle_rad": "iris_angle_rad"}, rename={"torque_nm": "drive_torque_nm"},
+            stiffness_nm_per_rad=iris.spring_nm_per_rad, rest_angle_rad=0.0,
+        ),
+        Gain("patient", connect={"u": "patient_torque_nm"}, rename={"y": "drive_torque_nm"}, gain=-1.0),
+        CoulombFriction(
+            "coulomb",
+            connect={"velocity_rad_s": "iris_velocity_rad_s", "other_torque_nm": "drive_torque_nm"},
+            rename={"torque_nm": "friction_torque_nm"},
+            level_nm=iris.coulomb_nm, stick_velocity_rad_s=iris.stick_velocity_rad_s,
+            stick_damping_nm_s_per_rad=iris.stick_damping_nm_s_per_rad,
+        ),
+        QuadratureEncoder(
+            "encoder", connect={"angle_rad": "iris_angle_rad"},
+            rename={"counts": "encoder_counts", "angle_deg": "iris_angle_deg"},
+            counts_per_rev=cfg.encoder.counts_per_rev,
+        ),
+    ]
+
+
+def linear_model(cfg: FingerExtensorConfig) -> control.StateSpace:
+    """The linear part (no Coulomb friction, no quantisation) as a python-control system.
+
+    States [theta (rad), theta' (rad/s), i (A)]; inputs [V (V), T_e (N m)]; outputs [theta, i]."""
+    m, iris = cfg.motor, cfg.iris
+    J = total_inertia_kg_m2(cfg)
+    b = iris.viscous_nm_s_per_rad + m.gear_ratio**2 * m.rotor_viscous_nm_s_per_rad
+    A = np.array([
+        [0.0, 1.0, 0.0],
+        [-iris.spring_nm_per_rad / J, -b / J, m.kt_nm_per_a / J],
+        [0.0, -m.kv_v_s_per_rad / m.inductance_h, -m.resistance_ohm / m.inductance_h],
+    ])
+    B = np.array([[0.0, 0.0], [0.0, -1.0 / J], [1.0 / m.inductance_h, 0.0]])
+    C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return control.ss(A, B, C, np.zeros((2, 2)), inputs=["motor_voltage_v", "patient_torque_nm"],
+                      outputs=["iris_angle_rad", "motor_current_a"], states=["theta", "omega", "current"])
+
+
+def _pid(cfg: FingerExtensorConfig) -> PIDController:
+    """PID on the encoder angle in degrees; output is the motor voltage, clamped to the supply."""
+    g, v = cfg.pid, cfg.motor.supply_v
+    return PIDController(
+        "pid", connect={"reference": "iris_angle_reference_deg", "measurement": "iris_angle_deg"},
+        rename={"command": "motor_voltage_v"},
+        kp=g.kp_v_per_deg, ki=g.ki_v_per_deg_s, kd=g.kd_v_s_per_deg, derivative_filter_s=g.derivative_filter_s,
+        output_min=-v, output_max=v, dt_s=cfg.simulation.step_s,
+    )
+
+
+def _n_steps(cfg: FingerExtensorConfig, duration_s: float) -> int:
+    return max(1, int(round(duration_s / cfg.simulation.step_s)))
+
+
+def step_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
+                  target_deg: float | None = None, patient_torque_nm: float = 0.0) -> Scenario:
+    """PID step (seed 002 Fig. 11: to 59.58 deg in ~0.3 s, 2.86 deg overshoot)."""
+    sc = cfg.scenarios.step
+    target = sc.target_deg if target_deg is None else target_deg
+
+    def score(res: SimulationResult) -> dict[str, float]:
+        return metrics.step_metrics(res.t, res["iris_angle_deg"], sc.start_deg, target)
+
+    return Scenario(
+        "step", _n_steps(cfg, duration_s or sc.duration_s),
+        parts=[StepReference("reference", rename={"reference": "iris_angle_reference_deg"},
+                             start=sc.start_deg, target=target, t_step_s=0.0), _pid(cfg)],
+        inputs={"patient_torque_nm": patient_torque_nm},
+        extra_outputs=("iris_angle_reference_deg",), metrics=score,
+    )
+
+
+def cycle_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
+                   patient_torque_nm: float = 0.0) -> Scenario:
+    """Open-close cycling (seed 002 Fig. 10: 7.89 <-> 121 deg over 30 s)."""
+    sc = cfg.scenarios.cycle
+
+    def score(res: SimulationResult) -> dict[str, float]:
+        return metrics.tracking_metrics(res["iris_angle_reference_deg"], res["iris_angle_deg"])
+
+    return Scenario(
+        "cycle", _n_steps(cfg, duration_s or sc.duration_s),
+        parts=[OpenCloseReference("reference", rename={"reference": "iris_angle_reference_deg"},
+                                  closed=sc.closed_deg, opened=sc.open_deg, move_s=sc.move_s,
+                                  hold_open_s=sc.hold_open_s, hold_closed_s=sc.hold_closed_s), _pid(cfg)],
+        inputs={"patient_torque_nm": patient_torque_nm},
+        extra_outputs=("iris_angle_reference_deg",), metrics=score,
+    )
+
+
+def steady_angle_rad(cfg: FingerExtensorConfig, voltage_v: float) -> float:
+    """Analytic rest angle under constant voltage with a spring and no friction: k_t V / (R k1)."""
+    return cfg.motor.kt_nm_per_a * voltage_v / (cfg.motor.resistance_ohm * cfg.iris.spring_nm_per_rad)
+
+
+def steady_speed_rad_s(cfg: FingerExtensorConfig, voltage_v: float) -> float:
+    """Analytic steady speed with no spring and no Coulomb friction: k_t V / (k_t k_v + R b)."""
+    m = cfg.motor
+    b = cfg.iris.viscous_nm_s_per_rad + m.gear_ratio**2 * m.rotor_viscous_nm_s_per_rad
+    return m.kt_nm_per_a * voltage_v / (m.kt_nm_per_a * m.kv_v_s_per_rad + m.resistance_ohm * b)
+
+
+SPEC = register(PlantSpec(
+    name="finger_extensor", inputs=INPUTS, outputs=OUTPUTS, build=build,
+    scenarios={"step": step_scenario, "cycle": cycle_scenario},
+    step=lambda cfg: (cfg.simulation.step_s, cfg.simulation.substeps),
+))
+
