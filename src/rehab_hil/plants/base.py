@@ -10,7 +10,8 @@ import numpy as np
 
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 
-__all__ = ["PlantSpec", "Scenario", "PLANTS", "register", "get_plant", "run_scenario"]
+__all__ = ["PlantSpec", "Scenario", "DeviceBinding", "DutyInput", "AdcChannel", "PLANTS", "register",
+           "get_plant", "run_scenario"]
 
 
 @dataclass
@@ -26,6 +27,42 @@ class Scenario:
     metrics: Callable[[SimulationResult], dict[str, float]] | None = None
 
 
+@dataclass(frozen=True)
+class DutyInput:
+    """A plant input driven by a PWM channel: value = scale * duty (0..1), negated when the
+    channel's direction pin is set and ``signed`` (an H-bridge); e.g. motor_voltage_v = 24 * duty."""
+
+    channel: int
+    scale: float
+    signed: bool = False
+
+
+@dataclass(frozen=True)
+class AdcChannel:
+    """An analog input the firmware samples: counts = offset + per_unit * signal, clipped to 0..1023."""
+
+    signal: str
+    counts_per_unit: float
+    offset_counts: float = 0.0
+
+
+@dataclass
+class DeviceBinding:
+    """How a plant sits behind the rig's I/O: PWM duty in, encoder counts and ADC counts out.
+
+    Used by the simulated devices (Python on a pty, and the firmware in simavr) to close the
+    loop with a plant model, and by the host to calibrate counts back into SI units."""
+
+    parts: list[Part]
+    duty_inputs: dict[str, DutyInput]
+    constant_inputs: dict[str, float]
+    encoder_signal: str  # plant signal in rad
+    encoder_counts_per_rev: int
+    adc: tuple[AdcChannel, ...]
+    step_s: float
+    substeps: int
+
+
 @dataclass
 class PlantSpec:
     """A plant: CSV signal names (inputs, outputs), its parts, its scenarios."""
@@ -36,6 +73,7 @@ class PlantSpec:
     build: Callable[[Any], list[Part]]
     scenarios: dict[str, Callable[..., Scenario]]
     step: Callable[[Any], tuple[float, int]]  # config -> (step_s, substeps)
+    device: Callable[[Any], DeviceBinding] | None = None  # config -> rig I/O binding
 
 
 PLANTS: dict[str, PlantSpec] = {}

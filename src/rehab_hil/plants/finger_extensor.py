@@ -35,7 +35,7 @@ from rehab_hil.models.dc_motor import DCMotorArmature
 from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSpring, ViscousFriction
 from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import PlantSpec, Scenario, register
+from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
 
 __all__ = ["FingerExtensorConfig", "build", "linear_model", "iris_inertia_kg_m2", "SPEC"]
 
@@ -66,6 +66,11 @@ class MotorSection(Section):
 
 class EncoderSection(Section):
     counts_per_rev: int = Field(ge=4, le=10_000_000, description="edges per iris revolution (500 CPR x4)")
+
+
+class TorqueSensorSection(Section):
+    counts_per_nm: float = Field(gt=0.0, le=10000.0, description="ADC counts per N m of drive torque")
+    offset_counts: float = Field(ge=0.0, le=1023.0, description="ADC counts at zero torque")
 
 
 class PIDSection(Section):
@@ -102,6 +107,7 @@ class FingerExtensorConfig(Section):
     iris: IrisSection
     motor: MotorSection
     encoder: EncoderSection
+    torque_sensor: TorqueSensorSection
     pid: PIDSection
     scenarios: ScenariosSection
     rig: RigSection
@@ -246,9 +252,26 @@ def steady_speed_rad_s(cfg: FingerExtensorConfig, voltage_v: float) -> float:
     return m.kt_nm_per_a * voltage_v / (m.kt_nm_per_a * m.kv_v_s_per_rad + m.resistance_ohm * b)
 
 
+def device_binding(cfg: FingerExtensorConfig) -> DeviceBinding:
+    """The rig's view: PWM channel 0 + direction pin drive the H-bridge (V = +-supply * duty);
+    the encoder reads the iris angle; A0 is the torque sensor (``torque_sensor`` table)."""
+    ts = cfg.torque_sensor
+    return DeviceBinding(
+        parts=build(cfg),
+        duty_inputs={"motor_voltage_v": DutyInput(channel=0, scale=cfg.motor.supply_v, signed=True)},
+        constant_inputs={"patient_torque_nm": 0.0},
+        encoder_signal="iris_angle_rad",
+        encoder_counts_per_rev=cfg.encoder.counts_per_rev,
+        adc=(AdcChannel("drive_torque_nm", ts.counts_per_nm, ts.offset_counts),),
+        step_s=cfg.simulation.step_s,
+        substeps=cfg.simulation.substeps,
+    )
+
+
 SPEC = register(PlantSpec(
     name="finger_extensor", inputs=INPUTS, outputs=OUTPUTS, build=build,
     scenarios={"step": step_scenario, "cycle": cycle_scenario},
     step=lambda cfg: (cfg.simulation.step_s, cfg.simulation.substeps),
+    device=device_binding,
 ))
 
