@@ -1,0 +1,355 @@
+"""Three-link planar finger: Lagrange dynamics M(q) q'' + C(q, q') q' + G(q) = tau (seed 000 eq 29).
+
+Links are the proximal, middle and distal phalanges (seed 000 Table 3), joints MCP, PIP, DIP,
+each a revolute joint about the axis normal to the sagittal plane. Joint angles are relative
+(q2 is PIP flexion relative to the proximal phalanx); flexion is positive here (seed 000 counts
+bending as negative in its Fig. 14 but reports positive angles in Fig. 7-9: only the sign
+convention differs). Link k has its centre of mass ``com`` metres from its proximal joint (seed
+000: at the link's centre) and inertia ``I`` about that centre (slender rod m L^2 / 12 by
+default). Gravity is a vector (g_x, g_y) in the base frame, whose x axis points along the
+extended finger, so the hand's orientation is a parameter.
+
+``FingerChain`` is the free 3-DOF chain; ``CoupledFingerChain`` is the 1-DOF chain constrained by
+the joint coupling q2 = 6/5 q1, q3 = 4/5 q1 (seed 000 eq 9), whose dynamics are the projection
+s^T M s, s^T C s, s^T G onto s = (1, 6/5, 4/5); the joint torques project by s^T tau (virtual work).
+The TCP finger (seed 001 eq 3-6) reuses the same chain with its own lengths and masses.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from rehab_hil.models.system import Part, njit
+
+__all__ = [
+    "CHAIN_PARAMS",
+    "COUPLING",
+    "CoupledFingerChain",
+    "FingerChain",
+    "chain_param_vector",
+    "coriolis_vector",
+    "coupled_dynamics",
+    "energy",
+    "forward_dynamics",
+    "gravity_vector",
+    "inverse_dynamics",
+    "mass_matrix",
+    "mass_matrix_derivatives",
+    "rod_link_params",
+]
+
+# Seed 000 eq 9: theta2 = 6/5 theta1, theta3 = 2/3 theta2 = 4/5 theta1.
+COUPLING = (1.0, 1.2, 0.8)
+
+# Parameter order shared by both parts and the free functions.
+CHAIN_PARAMS = (
+    "length1_m", "length2_m", "length3_m",
+    "mass1_kg", "mass2_kg", "mass3_kg",
+    "com1_m", "com2_m", "com3_m",
+    "inertia1_kg_m2", "inertia2_kg_m2", "inertia3_kg_m2",
+    "gravity_x_m_s2", "gravity_y_m_s2",
+)
+
+
+def rod_link_params(lengths_m: Sequence[float], masses_kg: Sequence[float],
+                    gravity_m_s2: Sequence[float] = (0.0, 0.0)) -> dict[str, float]:
+    """Chain parameters for uniform slender rods: centre of mass at L/2, I = m L^2 / 12.
+
+    Seed 000 sec V: "the centroid is located at the center of each joint" (of each link)."""
+    if len(lengths_m) != 3 or len(masses_kg) != 3 or len(gravity_m_s2) != 2:
+        raise ValueError("need 3 lengths, 3 masses and a 2-vector of gravity")
+    out: dict[str, float] = {}
+    for k, (length, m) in enumerate(zip(lengths_m, masses_kg, strict=True), start=1):
+        if not (length > 0 and m > 0):
+            raise ValueError(f"link {k}: length and mass must be positive, got {length}, {m}")
+        out[f"length{k}_m"] = float(length)
+        out[f"mass{k}_kg"] = float(m)
+        out[f"com{k}_m"] = 0.5 * float(length)
+        out[f"inertia{k}_kg_m2"] = float(m) * float(length) ** 2 / 12.0
+    out["gravity_x_m_s2"] = float(gravity_m_s2[0])
+    out["gravity_y_m_s2"] = float(gravity_m_s2[1])
+    return {k: out[k] for k in CHAIN_PARAMS}
+
+
+def chain_param_vector(params: dict[str, float]) -> np.ndarray:
+    """The 14 chain parameters as the flat vector the kernels take (order ``CHAIN_PARAMS``)."""
+    return np.array([float(params[k]) for k in CHAIN_PARAMS])
+
+
+@njit
+def mass_matrix(q, p, M):
+    """Closed-form M(q) of the planar 3R chain (seed 000 eq 29; derivation: sum over links of
+    m_k J_vk^T J_vk + I_k J_wk^T J_wk). Depends on q2, q3 only. Writes the 3x3 ``M``."""
+    L1, L2 = p[0], p[1]
+    m1, m2, m3 = p[3], p[4], p[5]
+    a1, a2, a3 = p[6], p[7], p[8]
+    i1, i2, i3 = p[9], p[10], p[11]
+    c2 = math.cos(q[1])
+    c3 = math.cos(q[2])
+    c23 = math.cos(q[1] + q[2])
+    m33 = i3 + m3 * a3 * a3
+    m23 = m33 + m3 * L2 * a3 * c3
+    m22 = i2 + m2 * a2 * a2 + i3 + m3 * (L2 * L2 + a3 * a3 + 2.0 * L2 * a3 * c3)
+    m13 = m23 + m3 * L1 * a3 * c23
+    m12 = m22 + m2 * L1 * a2 * c2 + m3 * (L1 * L2 * c2 + L1 * a3 * c23)
+    m11 = (i1 + m1 * a1 * a1 + m22 + m2 * (L1 * L1 + 2.0 * L1 * a2 * c2)
+           + m3 * (L1 * L1 + 2.0 * L1 * L2 * c2 + 2.0 * L1 * a3 * c23))
+    M[0, 0] = m11
+    M[0, 1] = m12
+    M[1, 0] = m12
+    M[0, 2] = m13
+    M[2, 0] = m13
+    M[1, 1] = m22
+    M[1, 2] = m23
+    M[2, 1] = m23
+    M[2, 2] = m33
+
+
+@njit
+def mass_matrix_derivatives(q, p, dM2, dM3):
+    """dM/dq2 and dM/dq3 of ``mass_matrix`` (dM/dq1 = 0), for the Christoffel symbols."""
+    L1, L2 = p[0], p[1]
+    m2, m3 = p[4], p[5]
+    a2, a3 = p[7], p[8]
+    s2 = math.sin(q[1])
+    s3 = math.sin(q[2])
+    s23 = math.sin(q[1] + q[2])
+    # d/dq2: terms in c2 and c23
+    d11 = -2.0 * L1 * (m2 * a2 + m3 * L2) * s2 - 2.0 * m3 * L1 * a3 * s23
+    d12 = -L1 * (m2 * a2 + m3 * L2) * s2 - m3 * L1 * a3 * s23
+    d13 = -m3 * L1 * a3 * s23
+    dM2[0, 0] = d11
+    dM2[0, 1] = d12
+    dM2[1, 0] = d12
+    dM2[0, 2] = d13
+    dM2[2, 0] = d13
+    dM2[1, 1] = 0.0
+    dM2[1, 2] = 0.0
+    dM2[2, 1] = 0.0
+    dM2[2, 2] = 0.0
+    # d/dq3: terms in c3 and c23
+    e11 = -2.0 * m3 * L2 * a3 * s3 - 2.0 * m3 * L1 * a3 * s23
+    e12 = -2.0 * m3 * L2 * a3 * s3 - m3 * L1 * a3 * s23
+    e13 = -m3 * L2 * a3 * s3 - m3 * L1 * a3 * s23
+    e22 = -2.0 * m3 * L2 * a3 * s3
+    e23 = -m3 * L2 * a3 * s3
+    dM3[0, 0] = e11
+    dM3[0, 1] = e12
+    dM3[1, 0] = e12
+    dM3[0, 2] = e13
+    dM3[2, 0] = e13
+    dM3[1, 1] = e22
+    dM3[1, 2] = e23
+    dM3[2, 1] = e23
+    dM3[2, 2] = 0.0
+
+
+@njit
+def _christoffel_product(q, qa, qb, p, out):
+    """out_i = sum_jk Gamma_ijk qa_j qb_k with Gamma_ijk = dM_ij/dq_k - 1/2 dM_jk/dq_i;
+    with qa = qb = q' this is C(q, q') q' (seed 000 eq 29, Coriolis and centripetal)."""
+    dM2 = np.empty((3, 3))
+    dM3 = np.empty((3, 3))
+    mass_matrix_derivatives(q, p, dM2, dM3)
+    for i in range(3):
+        acc = 0.0
+        for j in range(3):
+            # k = 1 (q2) and k = 2 (q3); dM/dq1 = 0
+            acc += dM2[i, j] * qa[j] * qb[1] + dM3[i, j] * qa[j] * qb[2]
+        quad = 0.0
+        if i == 1:
+            for j in range(3):
+                for k in range(3):
+                    quad += dM2[j, k] * qa[j] * qb[k]
+        elif i == 2:
+            for j in range(3):
+                for k in range(3):
+                    quad += dM3[j, k] * qa[j] * qb[k]
+        out[i] = acc - 0.5 * quad
+
+
+@njit
+def coriolis_vector(q, qd, p, out):
+    """C(q, q') q' of seed 000 eq 29 (Coriolis and centripetal torques), from the Christoffel
+    symbols of ``mass_matrix``."""
+    _christoffel_product(q, qd, qd, p, out)
+
+
+@njit
+def gravity_vector(q, p, out):
+    """G(q) = dV/dq with V = -sum m_k g . p_ck (seed 000 eq 29), gravity g = (g_x, g_y)."""
+    L1, L2 = p[0], p[1]
+    m1, m2, m3 = p[3], p[4], p[5]
+    a1, a2, a3 = p[6], p[7], p[8]
+    gx, gy = p[12], p[13]
+    f1 = q[0]
+    f2 = f1 + q[1]
+    f3 = f2 + q[2]
+    # w(phi) = g . d(cos phi, sin phi)/dphi
+    w1 = -gx * math.sin(f1) + gy * math.cos(f1)
+    w2 = -gx * math.sin(f2) + gy * math.cos(f2)
+    w3 = -gx * math.sin(f3) + gy * math.cos(f3)
+    g3 = m3 * a3 * w3
+    g2 = m2 * a2 * w2 + m3 * (L2 * w2) + g3
+    g1 = m1 * a1 * w1 + (m2 + m3) * L1 * w1 + g2
+    out[0] = -g1
+    out[1] = -g2
+    out[2] = -g3
+
+
+@njit
+def _solve3(M, b, out):
+    """Solve the symmetric positive definite 3x3 system M out = b by Cholesky."""
+    l11 = math.sqrt(M[0, 0])
+    l21 = M[1, 0] / l11
+    l31 = M[2, 0] / l11
+    l22 = math.sqrt(M[1, 1] - l21 * l21)
+    l32 = (M[2, 1] - l31 * l21) / l22
+    l33 = math.sqrt(M[2, 2] - l31 * l31 - l32 * l32)
+    y1 = b[0] / l11
+    y2 = (b[1] - l21 * y1) / l22
+    y3 = (b[2] - l31 * y1 - l32 * y2) / l33
+    out[2] = y3 / l33
+    out[1] = (y2 - l32 * out[2]) / l22
+    out[0] = (y1 - l21 * out[1] - l31 * out[2]) / l11
+
+
+@njit
+def forward_dynamics(q, qd, tau, p, qdd):
+    """q'' = M(q)^-1 (tau - C(q, q') q' - G(q)) (seed 000 eq 29 solved for the acceleration)."""
+    M = np.empty((3, 3))
+    h = np.empty(3)
+    g = np.empty(3)
+    mass_matrix(q, p, M)
+    coriolis_vector(q, qd, p, h)
+    gravity_vector(q, p, g)
+    rhs = np.empty(3)
+    for i in range(3):
+        rhs[i] = tau[i] - h[i] - g[i]
+    _solve3(M, rhs, qdd)
+
+
+@njit
+def inverse_dynamics(q, qd, qdd, p, tau):
+    """tau = M(q) q'' + C(q, q') q' + G(q) (seed 000 eq 29, left-hand side)."""
+    M = np.empty((3, 3))
+    h = np.empty(3)
+    g = np.empty(3)
+    mass_matrix(q, p, M)
+    coriolis_vector(q, qd, p, h)
+    gravity_vector(q, p, g)
+    for i in range(3):
+        tau[i] = M[i, 0] * qdd[0] + M[i, 1] * qdd[1] + M[i, 2] * qdd[2] + h[i] + g[i]
+
+
+@njit
+def energy(q, qd, p):
+    """Kinetic plus potential energy 1/2 q'^T M q' - sum m_k g . p_ck [J] (conserved when tau = 0)."""
+    M = np.empty((3, 3))
+    mass_matrix(q, p, M)
+    ke = 0.0
+    for i in range(3):
+        for j in range(3):
+            ke += 0.5 * qd[i] * M[i, j] * qd[j]
+    L1, L2 = p[0], p[1]
+    m1, m2, m3 = p[3], p[4], p[5]
+    a1, a2, a3 = p[6], p[7], p[8]
+    gx, gy = p[12], p[13]
+    f1 = q[0]
+    f2 = f1 + q[1]
+    f3 = f2 + q[2]
+    x1, y1 = a1 * math.cos(f1), a1 * math.sin(f1)
+    x2 = L1 * math.cos(f1) + a2 * math.cos(f2)
+    y2 = L1 * math.sin(f1) + a2 * math.sin(f2)
+    x3 = L1 * math.cos(f1) + L2 * math.cos(f2) + a3 * math.cos(f3)
+    y3 = L1 * math.sin(f1) + L2 * math.sin(f2) + a3 * math.sin(f3)
+    pe = -(m1 * (gx * x1 + gy * y1) + m2 * (gx * x2 + gy * y2) + m3 * (gx * x3 + gy * y3))
+    return ke + pe
+
+
+@njit
+def coupled_dynamics(theta, omega, p):
+    """Projected 1-DOF terms for q = s theta, s = (1, 6/5, 4/5) (seed 000 eq 9 in eq 29):
+    returns (s^T M s, s^T C(q, s omega) s omega, s^T G)."""
+    s = np.empty(3)
+    s[0] = COUPLING[0]
+    s[1] = COUPLING[1]
+    s[2] = COUPLING[2]
+    q = np.empty(3)
+    qd = np.empty(3)
+    for i in range(3):
+        q[i] = s[i] * theta
+        qd[i] = s[i] * omega
+    M = np.empty((3, 3))
+    h = np.empty(3)
+    g = np.empty(3)
+    mass_matrix(q, p, M)
+    coriolis_vector(q, qd, p, h)
+    gravity_vector(q, p, g)
+    m_eff = 0.0
+    h_eff = 0.0
+    g_eff = 0.0
+    for i in range(3):
+        h_eff += s[i] * h[i]
+        g_eff += s[i] * g[i]
+        for j in range(3):
+            m_eff += s[i] * M[i, j] * s[j]
+    return m_eff, h_eff, g_eff
+
+
+class FingerChain(Part):
+    """Free 3-DOF finger (MCP, PIP, DIP): joint torques in [N m], angles [rad] and rates out."""
+
+    inputs = ("tau1_nm", "tau2_nm", "tau3_nm")
+    states = ("q1_rad", "q2_rad", "q3_rad", "qd1_rad_s", "qd2_rad_s", "qd3_rad_s")
+    outputs = ("q1_rad", "q2_rad", "q3_rad", "qd1_rad_s", "qd2_rad_s", "qd3_rad_s")
+    params = CHAIN_PARAMS
+    feedthrough = False
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        for i in range(6):
+            y[i] = x[i]
+
+    @staticmethod
+    @njit
+    def derivatives(t, x, xd, u, p, dx):
+        qdd = np.empty(3)
+        forward_dynamics(x[0:3], x[3:6], u, p, qdd)
+        for i in range(3):
+            dx[i] = x[3 + i]
+            dx[3 + i] = qdd[i]
+
+
+class CoupledFingerChain(Part):
+    """Finger with the joint coupling of seed 000 eq 9: one state theta1 (MCP); same ports as
+    ``FingerChain``, so the two are interchangeable in a diagram. Joint torques act through
+    the generalised force s^T tau."""
+
+    inputs = ("tau1_nm", "tau2_nm", "tau3_nm")
+    states = ("q1_rad", "qd1_rad_s")
+    outputs = ("q1_rad", "q2_rad", "q3_rad", "qd1_rad_s", "qd2_rad_s", "qd3_rad_s")
+    params = CHAIN_PARAMS
+    feedthrough = False
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        y[0] = x[0]
+        y[1] = COUPLING[1] * x[0]
+        y[2] = COUPLING[2] * x[0]
+        y[3] = x[1]
+        y[4] = COUPLING[1] * x[1]
+        y[5] = COUPLING[2] * x[1]
+
+    @staticmethod
+    @njit
+    def derivatives(t, x, xd, u, p, dx):
+        m_eff, h_eff, g_eff = coupled_dynamics(x[0], x[1], p)
+        tau = COUPLING[0] * u[0] + COUPLING[1] * u[1] + COUPLING[2] * u[2]
+        dx[0] = x[1]
+        dx[1] = (tau - h_eff - g_eff) / m_eff
