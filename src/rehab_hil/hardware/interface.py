@@ -1,0 +1,125 @@
+"""The host's view of a rig, in the spirit of ros2_control's hardware components.
+
+Lifecycle: ``connect()`` (open the link, handshake: HELLO) -> ``configure()`` (rate, watchdog,
+limits: ACK) -> each cycle ``read_sample()`` / ``write_command()`` -> ``estop()`` / ``clear()``
+on faults -> ``close()``. Implementations: ``SerialHardware`` (any serial path, incl. the ptys of
+the simulated devices).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from rehab_hil.protocol import DUTY_FULL, Configure, Hello, Sample
+
+__all__ = ["HardwareError", "HardwareInterface", "LinkStats", "configure_from_config", "duty_units"]
+
+
+class HardwareError(RuntimeError):
+    """The device did not answer, refused a request, or the link broke."""
+
+
+@dataclass
+class LinkStats:
+    """Always-on link diagnostics: frames, dropped frames by kind, lost samples, command latency."""
+
+    frames_rx: int = 0
+    frames_tx: int = 0
+    bad_frames: Counter[str] = field(default_factory=Counter)  # host-side decoder drops, by kind
+    device_rx_bad_frames: int = 0  # the device's own count of dropped frames (last SAMPLE)
+    samples: int = 0
+    dropped_samples: int = 0  # gaps in sample_index
+    reboots: int = 0  # unsolicited HELLOs seen after the handshake
+    latencies_s: deque[float] = field(default_factory=lambda: deque(maxlen=100_000))  # command -> echo
+
+    def latency_percentiles(self, q: tuple[float, ...] = (50.0, 99.0)) -> dict[str, float]:
+        """Command -> echo latency percentiles in seconds (nan when none measured)."""
+        if not self.latencies_s:
+            return {f"p{p:g}": math.nan for p in q}
+        arr = np.fromiter(self.latencies_s, float)
+        return {f"p{p:g}": float(np.percentile(arr, p)) for p in q}
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "frames_rx": self.frames_rx, "frames_tx": self.frames_tx, "bad_frames": dict(self.bad_frames),
+            "device_rx_bad_frames": self.device_rx_bad_frames, "samples": self.samples,
+            "dropped_samples": self.dropped_samples, "reboots": self.reboots,
+            **{f"latency_{k}_s": v for k, v in self.latency_percentiles().items()},
+        }
+
+
+def duty_units(duty: float) -> int:
+    """Duty 0..1 -> protocol duty units 0..10000 (clipped)."""
+    if not math.isfinite(duty):
+        raise ValueError(f"duty must be finite, got {duty!r}")
+    return round(min(max(duty, 0.0), 1.0) * DUTY_FULL)
+
+
+def configure_from_config(cfg: Any, encoder_counts_per_rev: int, force_limit_counts: int = 1023,
+                          estop_input: bool = False) -> Configure:
+    """The CONFIGURE for a validated plant config: rate, watchdog and the ``[rig.limits]``.
+
+    Angles become encoder counts with ``encoder_counts_per_rev``; the force limit in ADC counts
+    depends on the sensor calibration, so the caller passes it (1023 = off)."""
+    rig = cfg.rig
+    lim = rig.limits
+    per_deg = encoder_counts_per_rev / 360.0
+    return Configure(
+        sample_rate_hz=round(rig.sample_rate_hz),
+        watchdog_ms=int(rig.watchdog_ms),
+        max_duty=duty_units(lim.max_duty),
+        max_heating_ms=round(lim.max_heating_s * 1000.0),
+        force_limit_counts=int(force_limit_counts),
+        enc_min=math.floor(lim.min_angle_deg * per_deg),
+        enc_max=math.ceil(lim.max_angle_deg * per_deg),
+        flags=Configure.FLAG_ESTOP_INPUT if estop_input else 0,
+    )
+
+
+class HardwareInterface(ABC):
+    """A rig the host drives: one device with PWM channels, an encoder and ADC inputs."""
+
+    info: Hello | None
+    stats: LinkStats
+
+    @abstractmethod
+    def connect(self, timeout: float = 2.0) -> Hello:
+        """Open the link and handshake; returns the device's capabilities."""
+
+    @abstractmethod
+    def configure(self, config: Configure, timeout: float = 1.0) -> None:
+        """Send rate, watchdog and limits; raises ``HardwareError`` if the device refuses."""
+
+    @abstractmethod
+    def read_sample(self, timeout: float | None = None) -> Sample | None:
+        """The next SAMPLE in arrival order, or None after ``timeout`` seconds (None: wait forever)."""
+
+    @abstractmethod
+    def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
+        """Send duties (0..1 per channel) and direction bits now; returns the COMMAND's seq."""
+
+    @abstractmethod
+    def estop(self, timeout: float = 1.0) -> None:
+        """Emergency stop: PWM off on the device, ESTOP_COMMAND latched; waits for the ACK."""
+
+    @abstractmethod
+    def clear(self, timeout: float = 1.0) -> bool:
+        """Clear latched faults whose cause is gone; True if none remain."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Stop streaming if possible and release the link; idempotent."""
+
+    def __enter__(self) -> HardwareInterface:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
