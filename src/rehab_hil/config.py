@@ -17,16 +17,16 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 __all__ = [
     "ConfigError",
+    "Field",
+    "RigLimitsSection",
+    "RigSection",
     "Section",
     "SimulationSection",
-    "RigSection",
-    "RigLimitsSection",
-    "register_plant",
     "load_config",
     "load_toml",
-    "plant_names",
-    "Field",
     "model_validator",
+    "plant_names",
+    "register_plant",
 ]
 
 

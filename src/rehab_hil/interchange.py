@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CsvError", "Recording", "read_csv", "write_csv", "SIGNAL_NAME"]
+__all__ = ["SIGNAL_NAME", "CsvError", "Recording", "read_csv", "write_csv"]
 
 SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9]*(_[a-z0-9]+)+$")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["mae", "rmse", "max_abs_error", "relative_error_pct", "tracking_metrics", "step_metrics"]
+__all__ = ["mae", "max_abs_error", "relative_error_pct", "rmse", "step_metrics", "tracking_metrics"]
 
 
 def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -15,7 +15,7 @@ import numpy as np
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["pid_step", "PIDController", "PID", "PARAMS", "STATE"]
+__all__ = ["PARAMS", "PID", "STATE", "PIDController", "pid_step"]
 
 PARAMS = ("kp", "ki", "kd", "derivative_filter_s", "output_min", "output_max", "dt_s")
 STATE = ("integral", "derivative", "previous_measurement", "initialised")

@@ -9,7 +9,7 @@ import math
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["step_reference", "open_close_reference", "StepReference", "OpenCloseReference"]
+__all__ = ["OpenCloseReference", "StepReference", "open_close_reference", "step_reference"]
 
 
 @njit

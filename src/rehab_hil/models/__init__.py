@@ -2,4 +2,4 @@
 
 from rehab_hil.models.system import CompiledSystem, Diagram, DiagramError, Part, SimulationResult
 
-__all__ = ["Part", "Diagram", "DiagramError", "CompiledSystem", "SimulationResult"]
+__all__ = ["CompiledSystem", "Diagram", "DiagramError", "Part", "SimulationResult"]

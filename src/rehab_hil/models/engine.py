@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from rehab_hil.models.system import Diagram
 
-__all__ = ["engine_for", "cache_dir"]
+__all__ = ["cache_dir", "engine_for"]
 
 _LOADED: dict[str, ModuleType] = {}
 

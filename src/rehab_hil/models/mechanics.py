@@ -10,7 +10,7 @@ import math
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["RotaryInertia", "TorsionSpring", "ViscousFriction", "CoulombFriction"]
+__all__ = ["CoulombFriction", "RotaryInertia", "TorsionSpring", "ViscousFriction"]
 
 
 class RotaryInertia(Part):

@@ -6,7 +6,7 @@ import math
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["QuadratureEncoder", "Gain"]
+__all__ = ["Gain", "QuadratureEncoder"]
 
 
 class QuadratureEncoder(Part):

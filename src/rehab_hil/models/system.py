@@ -23,7 +23,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
-__all__ = ["Part", "Diagram", "Connection", "DiagramError", "njit"]
+__all__ = ["Connection", "Diagram", "DiagramError", "Part", "njit"]
 
 njit = numba.njit(cache=True, nogil=True, inline="always")
 
@@ -184,12 +184,12 @@ class Diagram:
             if state.get(k) == 2:
                 return
             if state.get(k) == 1:
-                loop = " -> ".join(self.parts[i].name for i in path + [k])
+                loop = " -> ".join(self.parts[i].name for i in [*path, k])
                 raise DiagramError(f"algebraic loop through feedthrough parts: {loop}")
             state[k] = 1
             for d in sorted(deps[k]):
                 if d != k:
-                    visit(d, path + [k])
+                    visit(d, [*path, k])
                 elif self.parts[k].feedthrough:
                     raise DiagramError(f"part {self.parts[k].name!r} feeds its own input")
             state[k] = 2

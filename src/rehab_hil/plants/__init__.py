@@ -3,8 +3,7 @@
 Importing this package registers every plant's config schema with ``rehab_hil.config``.
 """
 
+from rehab_hil.plants import finger_extensor  # noqa: F401  (registers)
 from rehab_hil.plants.base import PLANTS, PlantSpec, Scenario, get_plant
-
-from rehab_hil.plants import finger_extensor  # noqa: F401,E402  (registers)
 
 __all__ = ["PLANTS", "PlantSpec", "Scenario", "get_plant"]

@@ -10,8 +10,17 @@ import numpy as np
 
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 
-__all__ = ["PlantSpec", "Scenario", "DeviceBinding", "DutyInput", "AdcChannel", "PLANTS", "register",
-           "get_plant", "run_scenario"]
+__all__ = [
+    "PLANTS",
+    "AdcChannel",
+    "DeviceBinding",
+    "DutyInput",
+    "PlantSpec",
+    "Scenario",
+    "get_plant",
+    "register",
+    "run_scenario",
+]
 
 
 @dataclass

@@ -37,7 +37,7 @@ from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
 from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
 
-__all__ = ["FingerExtensorConfig", "build", "linear_model", "iris_inertia_kg_m2", "SPEC"]
+__all__ = ["SPEC", "FingerExtensorConfig", "build", "iris_inertia_kg_m2", "linear_model"]
 
 INPUTS = ("motor_voltage_v", "patient_torque_nm")
 OUTPUTS = ("iris_angle_deg", "motor_current_a")
@@ -201,7 +201,7 @@ def _pid(cfg: FingerExtensorConfig) -> PIDController:
 
 
 def _n_steps(cfg: FingerExtensorConfig, duration_s: float) -> int:
-    return max(1, int(round(duration_s / cfg.simulation.step_s)))
+    return max(1, round(duration_s / cfg.simulation.step_s))
 
 
 def step_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,

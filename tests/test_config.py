@@ -1,0 +1,72 @@
+"""Config loading: every kind of error names the file and the dotted key."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from rehab_hil.config import ConfigError, load_config
+
+BASE = (Path(__file__).resolve().parents[1] / "configs" / "finger_extensor.toml").read_text()
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    return p
+
+
+def edit(old: str, new: str) -> str:
+    assert re.search(old, BASE, flags=re.M), old
+    return re.sub(old, new, BASE, count=1, flags=re.M)
+
+
+def test_shipped_finger_extensor_config_loads():
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "finger_extensor.toml")
+    assert cfg.iris.radius_m == pytest.approx(0.055)
+    assert cfg.motor.kt_nm_per_a == pytest.approx(0.791)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "fragment"),
+    [
+        (r"^radius_m = 0.055.*$", "radius_m = 0.055\nradius_in = 2.0", "iris.radius_in", "unknown key"),
+        (r"^radius_m = 0.055.*$", "", "iris.radius_m", "missing key"),
+        (r"^gear_ratio = 32.5.*$", 'gear_ratio = "32.5"', "motor.gear_ratio", "wrong type"),
+        (r"^gear_ratio = 32.5.*$", "gear_ratio = nan", "motor.gear_ratio", "finite"),
+        (r"^gear_ratio = 32.5.*$", "gear_ratio = inf", "motor.gear_ratio", "finite"),
+        (r"^radius_m = 0.055.*$", "radius_m = -0.055", "iris.radius_m", "greater than 0"),
+        (r"^substeps = 1 .*$", "substeps = 1.5", "simulation.substeps", "wrong type"),
+        (r"^max_angle_deg = 130.0", "max_angle_deg = -10.0", "rig.limits", "min_angle_deg must be below"),
+    ],
+)
+def test_each_config_error_names_file_and_key(tmp_path, old, new, key, fragment):
+    path = write(tmp_path, edit(old, new))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    msg = str(exc.value)
+    assert str(path) in msg
+    assert exc.value.key == key
+    assert fragment in msg
+
+
+def test_missing_and_unknown_plant_are_named(tmp_path):
+    with pytest.raises(ConfigError, match="plant: missing key"):
+        load_config(write(tmp_path, BASE.replace('plant = "finger_extensor"', "")))
+    with pytest.raises(ConfigError, match="unknown plant 'robot_arm'"):
+        load_config(write(tmp_path, BASE.replace('"finger_extensor"', '"robot_arm"')))
+
+
+def test_malformed_toml_and_missing_file_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(write(tmp_path, "plant = \n"))
+    with pytest.raises(ConfigError, match="file not found"):
+        load_config(tmp_path / "nope.toml")
+
+
+def test_a_command_can_demand_a_plant(tmp_path):
+    path = write(tmp_path, BASE)
+    with pytest.raises(ConfigError, match="needs a 'tcp_finger' config"):
+        load_config(path, expect="tcp_finger")
