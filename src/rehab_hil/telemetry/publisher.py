@@ -1,0 +1,190 @@
+"""``TelemetryPublisher``: the loop's telemetry sink. ``offer`` never blocks; a worker thread publishes.
+
+The loop thread only appends to a bounded queue (a full queue drops the sample and counts it); the
+worker batches samples into the binary state encoding, publishes stats at 1 Hz and safety events as
+they come, holds the rig's liveliness token and answers ``info`` queries.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import zenoh
+
+from rehab_hil.telemetry.codec import PayloadError, decode_json, encode_json, encode_state
+from rehab_hil.telemetry.keys import RigKeys
+
+__all__ = ["COMMAND_OPS", "CommandHandler", "TelemetryPublisher"]
+
+CommandHandler = Callable[[dict[str, Any]], None]
+COMMAND_OPS = ("setpoint", "start", "stop")
+
+
+class TelemetryPublisher:
+    """Publish one rig's telemetry on ``session`` (which the caller owns and closes).
+
+    ``batch`` samples go in one put (a partial batch leaves after ``max_delay_s``); ``queue_size`` bounds
+    the samples waiting for the worker. ``info`` answers ``rehab/<rig>/info`` queries. Commands on
+    ``rehab/<rig>/command`` reach ``on_command`` only when ``commands_enabled`` (off by default; protect
+    the channel with the hub's access control, docs/telemetry.md)."""
+
+    def __init__(self, session: zenoh.Session, rig_id: str, *, batch: int = 10, queue_size: int = 4096,
+                 max_delay_s: float = 0.02, stats_period_s: float = 1.0, info: Mapping[str, Any] | None = None,
+                 commands_enabled: bool = False, on_command: CommandHandler | None = None) -> None:
+        if not 1 <= batch <= 1000:
+            raise ValueError(f"batch must be 1..1000 samples, got {batch}")
+        if queue_size < batch:
+            raise ValueError(f"queue_size ({queue_size}) must hold at least one batch ({batch})")
+        if not 0 < max_delay_s <= 1.0 or not 0 < stats_period_s <= 60.0:
+            raise ValueError("max_delay_s must be in (0, 1] s and stats_period_s in (0, 60] s")
+        if commands_enabled and on_command is None:
+            raise ValueError("commands_enabled needs an on_command handler")
+        self.keys = RigKeys(rig_id)
+        self._session = session
+        self._batch, self._cap, self._max_delay = batch, queue_size, max_delay_s
+        self._stats_period = stats_period_s
+        self._info = dict(info or {})
+        self._queue: collections.deque[Any] = collections.deque()
+        self._events: collections.deque[tuple[str, dict[str, Any]]] = collections.deque(maxlen=1024)
+        self._loop_stats: dict[str, Any] = {}
+        self._on_command = on_command
+        self.offered = 0
+        self.dropped = 0
+        self.published_samples = 0
+        self.published_batches = 0
+        self.publish_errors = 0
+        self.commands_accepted = 0
+        self.commands_rejected = 0
+        self._closed = False
+        self._stop = threading.Event()
+        self._pub = session.declare_publisher(self.keys.state, congestion_control=zenoh.CongestionControl.BLOCK)
+        self._token = session.liveliness().declare_token(self.keys.alive)
+        self._queryable = session.declare_queryable(self.keys.info, self._answer_info)
+        self._cmd_sub = (session.declare_subscriber(self.keys.command, self._command)
+                         if commands_enabled else None)
+        self._thread = threading.Thread(target=self._run, name=f"telemetry-{rig_id}", daemon=True)
+        self._thread.start()
+
+    # -- called from the loop thread: O(1), never blocks ------------------------------------------
+    def offer(self, sample: Any) -> bool:
+        """Queue one sample for publishing; False (and counted in ``dropped``) when the queue is full."""
+        self.offered += 1
+        if self._closed or len(self._queue) >= self._cap:
+            self.dropped += 1
+            return False
+        self._queue.append(sample)
+        return True
+
+    def offer_safety(self, event: Mapping[str, Any]) -> None:
+        """Queue a safety event (e.g. ``{"state": "tripped", "reason": "force"}``) for ``.../safety``."""
+        self._events.append(("safety", dict(event)))
+
+    def update_stats(self, stats: Mapping[str, Any]) -> None:
+        """Replace the loop and link figures merged into the next 1 Hz ``.../stats`` message."""
+        self._loop_stats = dict(stats)
+
+    def set_info(self, info: Mapping[str, Any]) -> None:
+        """Replace what ``.../info`` queries are answered with."""
+        self._info = dict(info)
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Publish what is queued, then undeclare everything (the liveliness token goes last)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._thread.join(timeout_s)
+        for entity in (self._cmd_sub, self._queryable, self._pub, self._token):
+            if entity is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    entity.undeclare()
+
+    def __enter__(self) -> TelemetryPublisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def has_subscribers(self) -> bool:
+        """Whether any subscriber currently matches ``rehab/<rig>/state`` (zenoh matching status)."""
+        status = self._pub.matching_status
+        return bool(getattr(status, "matching", status))
+
+    def counters(self) -> dict[str, int]:
+        """Publisher counters as they appear under ``telemetry`` in the stats message."""
+        return {"offered": self.offered, "dropped": self.dropped, "queued": len(self._queue),
+                "published_samples": self.published_samples, "published_batches": self.published_batches,
+                "publish_errors": self.publish_errors, "commands_accepted": self.commands_accepted,
+                "commands_rejected": self.commands_rejected}
+
+    # -- worker thread -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        pending: list[Any] = []
+        first_at = 0.0
+        next_stats = time.monotonic() + self._stats_period
+        while True:
+            stopping = self._stop.is_set()
+            q = self._queue
+            while q:
+                if not pending:
+                    first_at = time.monotonic()
+                pending.append(q.popleft())
+                if len(pending) == self._batch:
+                    self._put_batch(pending)
+                    pending = []
+            now = time.monotonic()
+            if pending and (stopping or now - first_at >= self._max_delay):
+                self._put_batch(pending)
+                pending = []
+            while self._events:
+                kind, body = self._events.popleft()
+                self._put_json(self.keys.safety, kind, {"rig": self.keys.rig_id, "time_s": time.time(), **body})
+            if now >= next_stats or stopping:
+                next_stats = now + self._stats_period
+                self._put_json(self.keys.stats, "stats", {"rig": self.keys.rig_id, "time_s": time.time(),
+                                                          "loop": self._loop_stats, "telemetry": self.counters()})
+            if stopping:
+                return
+            self._stop.wait(0.002)
+
+    def _put_batch(self, samples: list[Any]) -> None:
+        try:
+            payload = encode_state(samples, self.published_batches, self.dropped)
+            self._pub.put(payload)
+        except (PayloadError, zenoh.ZError):
+            self.publish_errors += 1
+            return
+        self.published_batches += 1
+        self.published_samples += len(samples)
+
+    def _put_json(self, key: str, kind: str, body: dict[str, Any]) -> None:
+        try:
+            self._session.put(key, encode_json(kind, body))
+        except (PayloadError, zenoh.ZError):
+            self.publish_errors += 1
+
+    # -- zenoh threads -----------------------------------------------------------------------------
+    def _answer_info(self, query: zenoh.Query) -> None:
+        body = {"rig": self.keys.rig_id, **self._info, "telemetry": self.counters()}
+        with contextlib.suppress(zenoh.ZError, PayloadError):
+            query.reply(self.keys.info, encode_json("info", body))
+
+    def _command(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = decode_json(sample.payload.to_bytes(), expect="command")
+            if msg.get("op") not in COMMAND_OPS:
+                raise PayloadError(f"unknown command op {msg.get('op')!r}; known: {COMMAND_OPS}")
+            if msg["op"] == "setpoint" and not isinstance(msg.get("value"), (int, float)):
+                raise PayloadError("a setpoint command needs a numeric 'value'")
+        except PayloadError:
+            self.commands_rejected += 1
+            return
+        self.commands_accepted += 1
+        assert self._on_command is not None
+        self._on_command(msg)
