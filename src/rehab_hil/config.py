@@ -17,9 +17,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 __all__ = [
     "ConfigError",
+    "EffectSpec",
     "Field",
+    "RigHostSection",
     "RigLimitsSection",
     "RigSection",
+    "RigSessionSection",
+    "RigThermalSection",
     "Section",
     "SimulationSection",
     "load_config",
@@ -70,6 +74,41 @@ class RigLimitsSection(Section):
         return self
 
 
+class RigHostSection(Section):
+    """The host loop's own settings: estimation and how far inside the firmware's limits it trips."""
+
+    velocity_filter_hz: float = Field(gt=0.0, le=500.0, description="cutoff of the encoder velocity filter [Hz]")
+    angle_margin_deg: float = Field(ge=0.0, le=90.0, description="host trips this far inside the range of motion")
+    force_margin_n: float = Field(ge=0.0, le=100.0, description="host trips this far below max_force_n")
+    heating_margin_s: float = Field(ge=0.0, le=60.0, description="host trips this long before max_heating_s")
+
+
+class RigThermalSection(Section):
+    """First-order actuator temperature from the PWM history (host supervisor): tau dT/dt = T0 + rise*duty - T."""
+
+    ambient_c: float = Field(ge=-50.0, le=100.0)
+    rise_at_full_duty_c: float = Field(ge=0.0, le=1000.0, description="equilibrium rise at duty 1 [C]")
+    time_constant_s: float = Field(gt=0.0, le=3600.0)
+
+
+class RigSessionSection(Section):
+    """What ``rehab-hil run`` does: open-close cycles (seed 000: 5 per minute) and its controllers."""
+
+    tracking: str = Field(pattern="^(pid|pwm_ratio)$", description="how the session follows its reference")
+    cycles_per_minute: float = Field(gt=0.0, le=120.0)
+    closed_deg: float = Field(ge=-360.0, le=360.0)
+    open_deg: float = Field(ge=-360.0, le=360.0)
+    move_fraction: float = Field(gt=0.0, lt=0.5, description="share of a cycle spent on each move")
+    step_deg: float = Field(ge=-360.0, le=360.0, description="target of the pid / pwm controllers")
+    open_loop_duty: float = Field(ge=0.0, le=1.0, description="duty of the open-loop profile's on phase")
+    open_loop_on_s: float = Field(gt=0.0, le=600.0)
+    open_loop_off_s: float = Field(ge=0.0, le=600.0)
+    pwm_duty_min: float = Field(default=0.4, ge=0.0, le=1.0, description="seed 000 Fig. 10: bending starts")
+    pwm_duty_max: float = Field(default=1.0, ge=0.0, le=1.0)
+    pwm_angle_at_duty_min_deg: float = Field(default=0.0, ge=-360.0, le=360.0)
+    pwm_angle_at_duty_max_deg: float = Field(default=37.5, ge=-360.0, le=360.0, description="seed 000: MCP 37.5 deg")
+
+
 class RigSection(Section):
     """How the host reaches the device and how fast the loop runs."""
 
@@ -78,6 +117,9 @@ class RigSection(Section):
     sample_rate_hz: float = Field(gt=0.0, le=2000.0, description="device sample and loop rate [Hz]")
     watchdog_ms: int = Field(ge=5, le=10_000, description="firmware watchdog: PWM off without a command [ms]")
     limits: RigLimitsSection
+    host: RigHostSection | None = None
+    thermal: RigThermalSection | None = None
+    session: RigSessionSection | None = None
 
 
 T = TypeVar("T", bound=BaseModel)
@@ -88,10 +130,52 @@ def register_plant(name: str) -> Callable[[type[T]], type[T]]:
     """Class decorator: the schema of config files whose ``plant`` key equals ``name``."""
 
     def deco(cls: type[T]) -> type[T]:
+        cls = _with_effects(name, cls)
         _PLANTS[name] = cls
         return cls
 
     return deco
+
+
+class EffectSpec(Section):
+    """One added model effect (``[[effects]]`` tables): a library name and its parameters.
+
+    Written by ``rehab-hil discrepancy`` into ``augmented.toml``; names and bounds are those of
+    ``rehab_hil.discrepancy.effects`` (docs/discrepancy.md)."""
+
+    name: str = Field(min_length=1, description="effect name in the library, e.g. coulomb_friction")
+    params: dict[str, float] = Field(default_factory=dict, description="parameter values, SI units in the keys")
+
+    @model_validator(mode="after")
+    def _known(self) -> EffectSpec:
+        from rehab_hil.discrepancy.effects import check_spec
+
+        check_spec(self.name, self.params)
+        return self
+
+
+def _with_effects(plant: str, cls: type[T]) -> type[T]:
+    """Give every plant schema an optional ``effects`` list, checked to apply to that plant."""
+    if "effects" in cls.model_fields:
+        return cls
+
+    class WithEffects(cls):  # type: ignore[valid-type,misc]
+        effects: list[EffectSpec] = Field(default_factory=list, description="added model effects")
+
+        @model_validator(mode="after")
+        def _effects_apply(self) -> WithEffects:
+            from rehab_hil.discrepancy.effects import EFFECTS
+
+            for i, e in enumerate(self.effects):
+                if plant not in EFFECTS[e.name].attachments:
+                    ok = sorted(n for n, eff in EFFECTS.items() if plant in eff.attachments)
+                    raise ValueError(f"effects.{i}.name: effect {e.name!r} does not apply to plant {plant!r}; "
+                                     f"applicable: {ok}")
+            return self
+
+    WithEffects.__name__, WithEffects.__qualname__ = cls.__name__, cls.__qualname__
+    WithEffects.__module__, WithEffects.__doc__ = cls.__module__, cls.__doc__
+    return WithEffects  # type: ignore[return-value]
 
 
 def plant_names() -> list[str]:

@@ -89,6 +89,19 @@ PLANTS: dict[str, PlantSpec] = {}
 
 
 def register(spec: PlantSpec) -> PlantSpec:
+    """Register a plant; its ``build`` also appends the config's ``effects`` (docs/discrepancy.md)."""
+    build = spec.build
+
+    def build_with_effects(cfg: Any) -> list[Part]:
+        parts = build(cfg)
+        effects = getattr(cfg, "effects", None)
+        if effects:
+            from rehab_hil.discrepancy.effects import attach
+
+            parts = attach(spec.name, cfg, parts, [(e.name, e.params) for e in effects])
+        return parts
+
+    spec.build = build_with_effects
     PLANTS[spec.name] = spec
     return spec
 

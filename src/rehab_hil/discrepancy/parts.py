@@ -1,0 +1,141 @@
+"""Model parts for candidate effects that the plant models do not already provide.
+
+Each is a small ``Part`` whose magnitude parameters at zero make it the identity (a wire) or a
+zero torque/heat, so one diagram can carry every candidate disabled and the workflow enables
+them by editing the parameter vector. Friction reuses ``models.mechanics``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rehab_hil.models.system import Part, njit
+
+__all__ = ["DELAY_SLOTS", "Backlash", "ContactSpringDamper", "NonlinearConvection", "PassiveMuscle",
+           "SmaHysteresis", "TransportDelay"]
+
+DELAY_SLOTS = 64  # FIFO length of TransportDelay: the longest delay is (DELAY_SLOTS - 1) steps
+
+
+class TransportDelay(Part):
+    """y(t) = u(t - delay): a FIFO of past samples, linearly interpolated between slots so the
+    output is continuous in ``delay_s`` (seed 002 sec 4.2: the hardware lags the simulation)."""
+
+    inputs = ("u",)
+    discrete_states = tuple(f"u_past_{i}" for i in range(DELAY_SLOTS))
+    outputs = ("y",)
+    params = ("delay_s", "step_s")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        d = p[0] / p[1]
+        if d <= 0.0:
+            y[0] = u[0]
+            return
+        d = min(d, DELAY_SLOTS - 1.0)
+        i0 = int(d)  # d > 0: truncation is floor
+        f = d - i0
+        v0 = u[0] if i0 == 0 else xd[i0 - 1]
+        y[0] = (1.0 - f) * v0 + f * xd[i0]
+
+    @staticmethod
+    @njit
+    def update(t, x, xd, u, p, xd_next):
+        for i in range(DELAY_SLOTS - 1, 0, -1):
+            xd_next[i] = xd[i - 1]
+        xd_next[0] = u[0]
+
+
+class Backlash(Part):
+    """Play of total width ``width_rad`` between a drive angle and the angle that is measured:
+    the driven side follows only once the gap is taken up (classic backlash operator)."""
+
+    inputs = ("angle_rad",)
+    discrete_states = ("held_angle_rad",)
+    outputs = ("angle_rad",)
+    params = ("width_rad",)
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        h = 0.5 * p[0]
+        y[0] = min(max(xd[0], u[0] - h), u[0] + h)
+
+    @staticmethod
+    @njit
+    def update(t, x, xd, u, p, xd_next):
+        h = 0.5 * p[0]
+        xd_next[0] = min(max(xd[0], u[0] - h), u[0] + h)
+
+
+class ContactSpringDamper(Part):
+    """One-sided contact: past ``contact_angle_rad`` a spring-damper pushes back, never pulls
+    (seed 000 eq 18-28: the human-machine contact force as k dx + c dx'; k, c by regression)."""
+
+    inputs = ("angle_rad", "velocity_rad_s")
+    outputs = ("torque_nm",)
+    params = ("stiffness_nm_per_rad", "damping_nm_s_per_rad", "contact_angle_rad")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        pen = u[0] - p[2]
+        if pen <= 0.0:
+            y[0] = 0.0
+            return
+        y[0] = min(0.0, -(p[0] * pen + p[1] * u[1]))
+
+
+class PassiveMuscle(Part):
+    """Passive resistance of the finger's muscles and tendons: exponential in joint angle
+    (seed 000 eq 1-3, the Hill parallel element) plus a viscous part; opposes flexion."""
+
+    inputs = ("angle_rad", "velocity_rad_s")
+    outputs = ("torque_nm",)
+    params = ("scale_nm", "shape_per_rad", "damping_nm_s_per_rad")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        a = max(u[0], 0.0)
+        y[0] = -(p[0] * (math.exp(p[1] * a) - 1.0) + p[2] * u[1])
+
+
+class SmaHysteresis(Part):
+    """Transformation hysteresis of an SMA wire (seed 000 eq 14-17: austenite start/finish on
+    heating lie above martensite start/finish on cooling): a play operator of width ``width_c``
+    on the wire temperature the constitutive model sees, so heating sees T - width/2 and
+    cooling T + width/2 once the direction has reversed."""
+
+    inputs = ("temperature_c",)
+    discrete_states = ("held_temperature_c",)
+    outputs = ("temperature_c",)
+    params = ("width_c",)
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        h = 0.5 * p[0]
+        y[0] = min(max(xd[0], u[0] - h), u[0] + h)
+
+    @staticmethod
+    @njit
+    def update(t, x, xd, u, p, xd_next):
+        h = 0.5 * p[0]
+        xd_next[0] = min(max(xd[0], u[0] - h), u[0] + h)
+
+
+class NonlinearConvection(Part):
+    """Extra heat loss growing with the square of the temperature rise (seed 000 eq 13,
+    h = h1 + h2 T^2; seed 001 blames nonlinear heat transfer for error growing with power)."""
+
+    inputs = ("temperature_c",)
+    outputs = ("heat_w",)
+    params = ("coefficient_w_per_k3", "ambient_c")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        rise = u[0] - p[1]
+        y[0] = -p[0] * rise * rise * abs(rise)
