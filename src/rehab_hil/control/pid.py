@@ -22,23 +22,27 @@ STATE = ("integral", "derivative", "previous_measurement", "initialised")
 
 
 @njit
-def pid_step(xd, p, reference, measurement, xd_next):
-    """Return the command for this sample and write the controller's next state."""
+def pid_terms(xd, p, reference, measurement):
+    """Command, next integral and filtered derivative for this sample (no state written)."""
     kp, ki, kd, tf, umin, umax, dt = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
     e = reference - measurement
     if xd[3] > 0.0:
         alpha = dt / (tf + dt)
-        raw = -(measurement - xd[2]) / dt
-        d = xd[1] + alpha * (raw - xd[1])
+        d = xd[1] + alpha * (-(measurement - xd[2]) / dt - xd[1])
     else:
         d = 0.0
     u_unsat = kp * e + ki * xd[0] + kd * d
     u = min(max(u_unsat, umin), umax)
     integral = xd[0]
-    saturated_up = u_unsat > umax and e > 0.0
-    saturated_down = u_unsat < umin and e < 0.0
-    if not (saturated_up or saturated_down):
+    if not ((u_unsat > umax and e > 0.0) or (u_unsat < umin and e < 0.0)):
         integral = xd[0] + e * dt
+    return u, integral, d
+
+
+@njit
+def pid_step(xd, p, reference, measurement, xd_next):
+    """Return the command for this sample and write the controller's next state."""
+    u, integral, d = pid_terms(xd, p, reference, measurement)
     xd_next[0] = integral
     xd_next[1] = d
     xd_next[2] = measurement
@@ -58,8 +62,7 @@ class PIDController(Part):
     @staticmethod
     @njit
     def output(t, x, xd, u, p, y):
-        scratch = np.empty(4)
-        y[0] = pid_step(xd, p, u[0], u[1], scratch)
+        y[0] = pid_terms(xd, p, u[0], u[1])[0]
 
     @staticmethod
     @njit
