@@ -1,0 +1,244 @@
+"""Recording of every sample and command to the interchange CSV and to MCAP, off the loop thread.
+
+The loop calls ``offer`` (never blocks: a full queue drops and counts the record). A writer thread
+turns records into CSV rows (plant signal names + raw columns) and MCAP messages on JSON-schema
+channels (``/rig/sample``, ``/rig/command``, ``/rig/event``; Foxglove and PlotJuggler open them),
+and flushes both files at least every ``flush_s``: a killed run leaves files that hold everything
+up to the last flush. ``read_mcap`` reads such a file even without its footer.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import struct
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.protocol import DUTY_FULL, Sample
+from rehab_hil.service.controllers import Command
+from rehab_hil.service.estimation import State
+
+__all__ = ["Record", "Recorder", "csv_columns", "read_mcap"]
+
+RAW_COLUMNS = (
+    "host_time_s", "device_time_s", "sample_index", "raw_encoder_counts", "raw_adc0_counts",
+    "raw_adc1_counts", "applied_duty0_ratio", "applied_duty1_ratio", "direction_bits", "status_bits",
+    "fault_bits", "cmd_seq_echo", "device_rx_bad_frames", "command_duty0_ratio", "command_duty1_ratio",
+    "command_direction_bits", "command_enable_bool", "command_seq", "estimated_velocity_rad_s",
+    "estimated_temperature_c",
+)
+
+
+@dataclass(frozen=True)
+class Record:
+    """What the loop hands over per cycle: the sample it consumed (or None) and the command sent."""
+
+    host_time_s: float
+    time_s: float  # position on the recording's time axis (continued sample index x period)
+    sample: Sample | None
+    state: State | None
+    command: Command
+    command_seq: int
+    temperature_c: float
+
+
+def _angle_base(binding: DeviceBinding) -> str:
+    s = binding.encoder_signal
+    return s[: -len("_rad")] if s.endswith("_rad") else s
+
+
+def csv_columns(binding: DeviceBinding) -> list[str]:
+    """Plant signal names first (angle in rad and deg, reference, calibrated ADC, PWM-driven inputs),
+    then the raw columns."""
+    base = _angle_base(binding)
+    plant = [binding.encoder_signal, f"{base}_deg", f"{base}_reference_deg",
+             *(ch.signal for ch in binding.adc), *binding.duty_inputs]
+    return list(dict.fromkeys([*plant, *RAW_COLUMNS]))
+
+
+def _schema(title: str, fields: list[str]) -> bytes:
+    return json.dumps({"title": title, "type": "object",
+                       "properties": {f: {"type": "number"} for f in fields}}).encode()
+
+
+def _clean(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+class Recorder:
+    """Writes ``<out_dir>/<name>.csv`` and ``<out_dir>/<name>.mcap`` from a bounded queue."""
+
+    def __init__(self, out_dir: str | Path, binding: DeviceBinding, name: str = "run",
+                 queue_size: int = 20_000, flush_s: float = 0.1) -> None:
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.csv_path = self.out_dir / f"{name}.csv"
+        self.mcap_path = self.out_dir / f"{name}.mcap"
+        self.binding = binding
+        self.columns = csv_columns(binding)
+        self.flush_s = flush_s
+        self.dropped = 0
+        self.rows = 0
+        self.messages = 0
+        self._q: queue.Queue[Record | tuple[str, Any] | None] = queue.Queue(maxsize=queue_size)
+        self._csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.write(self._csv_fd, (",".join(["time_s", *self.columns]) + "\n").encode())
+        self._mcap_fh = open(self.mcap_path, "wb")
+        self._mcap = Writer(self._mcap_fh, compression=CompressionType.NONE)
+        self._mcap.start(profile="", library="rehab-hil")
+        sample_fields = ["time_s", *self.columns]
+        cmd_fields = ["host_time_s", "duty0_ratio", "duty1_ratio", "direction_bits", "enable_bool", "seq",
+                      "reference_deg"]
+        self._ch_sample = self._channel("/rig/sample", "rehab_hil.Sample", sample_fields)
+        self._ch_cmd = self._channel("/rig/command", "rehab_hil.Command", cmd_fields)
+        ev_schema = self._mcap.register_schema(
+            "rehab_hil.Event", "jsonschema",
+            json.dumps({"title": "rehab_hil.Event", "type": "object",
+                        "properties": {"time_s": {"type": "number"}, "kind": {"type": "string"},
+                                       "detail": {"type": "string"}}}).encode())
+        self._ch_event = self._mcap.register_channel("/rig/event", "json", ev_schema)
+        self._mcap.flush()
+        self._wall0_ns = time.time_ns() - int(time.perf_counter() * 1e9)
+        self._last_time_s = -math.inf
+        self._pending: list[str] = []
+        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        self._closed = False
+        self._thread.start()
+
+    def _channel(self, topic: str, name: str, fields: list[str]) -> int:
+        sid = self._mcap.register_schema(name, "jsonschema", _schema(name, fields))
+        return self._mcap.register_channel(topic, "json", sid)
+
+    # -- loop side -------------------------------------------------------------------------
+    def offer(self, record: Record) -> bool:
+        """Queue one cycle's record without blocking; False (and counted) if the queue is full."""
+        try:
+            self._q.put_nowait(record)
+            return True
+        except queue.Full:
+            self.dropped += 1
+            return False
+
+    def event(self, time_s: float, kind: str, detail: str = "") -> None:
+        """Log a safety or link event (from the loop thread, outside the timed section)."""
+        try:
+            self._q.put_nowait(("event", (time_s, kind, detail)))
+        except queue.Full:
+            self.dropped += 1
+
+    def close(self) -> None:
+        """Drain the queue, write the MCAP summary and close both files; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._q.put(None)
+        self._thread.join()
+        self._mcap.finish()
+        self._mcap_fh.close()
+        os.close(self._csv_fd)
+
+    # -- writer thread ---------------------------------------------------------------------
+    def _run(self) -> None:
+        next_flush = time.perf_counter() + self.flush_s
+        while True:
+            try:
+                item = self._q.get(timeout=max(0.0, next_flush - time.perf_counter()))
+            except queue.Empty:
+                item = ()
+            if item is None:
+                self._flush()
+                return
+            if item != ():
+                self._write(item)
+            if time.perf_counter() >= next_flush:
+                self._flush()
+                next_flush = time.perf_counter() + self.flush_s
+
+    def _flush(self) -> None:
+        if self._pending:
+            os.write(self._csv_fd, "".join(self._pending).encode())  # whole lines in one write
+            self._pending.clear()
+        self._mcap.flush()
+
+    def _log_time(self, host_time_s: float) -> int:
+        return self._wall0_ns + int(host_time_s * 1e9)
+
+    def _write(self, item: Record | tuple[str, Any]) -> None:
+        if isinstance(item, tuple):
+            t, kind, detail = item[1]
+            now = self._log_time(time.perf_counter())
+            self._mcap.add_message(self._ch_event, log_time=now, publish_time=now, sequence=0,
+                                   data=json.dumps({"time_s": t, "kind": kind, "detail": detail}).encode())
+            self.messages += 1
+            return
+        c = item.command
+        lt = self._log_time(item.host_time_s)
+        cmd = {"host_time_s": item.host_time_s, "duty0_ratio": c.duty[0], "duty1_ratio": c.duty[1],
+               "direction_bits": c.direction, "enable_bool": int(c.enable), "seq": item.command_seq,
+               "reference_deg": _clean(c.reference_deg)}
+        self._mcap.add_message(self._ch_cmd, log_time=lt, publish_time=lt, sequence=item.command_seq,
+                               data=json.dumps(cmd).encode())
+        self.messages += 1
+        if item.sample is None or item.state is None or item.time_s <= self._last_time_s:
+            return
+        self._last_time_s = item.time_s
+        row = self._row(item)
+        self._mcap.add_message(self._ch_sample, log_time=lt, publish_time=lt,
+                               sequence=item.sample.sample_index & 0xFFFFFFFF,
+                               data=json.dumps({k: _clean(v) for k, v in row.items()}).encode())
+        self.messages += 1
+        self._pending.append(",".join(f"{row[k]:.10g}" for k in ["time_s", *self.columns]) + "\n")
+        self.rows += 1
+
+    def _row(self, r: Record) -> dict[str, float]:
+        s, st, c, b = r.sample, r.state, r.command, self.binding
+        assert s is not None and st is not None
+        base = _angle_base(b)
+        row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad,
+                                 f"{base}_deg": st.angle_deg,
+                                 f"{base}_reference_deg": c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
+        row.update(st.analog)
+        applied = (s.duty0 / DUTY_FULL, s.duty1 / DUTY_FULL)
+        for name, inp in b.duty_inputs.items():
+            sign = -1.0 if (inp.signed and s.direction & (1 << inp.channel)) else 1.0
+            row[name] = sign * inp.scale * applied[inp.channel]
+        row.update({
+            "host_time_s": r.host_time_s, "device_time_s": st.t_s, "sample_index": s.sample_index,
+            "raw_encoder_counts": s.encoder_count, "raw_adc0_counts": s.adc0, "raw_adc1_counts": s.adc1,
+            "applied_duty0_ratio": applied[0], "applied_duty1_ratio": applied[1], "direction_bits": s.direction,
+            "status_bits": s.status, "fault_bits": s.faults, "cmd_seq_echo": s.cmd_seq_echo,
+            "device_rx_bad_frames": s.rx_bad_frames, "command_duty0_ratio": c.duty[0],
+            "command_duty1_ratio": c.duty[1], "command_direction_bits": c.direction,
+            "command_enable_bool": float(c.enable), "command_seq": r.command_seq,
+            "estimated_velocity_rad_s": st.velocity_rad_s,
+            "estimated_temperature_c": r.temperature_c if math.isfinite(r.temperature_c) else 0.0,
+        })
+        return row
+
+
+def read_mcap(path: str | Path) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """(topic, log_time_ns, decoded JSON) of every message in file order, also from a file cut short
+    by a kill (no summary or footer): records are read sequentially until the data ends."""
+    with open(path, "rb") as fh:
+        topics: dict[int, str] = {}
+        try:
+            for rec in StreamReader(fh).records:
+                if isinstance(rec, Channel):
+                    topics[rec.id] = rec.topic
+                elif isinstance(rec, Message):
+                    yield topics.get(rec.channel_id, "?"), rec.log_time, json.loads(rec.data)
+        except (McapError, EOFError, struct.error, ValueError):  # the unfinished tail of a killed run
+            return
