@@ -1,0 +1,240 @@
+"""The firmware's behaviour as a pure state machine (docs/protocol.md, "Behaviour"), without I/O.
+
+``DeviceCore`` takes decoded frames and 1 kHz base ticks with sensor readings and returns the
+messages the device sends; it owns the applied PWM outputs and every safety rule (watchdog,
+max duty, heating time, force limit, range of motion, e-stop). The Python simulated device
+wraps it with a pty, a clock and a plant model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rehab_hil.protocol import (
+    BASE_RATE_HZ,
+    DUTY_FULL,
+    PROTOCOL_VERSION,
+    Ack,
+    AckResult,
+    Clear,
+    Command,
+    Configure,
+    DeviceHeartbeat,
+    EStop,
+    Fault,
+    FaultReport,
+    Frame,
+    Heartbeat,
+    Hello,
+    HelloReq,
+    Message,
+    ResetCause,
+    Sample,
+    Status,
+    nearest_rate_divider,
+)
+
+__all__ = ["FIRMWARE_VERSION", "DeviceCore", "Readings"]
+
+FIRMWARE_VERSION = (1, 0, 0)
+TICK_US = 1_000_000 // BASE_RATE_HZ
+# faults CLEAR cannot remove while their cause is present
+_CONDITIONAL = Fault.FORCE_LIMIT | Fault.RANGE_OF_MOTION | Fault.ESTOP_INPUT
+
+
+@dataclass
+class Readings:
+    """Sensor values at a base tick: encoder count, ADC counts, e-stop pin (True = active)."""
+
+    encoder_count: int = 0
+    adc0: int = 0
+    adc1: int = 0
+    estop_pin: bool = False
+
+
+class DeviceCore:
+    """Protocol v1 device behaviour; ``duty`` / ``direction`` are the applied outputs."""
+
+    def __init__(self, encoder_counts_per_rev: int, reset_cause: int = ResetCause.POWER_ON) -> None:
+        self.encoder_counts_per_rev = encoder_counts_per_rev
+        self.reset_cause = reset_cause
+        self.ticks = 0
+        self.sample_index = 0
+        self.config: Configure | None = None
+        self.divider = 0  # sample every `divider` ticks; 0 = not streaming
+        self.duty = [0, 0]
+        self.direction = 0
+        self.enabled = False
+        self.clamped = False
+        self.faults = 0
+        self.armed = False
+        self.since_cmd = 0  # base ticks since the last valid COMMAND
+        self.heating = 0  # consecutive base ticks with any applied duty > 0
+        self.cmd_seq_echo = 0
+        self.rx_bad_frames = 0
+        self.readings = Readings()
+
+    # ---- boot ---------------------------------------------------------------------------------
+
+    def boot(self) -> list[Message]:
+        """Messages sent once after boot: HELLO, and a FAULT if the hardware watchdog reset us."""
+        out: list[Message] = [self.hello()]
+        if self.reset_cause & ResetCause.HW_WATCHDOG:
+            out += self._trip(Fault.HW_WATCHDOG_RESET)
+        return out
+
+    def hello(self) -> Hello:
+        major, minor, patch = FIRMWARE_VERSION
+        return Hello(PROTOCOL_VERSION, major, minor, patch, 2, 2, self.encoder_counts_per_rev & 0xFFFF,
+                     5000, 10, BASE_RATE_HZ, self.reset_cause)
+
+    @property
+    def streaming(self) -> bool:
+        return self.divider > 0
+
+    # ---- received frames ----------------------------------------------------------------------
+
+    def count_bad_frame(self, n: int = 1) -> None:
+        self.rx_bad_frames = (self.rx_bad_frames + n) & 0xFFFF
+
+    def on_frame(self, frame: Frame) -> list[Message]:
+        """Handle one valid frame; returns the replies (and FAULT frames of trips it causes)."""
+        msg = frame.msg
+        if isinstance(msg, Command):
+            self._command(msg, frame.seq)
+            return []
+        if isinstance(msg, HelloReq):
+            return [self.hello()]
+        if isinstance(msg, Configure):
+            return self._configure(msg, frame.seq)
+        if isinstance(msg, Heartbeat):
+            return [DeviceHeartbeat(self.uptime_ms)]
+        if isinstance(msg, EStop):
+            return [*self._trip(Fault.ESTOP_COMMAND), Ack(EStop.TYPE, frame.seq, AckResult.OK)]
+        if isinstance(msg, Clear):
+            self.faults &= self._present_causes()
+            result = AckResult.OK if self.faults == 0 else AckResult.REFUSED
+            return [Ack(Clear.TYPE, frame.seq, result)]
+        self.count_bad_frame()  # a device->host type: unknown to the firmware
+        return []
+
+    def _configure(self, c: Configure, seq: int) -> list[Message]:
+        bad = (c.watchdog_ms == 0 or c.max_duty > DUTY_FULL or c.max_heating_ms == 0
+               or c.force_limit_counts > 1023 or c.enc_min >= c.enc_max)
+        if bad:
+            return [*self._trip(Fault.BAD_CONFIG), Ack(Configure.TYPE, seq, AckResult.BAD_PARAMETER)]
+        self.config = c
+        self.divider = 0 if c.sample_rate_hz == 0 else nearest_rate_divider(c.sample_rate_hz)
+        self._outputs_off()
+        self.clamped = False
+        self.armed = False
+        self.since_cmd = 0
+        return [Ack(Configure.TYPE, seq, AckResult.OK)]
+
+    def _command(self, c: Command, seq: int) -> None:
+        if self.config is None:
+            return
+        self.since_cmd = 0
+        self.armed = True
+        if self.faults:
+            return
+        m = self.config.max_duty
+        self.clamped = c.duty0 > m or c.duty1 > m
+        if c.enable:
+            self.duty = [min(c.duty0, m), min(c.duty1, m)]
+            self.direction = c.direction & 0x03
+            self.enabled = True
+        else:
+            self._outputs_off()
+        self.cmd_seq_echo = seq
+
+    # ---- time ---------------------------------------------------------------------------------
+
+    @property
+    def uptime_ms(self) -> int:
+        return (self.ticks * TICK_US // 1000) & 0xFFFFFFFF
+
+    @property
+    def device_time_us(self) -> int:
+        return (self.ticks * TICK_US) & 0xFFFFFFFF
+
+    def tick(self, readings: Readings) -> list[Message]:
+        """One 1 kHz base tick with the sensor readings of this instant: safety checks, then a
+        SAMPLE if this is a sample tick. Returns the FAULT frames of new trips and the SAMPLE."""
+        self.ticks += 1
+        self.readings = readings
+        out: list[Message] = []
+        c = self.config
+        if c is not None:
+            if self.armed:
+                self.since_cmd += 1
+                if self.since_cmd >= c.watchdog_ms:
+                    self.armed = False
+                    out += self._trip(Fault.WATCHDOG)
+            if self.enabled and (self.duty[0] > 0 or self.duty[1] > 0):
+                self.heating += 1
+                if self.heating >= c.max_heating_ms:
+                    out += self._trip(Fault.HEATING_TIME)
+            else:
+                self.heating = 0
+            present = self._present_causes() & ~self.faults
+            if present:
+                out += self._trip(present)
+        if self.divider and self.ticks % self.divider == 0:
+            out.append(self.sample())
+        return out
+
+    def sample(self) -> Sample:
+        """The SAMPLE of the current tick (advances ``sample_index``)."""
+        r = self.readings
+        s = Sample(self.device_time_us, self.sample_index & 0xFFFFFFFF, r.encoder_count, r.adc0, r.adc1,
+                   self.duty[0], self.duty[1], self.direction, self.status, self.faults,
+                   self.cmd_seq_echo, self.rx_bad_frames)
+        self.sample_index += 1
+        return s
+
+    @property
+    def status(self) -> int:
+        bits = 0
+        if self.streaming:
+            bits |= Status.STREAMING
+        if self.enabled and not self.faults:
+            bits |= Status.PWM_ENABLED
+        if self.faults:
+            bits |= Status.FAULT_LATCHED
+        if self.readings.estop_pin:
+            bits |= Status.ESTOP_INPUT_ACTIVE
+        if self.clamped:
+            bits |= Status.DUTY_CLAMPED
+        if self.armed:
+            bits |= Status.WATCHDOG_ARMED
+        return bits
+
+    # ---- safety -------------------------------------------------------------------------------
+
+    def _present_causes(self) -> int:
+        """Conditional faults whose condition holds now."""
+        c, r = self.config, self.readings
+        bits = 0
+        if c is None:
+            return bits
+        if r.adc0 > c.force_limit_counts:
+            bits |= Fault.FORCE_LIMIT
+        if r.encoder_count < c.enc_min or r.encoder_count > c.enc_max:
+            bits |= Fault.RANGE_OF_MOTION
+        if c.flags & Configure.FLAG_ESTOP_INPUT and r.estop_pin:
+            bits |= Fault.ESTOP_INPUT
+        return bits & _CONDITIONAL
+
+    def _trip(self, bits: int) -> list[Message]:
+        """PWM off at once; latch ``bits``; one FAULT frame if any bit is new."""
+        self._outputs_off()
+        self.heating = 0
+        new = bits & ~self.faults
+        self.faults |= bits
+        return [FaultReport(new, self.faults)] if new else []
+
+    def _outputs_off(self) -> None:
+        self.duty = [0, 0]
+        self.direction = 0
+        self.enabled = False

@@ -1,0 +1,81 @@
+"""A plant model behind the rig's I/O: PWM duty in, encoder and ADC counts out (one 1 kHz tick at a time).
+
+Built from a plant's ``DeviceBinding``; shared by the Python simulated device and the simavr
+harness driver so both close the loop with the same model.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rehab_hil.models.system import Diagram
+from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.protocol import BASE_RATE_HZ, DUTY_FULL
+
+__all__ = ["PlantIO"]
+
+ADC_MAX = 1023
+
+
+class PlantIO:
+    """Steps the plant by one base tick with the applied duties; reads counts at the tick instant.
+
+    ``tick(duty, direction)`` returns the readings at the start of the tick (the plant's state
+    then) and advances the plant over the tick with those duties held (zero-order hold)."""
+
+    def __init__(self, binding: DeviceBinding, adc_noise_counts: float = 0.0, seed: int = 0) -> None:
+        if adc_noise_counts < 0 or not math.isfinite(adc_noise_counts):
+            raise ValueError(f"adc_noise_counts must be a finite number >= 0, got {adc_noise_counts!r}")
+        per_tick = 1.0 / BASE_RATE_HZ / binding.step_s
+        self.steps_per_tick = round(per_tick)
+        if self.steps_per_tick < 1 or abs(per_tick - self.steps_per_tick) > 1e-9:
+            raise ValueError(f"plant step {binding.step_s} s must divide the device tick {1 / BASE_RATE_HZ} s")
+        if len(binding.adc) > 2:
+            raise ValueError(f"the device has 2 ADC inputs, the binding asks for {len(binding.adc)}")
+        self.binding = binding
+        self.system = Diagram(binding.parts).compile(binding.step_s, binding.substeps)
+        names = self.system.input_names
+        known = set(binding.duty_inputs) | set(binding.constant_inputs)
+        missing = [n for n in names if n not in known]
+        if missing:
+            raise ValueError(f"plant inputs {missing} are neither duty inputs nor constant inputs")
+        self._index = {n: i for i, n in enumerate(names)}
+        self.stepper = self.system.stepper([binding.encoder_signal, *(a.signal for a in binding.adc)])
+        self._u = np.zeros(len(names))
+        for name, value in binding.constant_inputs.items():
+            self.set_input(name, value)
+        self.noise = adc_noise_counts
+        self._rng = np.random.default_rng(seed)
+        self._counts_per_rad = binding.encoder_counts_per_rev / (2.0 * math.pi)
+
+    def set_input(self, name: str, value: float) -> None:
+        """Set a constant plant input (e.g. the patient's torque); unknown names raise KeyError."""
+        if name not in self._index:
+            raise KeyError(f"unknown plant input {name!r}; inputs: {sorted(self._index)}")
+        if not math.isfinite(value):
+            raise ValueError(f"input {name} must be finite, got {value!r}")
+        self._u[self._index[name]] = value
+
+    def tick(self, duty: tuple[int, int] | list[int], direction: int) -> tuple[int, int, int]:
+        """Readings (encoder count, adc0, adc1) at this instant, then advance one tick."""
+        for name, d in self.binding.duty_inputs.items():
+            v = d.scale * duty[d.channel] / DUTY_FULL
+            if d.signed and direction >> d.channel & 1:
+                v = -v
+            self._u[self._index[name]] = v
+        y = self.stepper.step(self._u)
+        for _ in range(self.steps_per_tick - 1):
+            self.stepper.step(self._u)
+        return self._counts(y)
+
+    def _counts(self, y: np.ndarray) -> tuple[int, int, int]:
+        enc = math.floor(y[0] * self._counts_per_rad)
+        adc = [0, 0]
+        for k, ch in enumerate(self.binding.adc):
+            v = ch.offset_counts + ch.counts_per_unit * y[1 + k]
+            if self.noise:
+                v += self._rng.normal(0.0, self.noise)
+            adc[k] = int(min(max(round(v), 0), ADC_MAX)) if math.isfinite(v) else ADC_MAX
+        return enc, adc[0], adc[1]

@@ -1,0 +1,292 @@
+"""The Python simulated device: a process that owns a pty, speaks protocol v1 like the firmware
+and closes the loop with a plant model.
+
+Run: ``python -m sim_devices.python_device --config configs/finger_extensor.toml
+[--clock realtime|lockstep] [--drop P] [--corrupt P] [--delay-ms D] [--adc-noise-counts S]``.
+The first stdout line is the pty's slave path. Clocks: ``realtime`` ticks at 1 kHz on absolute
+wall-clock deadlines (late ticks are caught up, never skipped: device time is tick count);
+``lockstep`` advances one sample period (k base ticks, one SAMPLE) per valid COMMAND while
+streaming, deterministic and as fast as the host goes.
+
+Control channel (stdin, one command per line; each answered by one stdout line ``ok ...`` or
+``error ...``); stdin closing ends the process:
+
+  estop 0|1          e-stop input pin inactive/active
+  input NAME VALUE   set a constant plant input (e.g. patient_torque_nm 0.5)
+  drop P             drop each outgoing frame with probability P
+  corrupt P          flip one byte of each outgoing frame with probability P
+  delay MS           hold every outgoing frame MS milliseconds
+  garbage N          write N random bytes now
+  truncate           cut the next outgoing frame in half (still delimited)
+  stall MS           send nothing for MS milliseconds (frames meant for then are lost)
+  disconnect         close the pty and exit
+  reboot [CAUSE]     reset the device (seq 0, unconfigured, HELLO sent); CAUSE: external|watchdog
+  status             one line of counters
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import heapq
+import os
+import random
+import select
+import sys
+import termios
+import time
+import tty
+from collections.abc import Sequence
+from typing import TextIO
+
+from rehab_hil.devices.core import DeviceCore, Readings
+from rehab_hil.devices.plant_io import PlantIO
+from rehab_hil.protocol import BASE_RATE_HZ, Command, FrameDecoder, Message, ResetCause, encode_frame
+
+__all__ = ["SimDevice", "build_parser", "main"]
+
+TICK_S = 1.0 / BASE_RATE_HZ
+MAX_CATCH_UP_S = 1.0  # further behind than this, the device is suspended: resync the deadline
+
+
+class SimDevice:
+    """One simulated device: the firmware core, the plant, a pty master and the fault knobs."""
+
+    def __init__(self, plant: PlantIO, counts_per_rev: int, clock: str = "realtime", seed: int = 0) -> None:
+        if clock not in ("realtime", "lockstep"):
+            raise ValueError(f"clock must be 'realtime' or 'lockstep', got {clock!r}")
+        self.plant, self.counts_per_rev, self.clock = plant, counts_per_rev, clock
+        self.rng = random.Random(seed)
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave, termios.TCSANOW)
+        tty.setraw(self.master, termios.TCSANOW)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.estop_pin = False
+        self.drop = self.corrupt = 0.0
+        self.delay_s = 0.0
+        self.truncate_next = False
+        self.stall_until = 0.0
+        self.tx_frames = self.tx_dropped = self.tx_overrun = 0
+        self._delayed: list[tuple[float, int, bytes]] = []
+        self._delayed_n = 0
+        self.running = True
+        self._boot(ResetCause.POWER_ON)
+
+    def _boot(self, cause: int) -> None:
+        self.core = DeviceCore(self.counts_per_rev, reset_cause=cause)
+        self.decoder = FrameDecoder()
+        self._tx_seq = 0
+        self._send(self.core.boot())
+
+    # ---- outgoing -----------------------------------------------------------------------------
+
+    def _send(self, msgs: Sequence[Message]) -> None:
+        for msg in msgs:
+            frame = encode_frame(msg, self._tx_seq)
+            self._tx_seq = (self._tx_seq + 1) & 0xFFFF
+            self.tx_frames += 1
+            now = time.perf_counter()
+            if now < self.stall_until or (self.drop and self.rng.random() < self.drop):
+                self.tx_dropped += 1
+                continue
+            if self.corrupt and self.rng.random() < self.corrupt:
+                buf = bytearray(frame)
+                i = self.rng.randrange(len(buf) - 1)
+                buf[i] ^= self.rng.randrange(1, 256)
+                frame = bytes(buf)
+            if self.truncate_next:
+                self.truncate_next = False
+                frame = frame[: max(1, (len(frame) - 1) // 2)] + b"\x00"
+            if self.delay_s > 0:
+                self._delayed_n += 1
+                heapq.heappush(self._delayed, (now + self.delay_s, self._delayed_n, frame))
+            else:
+                self._write(frame)
+
+    def _flush_delayed(self) -> None:
+        now = time.perf_counter()
+        while self._delayed and self._delayed[0][0] <= now:
+            self._write(heapq.heappop(self._delayed)[2])
+
+    def _write(self, data: bytes) -> None:
+        """Non-blocking write; when nobody reads the pty and its buffer is full, the frame is lost."""
+        try:
+            n = os.write(self.master, data)
+        except BlockingIOError:
+            n = 0
+        except OSError as e:
+            if e.errno in (errno.EIO, errno.EAGAIN):
+                n = 0
+            else:
+                raise
+        if n < len(data):
+            self.tx_overrun += 1
+            if n:  # a partial frame: terminate it so the host resyncs (it counts one bad frame)
+                try:
+                    os.write(self.master, b"\x00")
+                except OSError:
+                    pass
+
+    # ---- incoming -----------------------------------------------------------------------------
+
+    def on_bytes(self, data: bytes) -> None:
+        bad_before = self.decoder.bad_total
+        frames = self.decoder.feed(data)
+        self.core.count_bad_frame(self.decoder.bad_total - bad_before)
+        for frame in frames:
+            self._send(self.core.on_frame(frame))
+            if self.clock == "lockstep" and isinstance(frame.msg, Command) and self.core.streaming:
+                for _ in range(self.core.divider):
+                    self.tick()
+
+    def tick(self) -> None:
+        """One base tick: read the plant at this instant, run the firmware tick, advance the plant."""
+        core = self.core
+        enc, a0, a1 = self.plant.tick(core.duty, core.direction)
+        self._send(core.tick(Readings(enc, a0, a1, self.estop_pin)))
+
+    # ---- control channel ----------------------------------------------------------------------
+
+    def control(self, line: str) -> str:
+        """Apply one control command (see the module docstring); returns the reply line."""
+        parts = line.split()
+        if not parts:
+            return "error empty command"
+        cmd, args = parts[0], parts[1:]
+        try:
+            if cmd == "estop" and len(args) == 1 and args[0] in ("0", "1"):
+                self.estop_pin = args[0] == "1"
+            elif cmd == "input" and len(args) == 2:
+                self.plant.set_input(args[0], float(args[1]))
+            elif cmd in ("drop", "corrupt") and len(args) == 1:
+                p = float(args[0])
+                if not 0.0 <= p <= 1.0:
+                    return f"error {cmd} probability must be in 0..1"
+                setattr(self, cmd, p)
+            elif cmd == "delay" and len(args) == 1:
+                self.delay_s = _non_negative(args[0]) / 1000.0
+            elif cmd == "garbage" and len(args) == 1:
+                self._write(self.rng.randbytes(int(_non_negative(args[0]))))
+            elif cmd == "truncate" and not args:
+                self.truncate_next = True
+            elif cmd == "stall" and len(args) == 1:
+                self.stall_until = time.perf_counter() + _non_negative(args[0]) / 1000.0
+            elif cmd == "disconnect" and not args:
+                self.running = False
+            elif cmd == "reboot" and len(args) <= 1:
+                causes = {"external": ResetCause.EXTERNAL, "watchdog": ResetCause.HW_WATCHDOG}
+                cause = causes.get(args[0] if args else "external")
+                if cause is None:
+                    return f"error reboot cause must be one of {sorted(causes)}"
+                self._boot(cause)
+            elif cmd == "status" and not args:
+                c = self.core
+                return (f"ok ticks={c.ticks} samples={c.sample_index} faults={c.faults} rx_bad={c.rx_bad_frames} "
+                        f"tx_frames={self.tx_frames} tx_dropped={self.tx_dropped} tx_overrun={self.tx_overrun}")
+            else:
+                return f"error unknown or malformed command {line.strip()!r}"
+        except (ValueError, KeyError) as e:
+            return f"error {e}"
+        return "ok " + line.strip()
+
+    # ---- main loop ----------------------------------------------------------------------------
+
+    def run(self, stdin_fd: int | None = None, out: TextIO = sys.stdout) -> None:
+        """Serve until ``disconnect`` or stdin closes."""
+        next_tick = time.perf_counter() + TICK_S
+        pending = b""
+        while self.running:
+            now = time.perf_counter()
+            deadline = next_tick if self.clock == "realtime" else now + 0.05
+            if self._delayed:
+                deadline = min(deadline, self._delayed[0][0])
+            fds = [self.master] + ([stdin_fd] if stdin_fd is not None else [])
+            readable, _, _ = select.select(fds, [], [], max(0.0, deadline - now))
+            if self.master in readable:
+                try:
+                    data = os.read(self.master, 4096)
+                except (BlockingIOError, InterruptedError):
+                    data = b""
+                except OSError as e:  # EIO: nobody has the slave open any more; wait for one
+                    if e.errno != errno.EIO:
+                        raise
+                    data = b""
+                    time.sleep(0.001)
+                if data:
+                    self.on_bytes(data)
+            if stdin_fd is not None and stdin_fd in readable:
+                chunk = os.read(stdin_fd, 4096)
+                if not chunk:
+                    break
+                pending += chunk
+                while b"\n" in pending:
+                    line, pending = pending.split(b"\n", 1)
+                    print(self.control(line.decode(errors="replace")), file=out, flush=True)
+            if self.clock == "realtime":
+                now = time.perf_counter()
+                if now - next_tick > MAX_CATCH_UP_S:
+                    next_tick = now
+                while now >= next_tick:
+                    self.tick()
+                    next_tick += TICK_S
+            self._flush_delayed()
+        self.close()
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+def _non_negative(text: str) -> float:
+    v = float(text)
+    if not v >= 0.0 or v == float("inf"):
+        raise ValueError(f"expected a finite number >= 0, got {text!r}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m sim_devices.python_device",
+                                description="Python simulated rig device on a pty (protocol v1).")
+    p.add_argument("--config", required=True, help="plant config (configs/*.toml)")
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime")
+    p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise and fault injection")
+    p.add_argument("--drop", type=float, default=0.0, help="probability of dropping an outgoing frame")
+    p.add_argument("--corrupt", type=float, default=0.0, help="probability of corrupting an outgoing frame")
+    p.add_argument("--delay-ms", type=float, default=0.0, help="delay of every outgoing frame [ms]")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from rehab_hil.config import ConfigError, load_config
+    from rehab_hil.plants import get_plant
+
+    try:
+        cfg = load_config(args.config)
+        spec = get_plant(cfg.plant)
+        if spec.device is None:
+            raise ValueError(f"plant {cfg.plant!r} has no device binding")
+        binding = spec.device(cfg)
+        plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
+        plant.tick([0, 0], 0)  # compile the kernels before announcing the port
+        plant.stepper.reset()
+        device = SimDevice(plant, binding.encoder_counts_per_rev, clock=args.clock, seed=args.seed)
+        for knob in ("drop", "corrupt"):
+            device.control(f"{knob} {getattr(args, knob)}")
+        reply = device.control(f"delay {args.delay_ms}")
+        if reply.startswith("error") or not 0 <= args.drop <= 1 or not 0 <= args.corrupt <= 1:
+            raise ValueError("fault knobs: probabilities in 0..1, delay >= 0")
+    except (ConfigError, ValueError, KeyError) as e:
+        print(f"sim device: error: {e}", file=sys.stderr)
+        return 2
+    print(device.path, flush=True)
+    try:
+        device.run(stdin_fd=sys.stdin.fileno())
+    except KeyboardInterrupt:
+        device.close()
+    return 0

@@ -1,0 +1,125 @@
+"""Start the Python simulated device as a child process and hand out its pty path.
+
+``spawn_sim_device(config, clock=...)`` returns a ``SimDeviceProcess`` (``.port``, ``.control()``,
+``.set_estop_input()``, ``.close()``; a context manager). The avr spawner
+(``rehab_hil.devices.avr_device``) has the same shape.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from types import TracebackType
+
+__all__ = ["DeviceProcessError", "SimDeviceProcess", "spawn_sim_device"]
+
+
+class DeviceProcessError(RuntimeError):
+    """The device process failed to start, died, or refused a control command."""
+
+
+class SimDeviceProcess:
+    """A running Python simulated device; terminate it with ``close()`` (also on errors)."""
+
+    kind = "python"
+
+    def __init__(self, argv: list[str], ready_timeout_s: float = 120.0) -> None:
+        self._stderr = tempfile.TemporaryFile()
+        self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr,
+                                     bufsize=0)
+        self._buf = b""
+        try:
+            self.port = self._readline(ready_timeout_s)
+        except DeviceProcessError:
+            self.close()
+            raise
+        if not self.port.startswith("/dev/"):
+            self.close()
+            raise DeviceProcessError(f"device printed {self.port!r} instead of its pty path")
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stderr_text(self) -> str:
+        self._stderr.seek(0)
+        return self._stderr.read().decode(errors="replace")
+
+    def _readline(self, timeout: float) -> str:
+        assert self.proc.stdout is not None
+        fd = self.proc.stdout.fileno()
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self._buf:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DeviceProcessError(f"no answer from the device process within {timeout:.1f} s")
+            ready, _, _ = select.select([fd], [], [], remaining)
+            if ready:
+                chunk = os.read(fd, 4096)
+                if not chunk:
+                    self.proc.wait(timeout=5)
+                    raise DeviceProcessError(f"device process exited ({self.proc.returncode}): "
+                                             f"{self.stderr_text().strip()[-2000:]}")
+                self._buf += chunk
+        line, self._buf = self._buf.split(b"\n", 1)
+        return line.decode(errors="replace").strip()
+
+    def control(self, command: str, timeout: float = 5.0) -> str:
+        """Send one control-channel line (see ``rehab_hil.devices.sim_device``); returns the ok reply."""
+        if not self.alive() or self.proc.stdin is None:
+            raise DeviceProcessError("device process is not running")
+        self.proc.stdin.write(command.encode() + b"\n")
+        reply = self._readline(timeout)
+        if not reply.startswith("ok"):
+            raise DeviceProcessError(f"control {command!r}: {reply}")
+        return reply
+
+    def set_estop_input(self, active: bool) -> None:
+        """Drive the e-stop input pin (active = pressed)."""
+        self.control(f"estop {1 if active else 0}")
+
+    def close(self) -> None:
+        """Stop the process (stdin closed, then terminate, then kill); idempotent."""
+        p = self.proc
+        if p.poll() is None:
+            try:
+                if p.stdin is not None:
+                    p.stdin.close()
+                p.wait(timeout=2)
+            except (subprocess.TimeoutExpired, OSError):
+                p.terminate()
+                try:
+                    p.wait(timeout=2)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+        for f in (p.stdin, p.stdout):
+            if f is not None:
+                try:
+                    f.close()
+                except OSError:
+                    pass
+        self._stderr.close()
+
+    def __enter__(self) -> SimDeviceProcess:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def spawn_sim_device(config_path: str | Path, clock: str = "realtime", *, extra_args: list[str] | None = None,
+                     ready_timeout_s: float = 120.0) -> SimDeviceProcess:
+    """Start ``rehab_hil.devices.sim_device`` on ``config_path``; returns once its pty is ready."""
+    argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.sim_device import main; sys.exit(main())",
+            "--config", str(config_path), "--clock", clock, *(extra_args or [])]
+    return SimDeviceProcess(argv, ready_timeout_s)
