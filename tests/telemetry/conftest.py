@@ -70,5 +70,15 @@ def client(hub: int) -> Iterator[Callable[..., zenoh.Session]]:
 
 
 @pytest.fixture
+def wait() -> Callable[..., bool]:
+    return wait_until
+
+
+@pytest.fixture
+def unused_port() -> int:
+    return free_port()
+
+
+@pytest.fixture
 def docs_dir() -> Path:
     return Path(__file__).resolve().parents[2] / "docs"

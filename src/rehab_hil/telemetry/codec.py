@@ -15,6 +15,7 @@ from typing import Any, NamedTuple
 __all__ = [
     "JSON_KINDS",
     "JSON_VERSION",
+    "MAX_ANALOG",
     "MAX_BATCH",
     "SAFETY_STATES",
     "STATE_HEADER",
@@ -38,16 +39,21 @@ STATE_MAGIC = b"RS"
 # batch_seq:u32 (publisher's batch counter), dropped_total:u32 (samples the publisher dropped so far)
 STATE_HEADER = struct.Struct("<2sBBHHII")
 _KIND_STATE = 1
-# host_time_s:f64 | the protocol SAMPLE fields (docs/protocol.md) | angle_deg, force_n, temperature_c,
-# setpoint_deg: f32 | safety:u8 (index into SAFETY_STATES)
-STATE_RECORD = struct.Struct("<d" + "IIiHHHHBHHHH" + "ffff" + "B")
+# One loop cycle, exactly what the local recorder sees (docs/telemetry.md, "State record v1"):
+# host_time_s:f64, time_s:f64, flags:u8 (bit0 sample present, bit1 state present, bit2 command enable,
+# bits3-4 number of analog values),
+# the 12 protocol SAMPLE fields (docs/protocol.md), state_t_s, angle_rad, velocity_rad_s, analog0, analog1:
+# f64, command_duty0, command_duty1: f64, command_direction:u8, reference_deg:f64, command_seq:u32,
+# temperature_c:f64, safety:u8 (index into SAFETY_STATES)
+STATE_RECORD = struct.Struct("<ddB" + "IIiHHHHBHHHH" + "ddddd" + "ddBdI" + "dB")
 MAX_BATCH = 1000
+MAX_ANALOG = 2
 SAFETY_STATES = ("unknown", "ok", "warning", "tripped", "estop", "link_lost")
 JSON_KINDS = ("stats", "safety", "info", "command")
 
 _RAW = ("device_time_us", "sample_index", "encoder_count", "adc0", "adc1", "duty0", "duty1",
         "direction", "status", "faults", "cmd_seq_echo", "rx_bad_frames")
-_DERIVED = ("angle_deg", "force_n", "temperature_c", "setpoint_deg")
+_NAN = math.nan
 
 
 class PayloadError(ValueError):
@@ -55,26 +61,44 @@ class PayloadError(ValueError):
 
 
 class StateSample(NamedTuple):
-    """One loop cycle as published: host time, the raw device SAMPLE, derived SI values, safety."""
+    """One loop cycle as published: times, the raw device SAMPLE, the host's estimate, the command sent.
+
+    ``has_sample`` is False for a cycle in which no SAMPLE arrived (raw fields are then 0);
+    ``has_state`` is False when there is no estimate (state fields NaN). ``analog`` values are the
+    calibrated ADC signals in the plant binding's channel order (names come with ``.../info``)."""
 
     host_time_s: float
+    time_s: float
+    has_sample: bool
     device_time_us: int
     sample_index: int
     encoder_count: int
     adc0: int
     adc1: int
-    duty0: int  # duty units, protocol.DUTY_FULL = 1.0
+    duty0: int  # applied duty, duty units (protocol.DUTY_FULL = 1.0)
     duty1: int
     direction: int
     status: int
     faults: int
     cmd_seq_echo: int
     rx_bad_frames: int
-    angle_deg: float  # NaN when the publisher did not know it
-    force_n: float
+    has_state: bool
+    state_t_s: float
+    angle_rad: float
+    velocity_rad_s: float
+    analog: tuple[float, ...]
+    command_duty0: float  # commanded duty ratio 0..1
+    command_duty1: float
+    command_direction: int
+    command_enable: bool
+    reference_deg: float
+    command_seq: int
     temperature_c: float
-    setpoint_deg: float
     safety: str
+
+    @property
+    def angle_deg(self) -> float:
+        return math.degrees(self.angle_rad)
 
 
 class StateBatch(NamedTuple):
@@ -94,21 +118,38 @@ def _get(obj: Any, name: str, default: Any) -> Any:
 def to_state_sample(obj: Any) -> StateSample:
     """Convert what the loop offers into a ``StateSample``.
 
-    Accepts a ``StateSample``, a ``protocol.Sample``, or any object/mapping with the raw SAMPLE fields
-    (directly or under ``.sample``) plus optional ``host_time_s``, derived SI values and ``safety``."""
+    Accepts a ``StateSample``; the recorder's ``Record`` (host_time_s, time_s, sample, state, command,
+    command_seq, temperature_c); a bare ``protocol.Sample``; or any object/mapping with those names.
+    A ``safety`` attribute (str or Enum) is carried when present."""
     if isinstance(obj, StateSample):
         return obj
-    raw = _get(obj, "sample", None) or obj
-    missing = [f for f in _RAW if _get(raw, f, None) is None]
-    if missing:
-        raise PayloadError(f"{type(obj).__name__} lacks SAMPLE fields {missing}")
+    raw = _get(obj, "sample", obj)
+    has_sample = raw is not None and all(_get(raw, f, None) is not None for f in _RAW)
+    if raw is not obj and raw is not None and not has_sample:
+        raise PayloadError(f"{type(raw).__name__} lacks the SAMPLE fields {list(_RAW)}")
+    state = _get(obj, "state", None)
+    if not has_sample and state is None and _get(obj, "command", None) is None:
+        raise PayloadError(f"{type(obj).__name__} has neither SAMPLE fields nor a state or command")
+    rawvals = [int(_get(raw, f, 0)) for f in _RAW] if has_sample else [0] * len(_RAW)
+    if state is not None:
+        analog = tuple(float(v) for v in _get(state, "analog", {}).values())
+        if len(analog) > MAX_ANALOG:
+            raise PayloadError(f"at most {MAX_ANALOG} analog signals fit the wire format, got {len(analog)}")
+        st = (True, float(state.t_s), float(state.angle_rad), float(state.velocity_rad_s), analog)
+    else:
+        st = (False, _NAN, _NAN, _NAN, ())
+    cmd = _get(obj, "command", None)
+    if cmd is not None:
+        duty = tuple(cmd.duty)
+        cm = (float(duty[0]), float(duty[1]), int(cmd.direction), bool(cmd.enable), float(cmd.reference_deg))
+    else:
+        cm = (_NAN, _NAN, 0, False, _NAN)
     safety = _get(obj, "safety", "unknown")
-    safety = getattr(safety, "value", safety)  # an Enum is fine
-    host_t = _get(obj, "host_time_s", None)
-    if host_t is None:
-        host_t = _get(obj, "t_host_s", math.nan)
-    return StateSample(float(host_t), *(int(_get(raw, f, 0)) for f in _RAW),
-                       *(float(_get(obj, f, math.nan)) for f in _DERIVED), str(safety))
+    safety = str(getattr(safety, "value", safety))
+    host_t = float(_get(obj, "host_time_s", _NAN))
+    time_s = float(_get(obj, "time_s", _NAN))
+    return StateSample(host_t, time_s, has_sample, *rawvals, *st, *cm, int(_get(obj, "command_seq", 0)),
+                       float(_get(obj, "temperature_c", _NAN)), safety)
 
 
 def encode_state(samples: Iterable[Any], batch_seq: int = 0, dropped_total: int = 0) -> bytes:
@@ -123,8 +164,14 @@ def encode_state(samples: Iterable[Any], batch_seq: int = 0, dropped_total: int 
             code = SAFETY_STATES.index(r.safety)
         except ValueError:
             code = 0
+        flags = int(r.has_sample) | int(r.has_state) << 1 | int(r.command_enable) << 2 | len(r.analog) << 3
+        a = (*r.analog, _NAN, _NAN)[:MAX_ANALOG] if len(r.analog) <= MAX_ANALOG else None
+        if a is None:
+            raise PayloadError(f"at most {MAX_ANALOG} analog signals fit the wire format, got {len(r.analog)}")
         try:
-            out += STATE_RECORD.pack(r.host_time_s, *r[1:13], *r[13:17], code)
+            out += STATE_RECORD.pack(r.host_time_s, r.time_s, flags, *r[3:15], r.state_t_s, r.angle_rad,
+                                     r.velocity_rad_s, *a, r.command_duty0, r.command_duty1, r.command_direction,
+                                     r.reference_deg, r.command_seq, r.temperature_c, code)
         except struct.error as e:
             raise PayloadError(f"sample {r.sample_index}: field out of range for the wire format: {e}") from None
     return bytes(out)
@@ -149,9 +196,12 @@ def decode_state(payload: bytes | bytearray | memoryview) -> StateBatch:
         raise PayloadError(f"state payload is {len(buf)} bytes, header says {count} x {rsize} + {STATE_HEADER.size}")
     samples = []
     for i in range(count):
-        vals = STATE_RECORD.unpack_from(buf, STATE_HEADER.size + i * rsize)
-        code = vals[-1]
-        samples.append(StateSample(*vals[:-1], SAFETY_STATES[code] if code < len(SAFETY_STATES) else "unknown"))
+        v = STATE_RECORD.unpack_from(buf, STATE_HEADER.size + i * rsize)
+        flags, code = v[2], v[-1]
+        analog = tuple(v[18:18 + min((flags >> 3) & 3, MAX_ANALOG)])
+        samples.append(StateSample(v[0], v[1], bool(flags & 1), *v[3:15], bool(flags & 2), *v[15:18], analog,
+                                   v[20], v[21], v[22], bool(flags & 4), v[23], v[24], v[25],
+                                   SAFETY_STATES[code] if code < len(SAFETY_STATES) else "unknown"))
     return StateBatch(seq, dropped, samples)
 
 
