@@ -96,7 +96,8 @@ def cycle_reference(closed_deg: float, open_deg: float, cycles_per_minute: float
 
 
 class OpenLoopPWM:
-    """A repeating duty profile: ``on_duty`` for ``on_s``, then 0 for ``off_s``."""
+    """A repeating duty profile: ``on_duty`` for ``on_s``, then 0 for ``off_s``. On a signed
+    (H-bridge) input every other push runs reversed, so a motor goes out and back."""
 
     def __init__(self, actuator: Actuator, on_duty: float, on_s: float, off_s: float) -> None:
         self.actuator, self.on_duty, self.on_s, self.period = actuator, on_duty, on_s, on_s + off_s
@@ -105,8 +106,9 @@ class OpenLoopPWM:
         pass
 
     def __call__(self, t_s: float, state: State) -> Command:
-        on = (t_s % self.period) < self.on_s
-        return self.actuator.duty_command(self.on_duty if on else 0.0)
+        n, tc = divmod(t_s, self.period)
+        reverse = self.actuator.input.signed and int(n) % 2 == 1
+        return self.actuator.duty_command(self.on_duty if tc < self.on_s else 0.0, reverse)
 
 
 class PIDPosition:
