@@ -50,7 +50,7 @@ static volatile uint32_t heating_ms = 0;
 static volatile uint16_t duty[2] = {0, 0};    // applied
 static volatile uint8_t direction = 0;
 static volatile bool pwm_enabled = false;
-static volatile uint16_t tick_phase = 0;
+static volatile uint16_t tick_phase = 0;  // base ticks since the last SAMPLE tick
 
 struct Snapshot {
   uint32_t time_us;
@@ -121,6 +121,8 @@ void io::on_tick() {
   }
   if (trip) latch(trip);
 
+  // A SAMPLE every k-th tick (a counter, not a 32-bit modulo: this ISR must stay short,
+  // or encoder edges closer than its run time are lost).
   if (cfg.divider) {
     if (++tick_phase >= cfg.divider) {
       tick_phase = 0;
@@ -167,24 +169,28 @@ static void handle_configure(uint16_t seq, const uint8_t *p) {
   c.enc_min = (int32_t)proto::get_u32(p + 12);
   c.enc_max = (int32_t)proto::get_u32(p + 16);
   c.flags = p[20];
-  bool ok = rate <= 1000 && c.watchdog_ms > 0 && c.max_duty <= io::DUTY_FULL && c.force_limit <= 1023 &&
-            c.enc_min <= c.enc_max && (c.flags & ~1) == 0;
+  bool ok = c.watchdog_ms > 0 && c.max_duty <= io::DUTY_FULL && c.max_heating_ms > 0 && c.force_limit <= 1023 &&
+            c.enc_min < c.enc_max;
   if (!ok) {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { latch(F_BAD_CONFIG); }
     send_ack(proto::CONFIGURE, seq, 2);
     return;
   }
-  // Supported rates are 1000/k Hz: k = round(1000 / rate).
-  c.divider = rate ? (uint16_t)((1000u + rate / 2) / rate) : 0;
+  // Supported rates are 1000/k Hz: k = max(1, (1000 + rate/2) / rate), the nearest one.
+  if (rate) {
+    uint32_t k = (1000ul + rate / 2) / rate;
+    c.divider = k ? (uint16_t)k : 1;
+  } else {
+    c.divider = 0;
+  }
   ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
     cfg = c;
     outputs_off();           // a new configuration starts from rest
     wd_armed = false;        // armed again by the first COMMAND
     ms_since_cmd = 0;
-    tick_phase = c.divider ? c.divider - 1 : 0;  // first sample on the next tick
+    tick_phase = 0;          // first SAMPLE k ticks after the CONFIGURE
     sample_due = false;
   }
-  sample_index = 0;
   configured = true;
   duty_clamped = false;
   send_ack(proto::CONFIGURE, seq, 0);
@@ -195,8 +201,9 @@ static void handle_command(uint16_t seq, const uint8_t *p) {
   uint8_t dir = p[4] & 3;
   bool enable = p[5] != 0;
   ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-    ms_since_cmd = 0;  // any valid COMMAND feeds the watchdog, even one refused below
-    wd_armed = configured && !faults;  // armed by the first COMMAND after CONFIGURE
+    if (!configured) return;  // ignored before the first accepted CONFIGURE
+    ms_since_cmd = 0;  // any valid COMMAND feeds and arms the watchdog, even one refused below
+    wd_armed = true;
     if (faults) return;  // latched: PWM stays off, command not applied
     bool clamped = false;
     for (uint8_t k = 0; k < 2; ++k) {
@@ -302,6 +309,7 @@ void setup() {
     faults = F_HW_WATCHDOG_RESET;  // PWM is already off (io::begin); reported once the host asks
     faults_unreported = F_HW_WATCHDOG_RESET;
   }
+  send_hello();  // unsolicited, once per boot: reset_cause tells the host why we booted
   wdt_enable(WDTO_60MS);
 }
 

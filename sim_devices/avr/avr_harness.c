@@ -1,0 +1,364 @@
+/*
+ * avr_harness: runs the rehab-hil firmware ELF in simavr (1.6) as an ATmega328P at 16 MHz,
+ * exposes UART0 on its own pseudo-terminal, and exchanges rig I/O with a driver over a pipe.
+ *
+ * stdout: line 1 is the pty path; every later line is a reply (see README.md). simavr's log
+ * and stray printf()s go to stderr (fd 1 is redirected there; replies use a dup of the original).
+ *
+ * Usage: avr_harness [-f] [-l LOCKSTEP_US] [-e EDGE_US] [-v] firmware.elf
+ *   -f  free-running: do not throttle simulated time to the wall clock
+ *   -l  lockstep: stop every LOCKSTEP_US of simulated time, print a T line, wait for G
+ *   -e  simulated time between two generated encoder edges (default 20 us; at 10 us the
+ *       firmware crashed in simavr 1.6 with a stack overflow, see README.md)
+ *   -v  pass simavr's warnings to stderr
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/prctl.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <avr_adc.h>
+#include <avr_extint.h>
+#include <avr_ioport.h>
+#include <avr_uart.h>
+#include <sim_avr.h>
+#include <sim_elf.h>
+#include <sim_irq.h>
+
+#define F_CPU 16000000UL
+#define CYC_PER_US (F_CPU / 1000000UL)
+#define SLICE_US 50          /* simulated time run between two I/O polls */
+#define MAX_LAG_US 20000     /* throttled: never let the simulation fall further behind */
+
+/* ATmega328P data-space addresses of the registers the harness reads. */
+#define R_PINB 0x23
+#define R_PORTB 0x25
+#define R_PIND 0x29
+#define R_PORTD 0x2B
+#define R_TCCR1A 0x80
+#define R_TCCR1B 0x81
+#define R_ICR1L 0x86
+#define R_OCR1AL 0x88
+#define R_OCR1BL 0x8A
+#define R_UCSR0B 0xC1
+#define RXEN0_BIT 4
+
+static avr_t *avr;
+static int reply_fd = -1, pty_master = -1, pty_slave = -1;
+static int verbose = 0, free_running = 0;
+static uint32_t lockstep_us = 0, edge_us = 20;
+static avr_irq_t *uart_in_irq, *pin_irq[8], *adc_irq;
+static volatile int xoff = 0;
+static volatile sig_atomic_t stop = 0;
+
+static uint8_t rx_buf[4096];          /* pty -> AVR, waiting for room in the UART fifo */
+static size_t rx_len = 0;
+static uint8_t tx_buf[8192];          /* AVR -> pty */
+static size_t tx_len = 0;
+static uint64_t tx_dropped = 0, rx_dropped = 0;
+
+static int32_t enc_pos = 0, enc_target = 0;   /* x4 counts driven on D2/D3 */
+static uint8_t estop_level = 1;               /* D4, idle high (pull-up) */
+static uint32_t resets = 0;
+static struct timespec wall0;
+static int64_t sim_origin_us = 0;  /* simulated time that corresponds to wall0 */
+
+static void logger(avr_t *a, const int level, const char *fmt, va_list ap) {
+    (void)a;
+    if (verbose && level <= LOG_WARNING) vfprintf(stderr, fmt, ap);
+}
+
+static void on_uart_out(avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq; (void)param;
+    if (tx_len < sizeof tx_buf) tx_buf[tx_len++] = (uint8_t)value;
+    else tx_dropped++;
+}
+static void on_xoff(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)param; xoff = value != 0; }
+static void on_xon(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)param; if (value) xoff = 0; }
+
+static uint64_t sim_us(void) { return avr->cycle / CYC_PER_US; }
+static uint64_t wall_us(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (uint64_t)(t.tv_sec - wall0.tv_sec) * 1000000u + (uint64_t)((t.tv_nsec - wall0.tv_nsec) / 1000);
+}
+
+/* The encoder lines and the e-stop pin are inputs the harness drives. simavr re-applies an
+ * input's pull-up on every PORTD write, overwriting what we drove (issue 3 in the notes), so
+ * they are declared "external" and their external level is kept equal to the driven level. */
+static uint8_t quad_ab(int32_t count) {
+    static const uint8_t seq[4] = {0x0, 0x2, 0x3, 0x1}; /* A<<1|B: 00 -> 10 -> 11 -> 01 (A leads) */
+    return seq[count & 3];
+}
+static void drive_inputs(void) {
+    uint8_t ab = quad_ab(enc_pos);
+    uint8_t a = (ab >> 1) & 1, b = ab & 1;
+    uint8_t value = (uint8_t)((a << 2) | (b << 3) | (estop_level << 4));
+    avr_ioport_external_t ext = {.name = 'D', .mask = 0x1C, .value = value};
+    avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('D'), &ext);
+    avr_raise_irq(pin_irq[2], a);
+    avr_raise_irq(pin_irq[3], b);
+    avr_raise_irq(pin_irq[4], estop_level);
+}
+
+/* One quadrature edge per edge_us towards the target count (x4: every edge is one count). */
+static avr_cycle_count_t encoder_timer(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a; (void)param;
+    if (enc_pos != enc_target) {
+        enc_pos += enc_target > enc_pos ? 1 : -1;
+        drive_inputs();
+    }
+    return when + (avr_cycle_count_t)edge_us * CYC_PER_US;
+}
+
+/* The three simavr 1.6 workarounds; re-applied after every reset (a reset restores the
+ * extint default, which is how a reset is detected). */
+static void apply_workarounds(void) {
+    /* 1: INT0/INT1 held low would be re-polled every cycle (upstream bug #465). */
+    avr_extint_set_strict_lvl_trig(avr, 0, 0);
+    avr_extint_set_strict_lvl_trig(avr, 1, 0);
+    /* 2: no sleeping on idle UART status reads, no console echo. */
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+    flags &= ~(uint32_t)(AVR_UART_FLAG_POLL_SLEEP | AVR_UART_FLAG_STDIO);
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    /* 3: externally driven pins (see drive_inputs). */
+    drive_inputs();
+}
+
+/* PWM duty of one Timer1 channel from the registers (simavr 1.6 does not model the waveform):
+ * with COM1x1 set the timer drives the pin, duty = (OCR + 1) / (TOP + 1) in fast PWM;
+ * otherwise the pin is a plain port level. Returned in protocol duty units (0..10000). */
+static unsigned pwm_duty(int ch) {
+    uint8_t tccr1a = avr->data[R_TCCR1A], tccr1b = avr->data[R_TCCR1B];
+    uint8_t com1 = ch == 0 ? (tccr1a & 0x80) : (tccr1a & 0x20);
+    uint8_t pinbit = ch == 0 ? 0x02 : 0x04;
+    if (!com1) return (avr->data[R_PORTB] & pinbit) ? 10000u : 0u;
+    unsigned wgm = (tccr1a & 3) | ((tccr1b >> 1) & 0x0C);
+    unsigned top;
+    switch (wgm) {
+        case 1: case 5: top = 0xFF; break;
+        case 2: case 6: top = 0x1FF; break;
+        case 3: case 7: top = 0x3FF; break;
+        case 9: case 11: case 15: top = avr->data[R_OCR1AL] | (avr->data[R_OCR1AL + 1] << 8); break;
+        default: top = avr->data[R_ICR1L] | (avr->data[R_ICR1L + 1] << 8); break;
+    }
+    uint16_t a = ch == 0 ? R_OCR1AL : R_OCR1BL;
+    unsigned ocr = avr->data[a] | (avr->data[a + 1] << 8);
+    if (ocr >= top) return 10000u;
+    return (unsigned)(((uint64_t)(ocr + 1) * 10000u + (top + 1) / 2) / (top + 1));
+}
+
+static void reply(const char *fmt, ...) {
+    char line[256];
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(line, sizeof line, fmt, ap);
+    va_end(ap);
+    if (n <= 0) return;
+    if (n >= (int)sizeof line) n = sizeof line - 1;
+    const char *p = line;
+    while (n > 0) {
+        ssize_t w = write(reply_fd, p, (size_t)n);
+        if (w < 0) { if (errno == EINTR) continue; stop = 1; return; }
+        p += w; n -= (int)w;
+    }
+}
+
+/* T sim_us duty0 duty1 dir enc_pos resets tx_dropped rx_dropped */
+static void report_state(void) {
+    uint8_t dir = (uint8_t)(((avr->data[R_PORTB] & 0x01) ? 1 : 0) | ((avr->data[R_PORTD] & 0x80) ? 2 : 0));
+    reply("T %llu %u %u %u %ld %u %llu %llu\n", (unsigned long long)sim_us(), pwm_duty(0), pwm_duty(1), dir,
+          (long)enc_pos, resets, (unsigned long long)tx_dropped, (unsigned long long)rx_dropped);
+}
+
+static void pump_pty(void) {
+    /* AVR -> pty (non-blocking; with nobody reading, the kernel buffer fills and bytes drop). */
+    if (tx_len) {
+        ssize_t w = write(pty_master, tx_buf, tx_len);
+        if (w > 0) { memmove(tx_buf, tx_buf + w, tx_len - (size_t)w); tx_len -= (size_t)w; }
+        else if (w < 0 && errno == EAGAIN && tx_len > sizeof tx_buf / 2) { tx_dropped += tx_len; tx_len = 0; }
+    }
+    /* pty -> AVR: read what the host wrote, feed the UART while its fifo has room. Bytes are
+     * held while the firmware has not enabled its receiver yet (before Serial.begin). */
+    if (rx_len < sizeof rx_buf) {
+        ssize_t r = read(pty_master, rx_buf + rx_len, sizeof rx_buf - rx_len);
+        if (r > 0) rx_len += (size_t)r;
+    }
+    size_t fed = 0;
+    if (avr->data[R_UCSR0B] & (1 << RXEN0_BIT)) {
+        while (fed < rx_len && !xoff) avr_raise_irq(uart_in_irq, rx_buf[fed++]);
+    }
+    if (fed) { memmove(rx_buf, rx_buf + fed, rx_len - fed); rx_len -= fed; }
+}
+
+/* Commands from the driver, one per line (README.md). Returns 1 when G was read. */
+static int handle_line(char *line) {
+    long a = 0, b = 0, c = 0, d = 0;
+    switch (line[0]) {
+        case 'E': if (sscanf(line + 1, "%ld", &a) == 1) enc_target = (int32_t)a; return 0;
+        case 'J': /* jump: set the count without edges (test setup only) */
+            if (sscanf(line + 1, "%ld", &a) == 1) { enc_pos = enc_target = (int32_t)a; drive_inputs(); }
+            return 0;
+        case 'A':
+            if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a >= 0 && a < 8) avr_raise_irq(adc_irq + a, (uint32_t)b);
+            return 0;
+        case 'D':
+            if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a == 4) { estop_level = b ? 1 : 0; drive_inputs(); }
+            return 0;
+        case 'S': report_state(); return 0;
+        case 'R': avr_reset(avr); resets++; apply_workarounds(); return 0;  /* main loop only */
+        case 'Q': stop = 1; return 1;
+        case 'G': {
+            int n = sscanf(line + 1, "%ld %ld %ld %ld", &a, &b, &c, &d);
+            if (n >= 1) enc_target = (int32_t)a;
+            if (n >= 2) avr_raise_irq(adc_irq + 0, (uint32_t)b);
+            if (n >= 3) avr_raise_irq(adc_irq + 1, (uint32_t)c);
+            if (n >= 4 && (d ? 1 : 0) != estop_level) { estop_level = d ? 1 : 0; drive_inputs(); }
+            return 1;
+        }
+        default: return 0;
+    }
+}
+
+static char in_buf[8192];
+static size_t in_len = 0;
+
+/* Reads stdin; blocking until a G line when `wait_go`. EOF (the driver died) stops us. */
+static void read_stdin(int wait_go) {
+    for (;;) {
+        char *nl;
+        while ((nl = memchr(in_buf, '\n', in_len)) != NULL) {
+            *nl = 0;
+            int go = handle_line(in_buf);
+            size_t used = (size_t)(nl - in_buf) + 1;
+            memmove(in_buf, in_buf + used, in_len - used);
+            in_len -= used;
+            if (go && wait_go) return;
+        }
+        if (stop) return;
+        if (wait_go) {
+            /* keep the serial link alive while the driver thinks */
+            struct pollfd p[2] = {{.fd = 0, .events = POLLIN}, {.fd = pty_master, .events = POLLIN}};
+            if (poll(p, 2, 5) < 0 && errno != EINTR) { stop = 1; return; }
+            pump_pty();
+        }
+        ssize_t r = read(0, in_buf + in_len, sizeof in_buf - 1 - in_len);
+        if (r == 0) { stop = 1; return; }
+        if (r < 0) {
+            if (errno == EAGAIN || errno == EINTR) { if (!wait_go) return; continue; }
+            stop = 1; return;
+        }
+        in_len += (size_t)r;
+        if (in_len >= sizeof in_buf - 1) in_len = 0; /* a line that long is garbage */
+    }
+}
+
+/* Simulated time may not run ahead of the wall clock; when the simulation falls more than
+ * MAX_LAG_US behind (a slow host, a lockstep driver that thinks), the origin moves so that it
+ * does not then race to catch up. Waiting happens in ppoll() on the pty and the driver pipe. */
+static void throttle(void) {
+    int64_t ahead = ((int64_t)sim_us() - sim_origin_us) - (int64_t)wall_us();
+    if (ahead < -(int64_t)MAX_LAG_US) sim_origin_us -= -ahead - MAX_LAG_US;
+    if (ahead <= 200) return;  /* below ~0.2 ms a sleep costs more than it gains */
+    struct timespec ts = {.tv_sec = ahead / 1000000, .tv_nsec = (ahead % 1000000) * 1000};
+    struct pollfd p[2] = {{.fd = 0, .events = POLLIN}, {.fd = pty_master, .events = POLLIN}};
+    ppoll(p, 2, &ts, NULL);
+}
+
+static void on_signal(int sig) { (void)sig; stop = 1; }
+
+int main(int argc, char **argv) {
+    int opt;
+    while ((opt = getopt(argc, argv, "fl:e:v")) != -1) {
+        switch (opt) {
+            case 'f': free_running = 1; break;
+            case 'l': lockstep_us = (uint32_t)strtoul(optarg, NULL, 10); break;
+            case 'e': edge_us = (uint32_t)strtoul(optarg, NULL, 10); if (!edge_us) edge_us = 1; break;
+            case 'v': verbose = 1; break;
+            default: fprintf(stderr, "usage: %s [-f] [-l lockstep_us] [-e edge_us] [-v] firmware.elf\n", argv[0]); return 2;
+        }
+    }
+    if (optind >= argc) { fprintf(stderr, "avr_harness: no firmware ELF given\n"); return 2; }
+
+    prctl(PR_SET_PDEATHSIG, SIGTERM);  /* never outlive the driver */
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGPIPE, SIG_IGN);
+    reply_fd = dup(1);
+    dup2(2, 1);  /* anything simavr prints goes to stderr, never into the reply stream */
+    avr_global_logger_set(logger);
+
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(argv[optind], &fw) != 0) { fprintf(stderr, "avr_harness: cannot read %s\n", argv[optind]); return 1; }
+    avr = avr_make_mcu_by_name("atmega328p");
+    if (!avr) { fprintf(stderr, "avr_harness: no atmega328p core\n"); return 1; }
+    avr_init(avr);
+    fw.frequency = F_CPU;
+    avr_load_firmware(avr, &fw);
+    avr->frequency = F_CPU;
+    avr->vcc = avr->avcc = avr->aref = 5000;  /* else the ADC falls back to 3300 mV */
+
+    uart_in_irq = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_out, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_xoff, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), on_xon, NULL);
+    for (int i = 0; i < 8; i++) pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i);
+    adc_irq = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
+    apply_workarounds();
+    avr_cycle_timer_register(avr, (avr_cycle_count_t)edge_us * CYC_PER_US, encoder_timer, NULL);
+
+    /* Our own pty: a unique path per run, so parallel harnesses never collide. */
+    if (openpty(&pty_master, &pty_slave, NULL, NULL, NULL) != 0) { perror("openpty"); return 1; }
+    struct termios tio;
+    tcgetattr(pty_slave, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(pty_slave, TCSANOW, &tio);
+    fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
+    fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
+    /* The slave stays open here too, so the master never sees EIO between host connections. */
+    reply("%s\n", ttyname(pty_slave));
+
+    clock_gettime(CLOCK_MONOTONIC, &wall0);
+    uint64_t next_step = lockstep_us;
+    while (!stop) {
+        avr_cycle_count_t end = avr->cycle + SLICE_US * CYC_PER_US;
+        if (lockstep_us && end > next_step * CYC_PER_US) end = next_step * CYC_PER_US;
+        while (avr->cycle < end) {
+            int st = avr_run(avr);
+            if (st == cpu_Done || st == cpu_Crashed) {
+                fprintf(stderr, "avr_harness: AVR %s at pc 0x%04x\n", st == cpu_Done ? "stopped" : "crashed", avr->pc);
+                reply("X %d\n", st);
+                stop = 1;
+                break;
+            }
+        }
+        if (avr_extint_is_strict_lvl_trig(avr, 0) == 1) {  /* the AVR reset (hardware watchdog) */
+            resets++;
+            apply_workarounds();
+        }
+        pump_pty();
+        if (lockstep_us && sim_us() >= next_step) {
+            report_state();
+            read_stdin(1);
+            next_step += lockstep_us;
+        } else {
+            read_stdin(0);
+        }
+        if (!free_running) throttle();
+    }
+    if (tx_len) pump_pty();
+    return 0;
+}
