@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
-.PHONY: run test lint bench firmware toolchain clean
+.PHONY: run test lint bench firmware harness toolchain clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 run: $(STAMP)
 	$(BIN)/rehab-hil simulate --config configs/finger_extensor.toml --scenario cycle --out out/run.csv
 
-test: $(STAMP)
+test: $(STAMP) toolchain firmware harness
 	$(BIN)/ruff check src tests bench sim_devices
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
@@ -28,5 +28,17 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check src tests bench sim_devices
 
+# AVR toolchain + simavr (Debian packages; installs them when missing and running as root).
+toolchain:
+	sh scripts/install_toolchain.sh
+
+# The Arduino Uno firmware (firmware/build/rehab_fw.elf/.hex); prints flash/RAM use.
+firmware: toolchain
+	$(MAKE) -s -C firmware
+
+# The simavr harness that runs the firmware ELF (sim_devices/build/avr_harness).
+harness: toolchain
+	$(MAKE) -s -C sim_devices/avr
+
 clean:
-	rm -rf $(VENV) out build .pytest_cache
+	rm -rf $(VENV) out build .pytest_cache firmware/build sim_devices/build
