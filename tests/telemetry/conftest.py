@@ -70,6 +70,12 @@ def client(hub: int) -> Iterator[Callable[..., zenoh.Session]]:
 
 
 @pytest.fixture
+def hub_factory() -> Callable[..., tuple[zenoh.Session, int]]:
+    """``open_hub(**NetworkConfig fields)`` -> (session, port); the test closes the session."""
+    return open_hub
+
+
+@pytest.fixture
 def wait() -> Callable[..., bool]:
     return wait_until
 
