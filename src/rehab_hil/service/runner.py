@@ -120,8 +120,9 @@ class LoopService:
         cycles = 0
         rt: RealtimeReport | None = None
         stop_reason = "duration reached"
-        self.hw.configure(self.configure_msg)
+        self.controller(0.0, State(0.0, 0.0, 0.0, {}))  # warm up: numba kernels load before the watchdog runs
         self.controller.reset()
+        self.hw.configure(self.configure_msg)
         self._send(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
         try:
             if realtime:
@@ -241,23 +242,21 @@ class LoopService:
         t_s = self._cont_index * self.period_s
         self._state = self.estimator.update(s.encoder_count, s.device_time_us, (s.adc0, s.adc1))
         self.supervisor.observe(t_s, self._state, s.faults)
+        rec = Record(time.perf_counter(), t_s, s, self._state, SAFE_COMMAND if self.supervisor.tripped
+                     else self._last_cmd(), self._seq, self.supervisor.temperature_c)
         if self.recorder is not None:
-            self.recorder.offer(Record(time.perf_counter(), t_s, s, self._state, SAFE_COMMAND if
-                                       self.supervisor.tripped else self._last_cmd(), self._seq,
-                                       self.supervisor.temperature_c))
+            self.recorder.offer(rec)
+        self.telemetry.offer(rec)  # the same records as the recorder: a zenoh recording equals a local one
 
     def _last_cmd(self) -> Command:
         return getattr(self, "_cmd", SAFE_COMMAND)
 
     def _offer(self, t_s: float, cmd: Command) -> None:
         self._cmd = cmd
+        rec = Record(time.perf_counter(), t_s, None, None, cmd, self._seq, self.supervisor.temperature_c)
         if self.recorder is not None:
-            self.recorder.offer(Record(time.perf_counter(), t_s, None, None, cmd, self._seq,
-                                       self.supervisor.temperature_c))
-        st = self._state
-        if st is not None:
-            self.telemetry.offer((t_s, st.angle_deg, cmd.reference_deg, cmd.duty[0], cmd.duty[1],
-                                  self.supervisor.temperature_c))
+            self.recorder.offer(rec)
+        self.telemetry.offer(rec)
 
     def _update_progress(self, t_s: float, state: State, cmd: Command) -> None:
         p = self.progress
