@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	rm -f $(VENV)/.installed-* && touch $@
 
 run: $(STAMP)
-	$(BIN)/rehab-hil simulate --config configs/finger_extensor.toml --scenario cycle --out out/run.csv
+	$(BIN)/rehab-hil run --config configs/finger_extensor.toml --device sim --duration 20 --record out/
 
 test: $(STAMP) toolchain firmware harness
 	$(BIN)/ruff check src tests bench sim_devices

@@ -184,15 +184,11 @@ class Recorder:
                                    data=json.dumps({"time_s": t, "kind": kind, "detail": detail}).encode())
             self.messages += 1
             return
-        c = item.command
         lt = self._log_time(item.host_time_s)
-        cmd = {"host_time_s": item.host_time_s, "duty0_ratio": c.duty[0], "duty1_ratio": c.duty[1],
-               "direction_bits": c.direction, "enable_bool": int(c.enable), "seq": item.command_seq,
-               "reference_deg": _clean(c.reference_deg)}
-        self._mcap.add_message(self._ch_cmd, log_time=lt, publish_time=lt, sequence=item.command_seq,
-                               data=json.dumps(cmd).encode())
-        self.messages += 1
-        if item.sample is None or item.state is None or item.time_s <= self._last_time_s:
+        if item.sample is None:  # a command the loop sent
+            self._write_command(item, lt)
+            return
+        if item.state is None or item.time_s <= self._last_time_s:
             return
         self._last_time_s = item.time_s
         row = self._row(item)
@@ -202,6 +198,15 @@ class Recorder:
         self.messages += 1
         self._pending.append(",".join(f"{row[k]:.10g}" for k in ["time_s", *self.columns]) + "\n")
         self.rows += 1
+
+    def _write_command(self, item: Record, lt: int) -> None:
+        c = item.command
+        cmd = {"host_time_s": item.host_time_s, "duty0_ratio": c.duty[0], "duty1_ratio": c.duty[1],
+               "direction_bits": c.direction, "enable_bool": int(c.enable), "seq": item.command_seq,
+               "reference_deg": _clean(c.reference_deg)}
+        self._mcap.add_message(self._ch_cmd, log_time=lt, publish_time=lt, sequence=item.command_seq,
+                               data=json.dumps(cmd).encode())
+        self.messages += 1
 
     def _row(self, r: Record) -> dict[str, float]:
         s, st, c, b = r.sample, r.state, r.command, self.binding

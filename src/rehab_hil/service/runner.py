@@ -122,11 +122,11 @@ class LoopService:
         stop_reason = "duration reached"
         self.controller(0.0, State(0.0, 0.0, 0.0, {}))  # warm up: numba kernels load before the watchdog runs
         self.controller.reset()
-        self.hw.configure(self.configure_msg)
-        self._send(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
+        if realtime:  # before CONFIGURE: a full GC pass can take longer than the firmware watchdog
+            rt = realtime_setup()
         try:
-            if realtime:
-                rt = realtime_setup()
+            self.hw.configure(self.configure_msg)
+            self._send(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
             timer.start()
             k = 0
             while k < n_max:

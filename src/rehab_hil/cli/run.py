@@ -1,0 +1,161 @@
+"""``rehab-hil run``: a session on a rig (simulated or real) with a live display and a summary.
+
+``--device sim`` spawns the Python simulated device, ``avr`` the firmware in simavr, anything else
+is a serial path. Ctrl-C and SIGTERM trip the supervisor: PWM 0 and ESTOP before the exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from rehab_hil.cli import UserError
+from rehab_hil.config import load_config
+from rehab_hil.hardware import HardwareError, SerialHardware
+from rehab_hil.plants import get_plant
+from rehab_hil.service import assembly
+from rehab_hil.service.recorder import Recorder
+from rehab_hil.service.runner import LoopService, Progress, RunResult
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser("run", help="run a session on the rig (sim, avr or a serial port) and summarise it")
+    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--device", default=None, help='"sim", "avr" or a serial path (default: [rig].port)')
+    p.add_argument("--duration", type=float, default=30.0, help="session length [s]")
+    p.add_argument("--record", type=Path, default=None, help="directory for run.csv and run.mcap")
+    p.add_argument("--controller", choices=assembly.CONTROLLERS, default="session")
+    p.add_argument("--pacing", choices=("device", "host"), default="device",
+                   help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
+    p.add_argument("--lockstep", action="store_true", help="sim device: one sample per command (deterministic)")
+    p.add_argument("--no-display", action="store_true", help="no live display (logs and CI)")
+    return p
+
+
+def _spawn(kind: str, config: Path, lockstep: bool) -> Any:
+    clock = "lockstep" if lockstep else "realtime"
+    if kind == "sim":
+        from rehab_hil.devices.spawn import spawn_sim_device
+
+        return spawn_sim_device(config, clock=clock)
+    try:
+        from rehab_hil.devices import avr_device  # type: ignore[attr-defined]
+    except ImportError:
+        raise UserError("--device avr: the simavr backend (rehab_hil.devices.avr_device) is not available") from None
+    return avr_device.spawn_avr_device(config, clock=clock)
+
+
+def _progress_table(p: Progress) -> Table:
+    t = Table(show_header=False, box=None)
+    t.add_row("time", f"{p.t_s:7.2f} / {p.duration_s:.1f} s")
+    t.add_row("angle / reference", f"{p.angle_deg:7.2f} / {p.reference_deg:7.2f} deg")
+    t.add_row("duty", f"{p.duty:5.3f}")
+    t.add_row("est. temperature", f"{p.temperature_c:6.1f} C")
+    t.add_row("samples (gaps)", f"{p.samples} ({p.missed})")
+    if p.tripped:
+        t.add_row("[red]SAFE STATE", p.tripped)
+    return t
+
+
+def summary_table(r: RunResult) -> Table:
+    """The final summary: tracking, loop timing, link and safety."""
+    t = Table(title=f"rehab-hil run: {r.stop_reason}", show_header=False)
+    t.add_row("pacing / scheduler", f"{r.pacing} / {r.realtime.scheduler if r.realtime else 'not real-time'}")
+    t.add_row("cycles / samples / gaps / reboots", f"{r.cycles} / {r.samples} / {r.sample_gaps} / {r.reboots}")
+    for k, v in r.tracking.items():
+        t.add_row(f"tracking {k}", f"{v:.4g}" + (" deg" if k in ("mae", "rmse", "max_abs_error") else ""))
+    tm = r.timing
+    label = "lateness" if r.pacing == "host" else "reaction (sample in -> command out)"
+    t.add_row(f"{label} p50/p99/p99.9/max",
+              " / ".join(f"{tm.get(f'lateness_{q}_us', float('nan')):.1f}" for q in ("p50", "p99", "p99_9", "max"))
+              + " us")
+    t.add_row("missed cycles", f"{tm.get('missed_cycles', 0):.0f} ({tm.get('missed_pct', 0):.3f} %)")
+    ln = r.link
+    t.add_row("link frames rx / tx", f"{ln['frames_rx']} / {ln['frames_tx']}")
+    t.add_row("link bad frames host / device", f"{sum(ln['bad_frames'].values())} {dict(ln['bad_frames'])} / "
+              f"{ln['device_rx_bad_frames']}")
+    t.add_row("link dropped samples", str(ln["dropped_samples"]))
+    t.add_row("command->echo latency p50/p99",
+              f"{1e6 * ln['latency_p50_s']:.0f} / {1e6 * ln['latency_p99_s']:.0f} us")
+    t.add_row("recorder / telemetry drops", f"{r.recorder_dropped} / {r.telemetry_dropped}")
+    for ev in r.events:
+        t.add_row(f"[red]safety {ev.reason}", f"t={ev.t_s:.3f} s {ev.detail}")
+    if not r.events:
+        t.add_row("safety events", "none")
+    t.add_row("device PWM off at end", "yes" if r.pwm_off_at_end else "[red]NO")
+    for f in r.files:
+        t.add_row("recorded", f)
+    return t
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_config(args.config)
+    spec = get_plant(cfg.plant)
+    if spec.device is None:
+        raise UserError(f"plant {spec.name!r} has no device binding: it cannot run on a rig")
+    if not 0 < args.duration <= 24 * 3600:
+        raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
+    binding = spec.device(cfg)
+    try:
+        controller = assembly.build_controller(cfg, binding, args.controller)
+    except assembly.ServiceSetupError as e:
+        raise UserError(f"{args.config}: {e}") from None
+    device = args.device or cfg.rig.port
+    console = Console()
+    with ExitStack() as stack:
+        port = device
+        if device in ("sim", "avr"):
+            proc = stack.enter_context(_spawn(device, args.config, args.lockstep))
+            port = proc.port
+        hw = SerialHardware(port, cfg.rig.baud)
+        stack.callback(hw.close)
+        try:
+            hw.connect()
+        except HardwareError as e:
+            raise UserError(str(e)) from None
+        recorder = Recorder(args.record, binding) if args.record else None
+        if recorder is not None:
+            stack.callback(recorder.close)
+        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
+                          assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
+                          assembly.period_s(cfg), recorder=recorder)
+        previous = {s: signal.signal(s, lambda n, f: svc.request_stop(signal.Signals(n).name))
+                    for s in (signal.SIGINT, signal.SIGTERM)}
+        stack.callback(lambda: [signal.signal(s, h) for s, h in previous.items()])
+        result: list[RunResult] = []
+        errors: list[BaseException] = []
+
+        def work() -> None:
+            try:
+                result.append(svc.run(args.duration, pacing=args.pacing, realtime=not args.lockstep,
+                                      sample_timeout_s=0.5 if args.lockstep else None))
+            except BaseException as e:  # reported on the main thread
+                errors.append(e)
+
+        # the loop runs on its own thread so the main thread stays free for signals and the display
+        th = threading.Thread(target=work, name="loop")
+        th.start()
+        if args.no_display:
+            while th.is_alive():
+                th.join(0.1)
+        else:
+            with Live(_progress_table(svc.progress), console=console, refresh_per_second=4) as live:
+                while th.is_alive():
+                    th.join(0.25)
+                    live.update(_progress_table(svc.progress))
+        if errors:
+            if isinstance(errors[0], HardwareError):
+                raise UserError(f"device: {errors[0]}")
+            raise errors[0]
+    time.sleep(0)
+    console.print(summary_table(result[0]))
+    return 1 if result[0].events and result[0].events[0].reason != "stop_request" else 0
