@@ -1,0 +1,231 @@
+"""The real firmware in simavr, closed with the same plant model as the Python device.
+
+Process layout: ``spawn_avr_device(config)`` starts this module as a driver process; the driver
+starts ``sim_devices/build/avr_harness`` (C, libsimavr) on ``firmware/build/rehab_fw.elf`` in
+lockstep mode (``-l 1000``): every 1 ms of simulated time the harness stops and prints the PWM
+state it read from the AVR's registers (``T sim_us duty0 duty1 dir ...``); the driver steps the
+plant (``PlantIO``, shared with the Python device) one base tick with those duties and answers
+``G encoder_count adc0_mV adc1_mV estop_level``; the harness then drives the quadrature edges,
+the ADC inputs and the e-stop pin and runs the next millisecond. The harness throttles simulated
+time to the wall clock (``--clock realtime``; ``--clock free`` runs as fast as it can), so the
+firmware's millisecond timeouts and the host's agree. The pty the host opens belongs to the
+harness; the driver prints its path as its first stdout line.
+
+Control channel (stdin, one command per line, each answered by ``ok ...`` or ``error ...``), the
+subset of the Python device's that a real firmware allows: ``estop 0|1``, ``input NAME VALUE``,
+``reboot [external]`` (an external reset of the AVR), ``status``. Stdin closing ends the driver
+and with it the harness.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import select
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
+from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess
+
+__all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spawn_avr_device"]
+
+ROOT = Path(__file__).resolve().parents[3]
+ADC_REF_MV = 5000
+CLOCKS = ("realtime", "free")
+
+
+def default_paths() -> tuple[Path, Path]:
+    """(harness binary, firmware ELF) as built by ``make harness firmware``."""
+    return ROOT / "sim_devices" / "build" / "avr_harness", ROOT / "firmware" / "build" / "rehab_fw.elf"
+
+
+def adc_counts_to_mv(counts: int) -> int:
+    """The input voltage [mV] that simavr's ADC (``mV * 1023 / 5000``, truncated) reads as ``counts``:
+    the middle of the count's voltage band, so truncation cannot land on the neighbour."""
+    c = min(max(int(counts), 0), ADC_MAX)
+    if c == ADC_MAX:
+        return ADC_REF_MV
+    return round((c + 0.5) * ADC_REF_MV / ADC_MAX)
+
+
+class AvrDeviceProcess(SimDeviceProcess):
+    """A running firmware-in-simavr device: ``.port``, ``.control()``, ``.set_estop_input()``, ``.close()``."""
+
+    kind = "avr"
+
+
+def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_args: list[str] | None = None,
+                     ready_timeout_s: float = 120.0) -> AvrDeviceProcess:
+    """Start the firmware in simavr behind the plant of ``config_path``; returns once its pty is ready.
+
+    ``clock``: "realtime" (simulated time throttled to the wall clock) or "free" (as fast as the
+    simulator runs). Build first: ``make firmware harness``."""
+    if clock not in CLOCKS:
+        raise ValueError(f"the avr device supports clock {CLOCKS}, not {clock!r}")
+    harness, elf = default_paths()
+    for p in (harness, elf):
+        if not p.exists():
+            raise DeviceProcessError(f"{p} is missing: run `make firmware harness`")
+    argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.avr_device import main; sys.exit(main())",
+            "--config", str(config_path), "--clock", clock, *(extra_args or [])]
+    return AvrDeviceProcess(argv, ready_timeout_s)
+
+
+class _Driver:
+    """Closes the loop between the harness (lockstep lines on a pipe) and the plant."""
+
+    def __init__(self, plant: PlantIO, harness_argv: list[str]) -> None:
+        self.plant = plant
+        self.estop_pin = False
+        self.ticks = 0
+        self.last_t = ""
+        self.proc = subprocess.Popen(harness_argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
+        self._out = b""
+        self.port = self._harness_line(timeout=10.0)
+        if not self.port.startswith("/dev/"):
+            raise DeviceProcessError(f"harness printed {self.port!r} instead of its pty path")
+
+    def _harness_line(self, timeout: float | None = None) -> str:
+        assert self.proc.stdout is not None
+        fd = self.proc.stdout.fileno()
+        while b"\n" not in self._out:
+            ready, _, _ = select.select([fd], [], [], timeout)
+            if not ready:
+                raise DeviceProcessError("the harness did not answer")
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                raise DeviceProcessError(f"the harness exited ({self.proc.wait()})")
+            self._out += chunk
+        line, self._out = self._out.split(b"\n", 1)
+        return line.decode(errors="replace").strip()
+
+    def _send(self, line: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(line.encode() + b"\n")
+
+    def on_state(self, line: str) -> None:
+        """One lockstep boundary: read the PWM state, step the plant one tick, drive the inputs."""
+        f = line.split()
+        duty0, duty1, direction = int(f[2]), int(f[3]), int(f[4])
+        enc, a0, a1 = self.plant.tick((duty0, duty1), direction)
+        self.ticks += 1
+        self.last_t = line
+        estop_level = 0 if self.estop_pin else 1  # active low
+        self._send(f"G {enc} {adc_counts_to_mv(a0)} {adc_counts_to_mv(a1)} {estop_level}")
+
+    def control(self, line: str) -> str:
+        parts = line.split()
+        if not parts:
+            return "error empty command"
+        cmd, args = parts[0], parts[1:]
+        try:
+            if cmd == "estop" and len(args) == 1 and args[0] in ("0", "1"):
+                self.estop_pin = args[0] == "1"
+            elif cmd == "input" and len(args) == 2:
+                self.plant.set_input(args[0], float(args[1]))
+            elif cmd == "reboot" and args in ([], ["external"]):
+                self._send("R")
+            elif cmd == "status" and not args:
+                f = self.last_t.split()
+                fields = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped")
+                kv = " ".join(f"{k}={v}" for k, v in zip(fields, f[1:], strict=False))
+                return f"ok ticks={self.ticks} {kv}"
+            else:
+                return f"error unknown or unsupported command {line.strip()!r} (avr device)"
+        except (ValueError, KeyError) as e:
+            return f"error {e}"
+        return "ok " + line.strip()
+
+    def run(self, stdin_fd: int) -> None:
+        assert self.proc.stdout is not None
+        hfd = self.proc.stdout.fileno()
+        pending = b""
+        while True:
+            while b"\n" in self._out:
+                line, self._out = self._out.split(b"\n", 1)
+                text = line.decode(errors="replace")
+                if text.startswith("T "):
+                    self.on_state(text)
+                elif text.startswith("X "):
+                    print(f"avr device: the AVR stopped ({text})", file=sys.stderr)
+                    return
+            ready, _, _ = select.select([hfd, stdin_fd], [], [])
+            if hfd in ready:
+                chunk = os.read(hfd, 65536)
+                if not chunk:
+                    return
+                self._out += chunk
+            if stdin_fd in ready:
+                chunk = os.read(stdin_fd, 4096)
+                if not chunk:
+                    return
+                pending += chunk
+                while b"\n" in pending:
+                    line, pending = pending.split(b"\n", 1)
+                    print(self.control(line.decode(errors="replace")), flush=True)
+
+    def close(self) -> None:
+        p = self.proc
+        if p.poll() is None:
+            try:
+                if p.stdin is not None:
+                    p.stdin.close()  # EOF on its stdin ends the harness
+                p.wait(timeout=2)
+            except (subprocess.TimeoutExpired, OSError):
+                p.kill()
+                p.wait()
+        if p.stdout is not None:
+            p.stdout.close()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m rehab_hil.devices.avr_device",
+                                description="The firmware in simavr on a pty, closed with a plant model.")
+    p.add_argument("--config", required=True, help="plant config (configs/*.toml)")
+    p.add_argument("--clock", choices=CLOCKS, default="realtime")
+    p.add_argument("--harness", type=Path, default=None, help="avr_harness binary")
+    p.add_argument("--elf", type=Path, default=None, help="firmware ELF")
+    p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--edge-us", type=int, default=20, help="simulated time between two encoder edges [us]")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from rehab_hil.config import ConfigError, load_config
+    from rehab_hil.plants import get_plant
+
+    harness, elf = default_paths()
+    harness, elf = args.harness or harness, args.elf or elf
+    try:
+        cfg = load_config(args.config)
+        spec = get_plant(cfg.plant)
+        if spec.device is None:
+            raise ValueError(f"plant {cfg.plant!r} has no device binding")
+        binding = spec.device(cfg)
+        plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
+        plant.tick([0, 0], 0)  # compile the kernels before the firmware starts
+        plant.stepper.reset()
+    except (ConfigError, ValueError, KeyError) as e:
+        print(f"avr device: error: {e}", file=sys.stderr)
+        return 2
+    argv_h = [str(harness), "-l", "1000", "-e", str(args.edge_us)]
+    if args.clock == "free":
+        argv_h.append("-f")
+    driver = _Driver(plant, [*argv_h, str(elf)])
+    print(driver.port, flush=True)
+    try:
+        driver.run(sys.stdin.fileno())
+    except KeyboardInterrupt:
+        pass
+    finally:
+        driver.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
