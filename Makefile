@@ -19,14 +19,14 @@ run: $(STAMP)
 	$(BIN)/rehab-hil run --config configs/finger_extensor.toml --device sim --duration 20 --record out/
 
 test: $(STAMP) toolchain firmware harness
-	$(BIN)/ruff check src tests bench sim_devices
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python bench/finger_extensor_rtf.py
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests bench sim_devices
+	$(BIN)/ruff check .
 
 # AVR toolchain + simavr (Debian packages; installs them when missing and running as root).
 toolchain:
