@@ -31,11 +31,13 @@ class TelemetryPublisher:
     ``batch`` samples go in one put (a partial batch leaves after ``max_delay_s``); ``queue_size`` bounds
     the samples waiting for the worker. ``info`` answers ``rehab/<rig>/info`` queries. Commands on
     ``rehab/<rig>/command`` reach ``on_command`` only when ``commands_enabled`` (off by default; protect
-    the channel with the hub's access control, docs/telemetry.md)."""
+    the channel with the hub's access control, docs/telemetry.md). ``stats_source()``, if given, is called
+    on the worker thread once per stats period for the loop and link figures."""
 
     def __init__(self, session: zenoh.Session, rig_id: str, *, batch: int = 10, queue_size: int = 4096,
                  max_delay_s: float = 0.02, stats_period_s: float = 1.0, info: Mapping[str, Any] | None = None,
-                 commands_enabled: bool = False, on_command: CommandHandler | None = None) -> None:
+                 commands_enabled: bool = False, on_command: CommandHandler | None = None,
+                 stats_source: Callable[[], Mapping[str, Any]] | None = None) -> None:
         if not 1 <= batch <= 1000:
             raise ValueError(f"batch must be 1..1000 samples, got {batch}")
         if queue_size < batch:
@@ -53,6 +55,7 @@ class TelemetryPublisher:
         self._events: collections.deque[tuple[str, dict[str, Any]]] = collections.deque(maxlen=1024)
         self._loop_stats: dict[str, Any] = {}
         self._on_command = on_command
+        self._stats_source = stats_source
         self.offered = 0
         self.dropped = 0
         self.published_samples = 0
@@ -147,6 +150,11 @@ class TelemetryPublisher:
                 self._put_json(self.keys.safety, kind, {"rig": self.keys.rig_id, "time_s": time.time(), **body})
             if now >= next_stats or stopping:
                 next_stats = now + self._stats_period
+                if self._stats_source is not None:
+                    try:
+                        self._loop_stats = dict(self._stats_source())
+                    except Exception as e:  # a stats bug must not stop telemetry
+                        self._loop_stats = {"error": f"{type(e).__name__}: {e}"}
                 self._put_json(self.keys.stats, "stats", {"rig": self.keys.rig_id, "time_s": time.time(),
                                                           "loop": self._loop_stats, "telemetry": self.counters()})
             if stopping:
