@@ -149,7 +149,7 @@ EFFECTS: dict[str, Effect] = {
             (EffectParam("stiffness_nm_per_rad", 0.0, 20.0, 0.5),
              EffectParam("damping_nm_s_per_rad", 0.0, 2.0, 0.02),
              EffectParam("contact_angle_rad", -0.5, 3.0, 0.5, linear=False, off=None,
-                         grid=(0.0, 0.35, 0.7, 1.05, 1.4, 1.75))),
+                         grid=(0.0, 0.4, 0.8, 1.2, 1.6))),
             "seed 000 eq 18-28 and Table 4 (contact force k dx + c dx', k and c by regression)",
             "one-sided spring-damper of the patient's finger beyond a contact angle",
             {"finger_extensor": _FE_CONTACT},
