@@ -218,6 +218,8 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(path, "", f"cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(path, "", f"not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:  # TOML is UTF-8; found by tests/fuzz/test_config_fuzz.py
+        raise ConfigError(path, "", f"not valid TOML: not UTF-8 at byte {e.start}") from None
 
 
 def validate(path: str | Path, data: dict[str, Any], schema: type[T]) -> T:
