@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from rehab_hil.interchange import CsvError, Recording, read_csv, write_csv
 
-FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @pytest.fixture(scope="module")
