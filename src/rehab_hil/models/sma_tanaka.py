@@ -66,6 +66,10 @@ def wire_stress_pa(xi, strain, temp_c, p):
 @njit
 def _solve_branch(temp_c, strain, p, start_c, finish_c):
     """Root of xi - xi_branch(T, sigma(xi)): the fraction consistent with its own stress."""
+    if branch_fraction(temp_c, wire_stress_pa(0.0, strain, temp_c, p), start_c, finish_c, p[3]) == 0.0:
+        return 0.0
+    if branch_fraction(temp_c, wire_stress_pa(1.0, strain, temp_c, p), start_c, finish_c, p[3]) == 1.0:
+        return 1.0
     lo, hi = 0.0, 1.0
     for _ in range(32):
         mid = 0.5 * (lo + hi)
