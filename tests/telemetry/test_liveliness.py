@@ -17,10 +17,10 @@ def test_liveliness_appears_with_the_publisher_and_disappears_when_it_closes(
     try:
         pub = TelemetryPublisher(client(), "rig-7")
         assert wait(lambda: ("rig-7", True) in changes)
-        assert list_rigs(viewer) == ["rig-7"]
+        assert wait(lambda: list_rigs(viewer) == ["rig-7"])
         pub.close()
         assert wait(lambda: ("rig-7", False) in changes)
-        assert list_rigs(viewer) == []
+        assert wait(lambda: list_rigs(viewer) == [])
     finally:
         watcher.undeclare()
 

@@ -114,7 +114,7 @@ def query_info(session: zenoh.Session, rig: str, timeout_s: float = 2.0) -> dict
     return None
 
 
-def list_rigs(session: zenoh.Session, timeout_s: float = 1.0) -> list[str]:
+def list_rigs(session: zenoh.Session, timeout_s: float = 2.0) -> list[str]:
     """Rig ids whose liveliness token is present (rigs running now), sorted."""
     rigs = set()
     for reply in session.liveliness().get(RigKeys.any_alive(), timeout=timeout_s):
