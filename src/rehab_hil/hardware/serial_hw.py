@@ -105,6 +105,13 @@ class SerialHardware(HardwareInterface):
         """Samples received and not yet returned by ``read_sample`` (without reading the port)."""
         return len(self._samples)
 
+    def discard_pending(self) -> int:
+        """Drop samples received and not yet read (e.g. those sent before a CONFIGURE or CLEAR was
+        acknowledged, since the device answers in order); returns how many."""
+        n = len(self._samples)
+        self._samples.clear()
+        return n
+
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
         return self.send_command(Command(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF,
                                          1 if enable else 0))

@@ -1,0 +1,52 @@
+"""Simulated devices for the device tests: started once per test module (startup costs seconds),
+always terminated at module teardown, also when a test fails."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
+
+
+def avr_skip_reason() -> str | None:
+    """Why the firmware-in-simavr backend cannot run here (None when it can)."""
+    try:
+        from rehab_hil.devices import avr_device
+    except ImportError:
+        return "rehab_hil.devices.avr_device does not exist yet (issue 5 part B)"
+    if not hasattr(avr_device, "spawn_avr_device"):
+        return "rehab_hil.devices.avr_device has no spawn_avr_device yet (issue 5 part B)"
+    reason = getattr(avr_device, "unavailable_reason", None)
+    return reason() if callable(reason) else None
+
+
+@pytest.fixture(scope="module")
+def device_pool() -> Iterator[Callable[..., Any]]:
+    """``get(kind, clock)`` -> (running device, connected ``SerialHardware``), shared within the
+    test module; one connection per device keeps the host's sequence numbers unique."""
+    from rehab_hil.devices import spawn_device
+    from rehab_hil.hardware import SerialHardware
+
+    running: dict[tuple[str, str], tuple[Any, SerialHardware]] = {}
+
+    def get(kind: str, clock: str = "realtime") -> tuple[Any, SerialHardware]:
+        key = (kind, clock)
+        if key not in running or not running[key][0].alive():
+            if key in running:
+                running.pop(key)[1].close()
+            dev = spawn_device(kind, CONFIG, clock=clock)
+            hw = SerialHardware(dev.port)
+            running[key] = (dev, hw)
+            hw.connect(timeout=10.0)
+        return running[key]
+
+    try:
+        yield get
+    finally:
+        for dev, hw in running.values():
+            hw.close()
+            dev.close()

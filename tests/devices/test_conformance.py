@@ -1,0 +1,278 @@
+"""One conformance suite for every device backend (docs/protocol.md, "Behaviour"): the Python
+simulated device and the firmware in simavr must behave the same on the wire.
+
+Times are checked in device time (SAMPLE.device_time_us), never against the wall clock. A device
+is shared by the tests of this module, so each test configures it afresh, clears faults and sets
+its limits relative to the plant's current position.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from rehab_hil.hardware import SerialHardware
+from rehab_hil.protocol import (
+    DUTY_FULL,
+    PROTOCOL_VERSION,
+    Command,
+    Configure,
+    Fault,
+    FaultReport,
+    Sample,
+    Status,
+    crc16_ccitt_false,
+    encode_frame,
+)
+
+from .conftest import avr_skip_reason
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
+
+WIDE = 1 << 30
+
+
+def _config(**kw: int) -> Configure:
+    base = dict(sample_rate_hz=1000, watchdog_ms=200, max_duty=DUTY_FULL, max_heating_ms=60_000,
+                force_limit_counts=1023, enc_min=-WIDE, enc_max=WIDE, flags=0)
+    base.update(kw)
+    return Configure(**base)
+
+
+@pytest.fixture(params=["python", "avr"])
+def backend(request: pytest.FixtureRequest) -> str:
+    if request.param == "avr":
+        reason = avr_skip_reason()
+        if reason:
+            pytest.skip(reason)
+    return request.param
+
+
+def _reset(hw: SerialHardware) -> SerialHardware:
+    """Configure wide open and clear whatever an earlier test left latched."""
+    hw.configure(_config())
+    assert hw.clear(), "faults left over from another test would not clear"
+    hw.discard_pending()
+    return hw
+
+
+@pytest.fixture
+def rig(backend: str, device_pool: Callable[..., Any]) -> Iterator[tuple[Any, SerialHardware]]:
+    """A real-time device, connected, configured wide open, faults cleared."""
+    device, hw = device_pool(backend, "realtime")
+    yield device, _reset(hw)
+
+
+@pytest.fixture
+def lockstep_rig(backend: str, device_pool: Callable[..., Any]) -> Iterator[tuple[Any, SerialHardware]]:
+    """A lockstep device (one SAMPLE per COMMAND), connected, configured wide open."""
+    try:
+        device, hw = device_pool(backend, "lockstep")
+    except ValueError as e:  # a backend without a lockstep clock
+        pytest.skip(str(e))
+    yield device, _reset(hw)
+
+
+def _next(hw: SerialHardware, timeout: float = 2.0) -> Sample:
+    s = hw.read_sample(timeout)
+    assert s is not None, f"no SAMPLE within {timeout} s"
+    return s
+
+
+def _until(hw: SerialHardware, pred: Callable[[Sample], bool], max_samples: int = 5000) -> Sample:
+    for _ in range(max_samples):
+        s = _next(hw)
+        if pred(s):
+            return s
+    raise AssertionError(f"condition not met within {max_samples} samples")
+
+
+def _fresh(hw: SerialHardware) -> Sample:
+    """Discard queued samples; the next one was sent after the last acknowledged request."""
+    hw.discard_pending()
+    return _next(hw)
+
+
+def _step(hw: SerialHardware, command: Command) -> tuple[int, Sample]:
+    """Lockstep: one COMMAND, its one SAMPLE."""
+    seq = hw.send_command(command)
+    return seq, _next(hw)
+
+
+def test_handshake_reports_capabilities(rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = rig
+    info = hw.connect()
+    assert (info.protocol_version, info.n_pwm, info.n_adc) == (PROTOCOL_VERSION, 2, 2)
+    assert (info.encoder_counts_per_rev, info.adc_ref_mv, info.adc_bits, info.max_rate_hz) == (2000, 5000, 10, 1000)
+    assert hw.heartbeat() > 0
+
+
+@pytest.mark.parametrize(("rate", "period_us"), [(1000, 1000), (250, 4000), (300, 3000)])
+def test_streams_one_sample_per_period_of_the_nearest_supported_rate(
+        rig: tuple[Any, SerialHardware], rate: int, period_us: int) -> None:
+    _, hw = rig
+    hw.configure(_config(sample_rate_hz=rate))
+    first = _fresh(hw)
+    samples = [first] + [_next(hw) for _ in range(40)]
+    assert [b.device_time_us - a.device_time_us for a, b in itertools.pairwise(samples)] == \
+        [period_us] * 40
+    assert [s.sample_index for s in samples] == list(range(first.sample_index, first.sample_index + 41))
+    assert all(s.status & Status.STREAMING for s in samples)
+
+
+def test_rate_zero_stops_streaming(rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = rig
+    hw.configure(_config(sample_rate_hz=0))
+    hw.discard_pending()  # sent before the ACK
+    assert hw.read_sample(0.2) is None
+
+
+def test_lockstep_sends_one_sample_per_command_one_period_apart(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = lockstep_rig
+    hw.configure(_config(sample_rate_hz=500))
+    samples = [_step(hw, Command(0, 0, 0, 1))[1] for _ in range(20)]
+    assert [b.device_time_us - a.device_time_us for a, b in itertools.pairwise(samples)] == [2000] * 19
+    assert hw.read_sample(0.1) is None
+
+
+def test_command_is_applied_clamped_and_echoed(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = lockstep_rig
+    hw.configure(_config(max_duty=6000))
+    seq, s = _step(hw, Command(2500, 7000, 0b10, 1))
+    assert (s.duty0, s.duty1, s.direction, s.cmd_seq_echo) == (2500, 6000, 0b10, seq)
+    assert s.status & Status.DUTY_CLAMPED and s.status & Status.PWM_ENABLED and s.status & Status.WATCHDOG_ARMED
+    seq, s = _step(hw, Command(1000, 0, 0, 1))
+    assert (s.duty0, s.duty1, s.cmd_seq_echo) == (1000, 0, seq) and not s.status & Status.DUTY_CLAMPED
+    seq, s = _step(hw, Command(1000, 1000, 0, 0))
+    assert (s.duty0, s.duty1, s.cmd_seq_echo) == (0, 0, seq) and not s.status & Status.PWM_ENABLED
+
+
+def test_watchdog_trips_watchdog_ms_after_the_last_command_in_device_time(rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = rig
+    hw.configure(_config(watchdog_ms=30))
+    seq = hw.write_command(0.0)
+    applied = _until(hw, lambda s: s.cmd_seq_echo == seq)
+    assert applied.status & Status.WATCHDOG_ARMED
+    tripped = _until(hw, lambda s: s.faults & Fault.WATCHDOG)
+    elapsed_us = tripped.device_time_us - applied.device_time_us
+    assert 29_000 <= elapsed_us <= 31_000
+    assert not tripped.status & Status.WATCHDOG_ARMED and tripped.status & Status.FAULT_LATCHED
+    assert FaultReport(Fault.WATCHDOG, Fault.WATCHDOG) in hw.faults_reported
+    assert hw.clear()
+
+
+def test_heating_time_trips_after_max_heating_ms_of_continuous_drive(rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = rig
+    hw.configure(_config(max_heating_ms=40, watchdog_ms=2000))
+    seq = hw.write_command(0.05)
+    on = _until(hw, lambda s: s.cmd_seq_echo == seq)
+    tripped = _until(hw, lambda s: s.faults != 0)
+    assert tripped.faults == Fault.HEATING_TIME and (tripped.duty0, tripped.duty1) == (0, 0)
+    assert 39_000 <= tripped.device_time_us - on.device_time_us <= 41_000
+    assert hw.clear()
+
+
+def test_driving_into_the_force_limit_trips_and_cuts_pwm(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = lockstep_rig
+    _, rest = _step(hw, Command(0, 0, 0, 1))
+    hw.configure(_config(force_limit_counts=rest.adc0 + 40))
+    for _ in range(200):
+        _, s = _step(hw, Command(5000, 0, 0, 1))
+        if s.faults:
+            break
+    assert s.faults == Fault.FORCE_LIMIT and s.duty0 == 0 and not s.status & Status.PWM_ENABLED
+    echo = s.cmd_seq_echo
+    _, s = _step(hw, Command(5000, 0, 0, 1))
+    assert s.duty0 == 0 and s.cmd_seq_echo == echo  # ignored while latched
+
+
+def test_driving_out_of_the_range_of_motion_trips(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = lockstep_rig
+    _, rest = _step(hw, Command(0, 0, 0, 1))
+    hw.configure(_config(enc_min=rest.encoder_count - 20, enc_max=rest.encoder_count + 20))
+    for _ in range(500):
+        _, s = _step(hw, Command(4000, 0, 0, 1))
+        if s.faults:
+            break
+    assert s.faults == Fault.RANGE_OF_MOTION and s.duty0 == 0
+    assert s.encoder_count > rest.encoder_count + 20
+
+
+@pytest.mark.parametrize("limit", ["force", "range"])
+def test_clear_is_refused_while_the_limit_is_violated(rig: tuple[Any, SerialHardware], limit: str) -> None:
+    _, hw = rig
+    now = _fresh(hw)
+    if limit == "force":
+        bad, fault = _config(force_limit_counts=max(0, now.adc0 - 100)), Fault.FORCE_LIMIT
+    else:
+        bad, fault = _config(enc_min=now.encoder_count + 1000, enc_max=now.encoder_count + 2000), Fault.RANGE_OF_MOTION
+    hw.configure(bad)
+    _until(hw, lambda s: s.faults & fault)
+    assert not hw.clear()
+    assert _fresh(hw).faults & fault
+    hw.configure(_config())  # the limit lifted: the cause is gone
+    assert hw.clear()
+    assert _fresh(hw).faults == 0
+
+
+def test_estop_input_pin_trips_and_holds_until_released(rig: tuple[Any, SerialHardware]) -> None:
+    device, hw = rig
+    if not hasattr(device, "set_estop_input"):
+        pytest.skip("this backend cannot drive the e-stop pin")
+    hw.configure(_config(flags=Configure.FLAG_ESTOP_INPUT))
+    hw.write_command(0.1)
+    try:
+        device.set_estop_input(True)
+        s = _until(hw, lambda s: s.faults & Fault.ESTOP_INPUT)
+        assert s.status & Status.ESTOP_INPUT_ACTIVE and s.duty0 == 0
+        assert not hw.clear()
+    finally:
+        device.set_estop_input(False)
+    _until(hw, lambda s: not s.status & Status.ESTOP_INPUT_ACTIVE)
+    assert hw.clear()
+
+
+def test_estop_command_latches_ignores_commands_until_clear(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+    _, hw = lockstep_rig
+    seq, s = _step(hw, Command(1000, 0, 0, 1))
+    assert s.duty0 == 1000
+    hw.estop()
+    _, s = _step(hw, Command(1000, 0, 0, 1))
+    assert s.faults == Fault.ESTOP_COMMAND and s.duty0 == 0 and s.cmd_seq_echo == seq
+    assert hw.clear()
+    seq, s = _step(hw, Command(1000, 0, 0, 1))
+    assert s.faults == 0 and s.duty0 == 1000 and s.cmd_seq_echo == seq
+
+
+def _packet(version: int, mtype: int, payload: bytes, seq: int = 1) -> bytes:
+    body = bytes([version, mtype, seq & 0xFF, seq >> 8]) + payload
+    crc = crc16_ccitt_false(body)
+    return body + bytes([crc & 0xFF, crc >> 8])
+
+
+def test_bad_frames_are_ignored_and_counted(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+    from cobs import cobs
+
+    _, hw = lockstep_rig
+    _, before = _step(hw, Command(0, 0, 0, 1))
+    seq = (hw.send_command(Command(0, 0, 0, 1)) + 1) & 0xFFFF
+    _next(hw)
+    good = encode_frame(Command(3000, 0, 0, 1), seq)
+    bad = [
+        b"\x01\x02\x03\x00",  # short
+        good[:6] + b"\x00",  # truncated
+        cobs.encode(_packet(1, 0x03, bytes(6))[:-1] + b"\x01") + b"\x00",  # crc
+        cobs.encode(_packet(9, 0x03, bytes(6))) + b"\x00",  # version
+        cobs.encode(_packet(1, 0x42, b"")) + b"\x00",  # unknown type
+        cobs.encode(_packet(1, 0x03, bytes(4))) + b"\x00",  # length
+        b"\x07" * 80 + b"\x00",  # overflow
+    ]
+    hw.send_raw(b"".join(bad))
+    hw.send_raw(good)
+    s = _next(hw)
+    assert s.rx_bad_frames - before.rx_bad_frames == len(bad)
+    assert (s.duty0, s.cmd_seq_echo) == (3000, seq)
+    assert hw.clear()
