@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import time
 from pathlib import Path
+from typing import Any
 
 from rehab_hil.cli import UserError
 from rehab_hil.config import load_config
@@ -19,17 +21,31 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True, help="scenario name (plant-specific, e.g. step, cycle)")
     p.add_argument("--duration", type=float, default=None, help="duration [s] (default: from the config)")
     p.add_argument("--out", type=Path, default=None, help="CSV to write")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                   help="add a library effect (docs/discrepancy.md), e.g. coulomb_friction:level_nm=0.02; repeatable")
+    p.add_argument("--power-w", type=float, default=None,
+                   help="actuation power [W] for scenarios that take one (e.g. tcp_finger pulse, regular)")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     spec = get_plant(cfg.plant)
+    if args.effect:
+        cfg = _with_effects(cfg, args.effect)
     if args.scenario not in spec.scenarios:
         raise UserError(f"plant {spec.name!r} has no scenario {args.scenario!r}; choose from {sorted(spec.scenarios)}")
     if args.duration is not None and not (0 < args.duration <= 24 * 3600):
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
-    scenario = spec.scenarios[args.scenario](cfg, duration_s=args.duration)
+    factory = spec.scenarios[args.scenario]
+    extra = {}
+    if args.power_w is not None:  # forwarded only when given, to scenarios that accept it
+        if "power_w" not in inspect.signature(factory).parameters:
+            raise UserError(f"scenario {args.scenario!r} of plant {spec.name!r} takes no --power-w")
+        if not (0 <= args.power_w <= 1000):
+            raise UserError(f"--power-w must be in [0, 1000] W, got {args.power_w}")
+        extra["power_w"] = args.power_w
+    scenario = factory(cfg, duration_s=args.duration, **extra)
     t0 = time.perf_counter()
     res = run_scenario(spec, cfg, scenario)
     wall = time.perf_counter() - t0
@@ -42,3 +58,22 @@ def run(args: argparse.Namespace) -> int:
         write_csv(args.out, res.t, res.signals)
         print(f"wrote {args.out} ({len(res.t)} rows, columns: time_s, {', '.join(res.signals)})")
     return 0
+
+
+def _with_effects(cfg: Any, options: list[str]) -> Any:
+    """The config with the ``--effect`` options appended to its ``effects`` list."""
+    from rehab_hil.config import EffectSpec
+    from rehab_hil.discrepancy.effects import EFFECTS, parse_effect_option
+
+    added = []
+    for text in options:
+        try:
+            name, params = parse_effect_option(text)
+        except ValueError as e:
+            raise UserError(str(e)) from None
+        if cfg.plant not in EFFECTS[name].attachments:
+            ok = sorted(n for n, e in EFFECTS.items() if cfg.plant in e.attachments)
+            raise UserError(f"--effect {text!r}: effect {name!r} does not apply to plant {cfg.plant!r}; "
+                            f"applicable: {ok}")
+        added.append(EffectSpec(name=name, params=params))
+    return cfg.model_copy(update={"effects": [*cfg.effects, *added]})

@@ -16,11 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MIN_DELTA_BIC", "MIN_IMPROVEMENT", "Score", "bic", "effective_fraction", "improvement",
+__all__ = ["MIN_DELTA_BIC", "MIN_IMPROVEMENT", "RESOLUTION_FLOOR", "Score", "bic", "effective_fraction", "improvement",
            "is_significant"]
 
 MIN_DELTA_BIC = 10.0
-MIN_IMPROVEMENT = 0.15  # relative cut of the held-out RMS error (scaled, all channels)
+MIN_IMPROVEMENT = 0.15  # relative cut of a channel's held-out RMS error
+# A channel whose residual is already below 0.5 % of its spread (its std) is at the resolution of
+# the data (an encoder count is ~0.5 % of a typical motion): cutting it further is no evidence.
+RESOLUTION_FLOOR = 0.005
 
 
 def effective_fraction(residual: np.ndarray) -> float:
@@ -58,9 +61,11 @@ def bic(residual: np.ndarray, n_params: int, fraction: float) -> Score:
 
 
 def improvement(candidate: Score, current: Score) -> float:
-    """Largest relative cut of a channel's held-out RMS error (negative: every channel worse)."""
-    return max(1.0 - c / b if b > 0 else 0.0
-               for c, b in zip(candidate.channel_rms, current.channel_rms, strict=True))
+    """Largest relative cut of a channel's held-out RMS error (negative: every channel worse);
+    channels already at the resolution floor do not count."""
+    cuts = [1.0 - c / b for c, b in zip(candidate.channel_rms, current.channel_rms, strict=True)
+            if b > RESOLUTION_FLOOR]
+    return max(cuts, default=0.0)
 
 
 def is_significant(candidate: Score, current: Score) -> bool:

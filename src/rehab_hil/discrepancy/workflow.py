@@ -140,5 +140,7 @@ def run(config_path: str | Path, data_path: str | Path, out_dir: str | Path,
     cfg = load_config(config_path)
     rec = read_csv(data_path)
     res = find_missing_effects(cfg, rec, data_path, progress, options)
+    if progress:
+        progress.start("writing report", None)
     write_report(res, Path(config_path), Path(data_path), Path(out_dir))
     return res

@@ -1,0 +1,64 @@
+"""``rehab-hil discrepancy``: name the effect missing from a model, fit it, and report the gap."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from rehab_hil.discrepancy.workflow import Options, Progress
+
+
+class RichProgress(Progress):
+    """Shows each fitting stage and the simulations it has run."""
+
+    def __init__(self, progress: Any) -> None:  # a rich.progress.Progress
+        self.p = progress
+        self.task = None
+
+    def start(self, label: str, total: int | None = None) -> None:
+        if self.task is not None:
+            self.p.update(self.task, completed=self.p.tasks[-1].completed, total=self.p.tasks[-1].completed)
+        self.task = self.p.add_task(label, total=total)
+
+    def advance(self) -> None:
+        if self.task is not None:
+            self.p.advance(self.task)
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser("discrepancy", help="find the effect missing from the model in measured data")
+    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--data", required=True, type=Path, help="measured interchange CSV (inputs and outputs)")
+    p.add_argument("--out", required=True, type=Path, help="report directory to write")
+    p.add_argument("--max-effects", type=int, default=2, help="most effects to add in turn (default 2)")
+    p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from rehab_hil.cli import UserError
+    from rehab_hil.discrepancy.workflow import run as run_workflow
+
+    if not 1 <= args.max_effects <= 5:
+        raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
+    if not 0.1 <= args.holdout <= 0.9:
+        raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
+    console = Console(stderr=True)
+    cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("simulations"), TimeElapsedColumn())
+    with Progress(*cols, console=console, transient=False) as bar:
+        res = run_workflow(args.config, args.data, args.out, RichProgress(bar),
+                           Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+    print(f"{res.plant}: " + (f"missing effect found: {', '.join(res.named)}" if res.named
+                              else "no missing effect found") + f" ({res.wall_s:.1f} s)")
+    for f in res.chosen:
+        print("  " + f.effect + ": " + ", ".join(f"{k} = {v:.4g} ± {f.stderr[k]:.2g}" for k, v in f.params.items()))
+    before, after = res.metrics("nominal"), res.metrics("augmented")
+    for c in res.channels:
+        print(f"  {c:24s} RMSE {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g}")
+    print(f"wrote {args.out}/report.json, report.md, *.png, augmented.toml")
+    return 0

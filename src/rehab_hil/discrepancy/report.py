@@ -1,0 +1,204 @@
+"""Write the workflow's result: report.json (schema in docs/discrepancy.md), report.md, PNG
+figures (matplotlib, Agg) and augmented.toml (the input config plus the chosen effects)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rehab_hil.config import load_config
+from rehab_hil.discrepancy import localise
+from rehab_hil.discrepancy.effects import EFFECTS
+from rehab_hil.discrepancy.workflow import Result
+
+__all__ = ["SCHEMA", "augmented_toml", "report_dict", "write_report"]
+
+SCHEMA = "rehab-hil/discrepancy-report/1"
+
+
+def _clean(x: Any) -> Any:
+    """JSON-safe: numpy scalars to Python, NaN and infinity to null."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def _residual(res: Result, model: dict[str, np.ndarray]) -> np.ndarray:
+    return np.vstack([(model[c] - res.measured[c]) / res.scale[c] for c in res.channels])
+
+
+def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[str]) -> dict[str, Any]:
+    """The report as a JSON-ready dict (docs/discrepancy.md describes every key)."""
+    before, after = res.metrics("nominal"), res.metrics("augmented")
+    r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
+    combined0 = np.sqrt(np.mean(r0**2, axis=0))
+    gap = {c: 100.0 * (1.0 - after[c]["rmse"] / before[c]["rmse"]) if before[c]["rmse"] > 0 else 0.0
+           for c in res.channels}
+    rounds = []
+    for rd in res.rounds:
+        rounds.append({
+            "baseline": {"holdout_rms": rd.baseline.rms, "bic": rd.baseline.bic, "n_params": rd.baseline.n_params},
+            "chosen": rd.chosen,
+            "candidates": [{
+                "effect": c.fit.effect, "params": c.fit.params, "stderr": c.fit.stderr, "start": c.fit.start,
+                "holdout_rms": c.score.rms, "holdout_channel_rms": dict(zip(res.channels, c.score.channel_rms,
+                                                                            strict=True)),
+                "bic": c.score.bic, "delta_bic": c.delta_bic, "improvement": c.improvement,
+                "significant": c.significant, "n_params": c.score.n_params, "n_simulations": c.fit.n_simulations,
+            } for c in rd.candidates],
+        })
+    named = res.named
+    return _clean({
+        "schema": SCHEMA,
+        "plant": res.plant,
+        "config": str(config_path),
+        "data": str(data_path),
+        "samples": int(res.t.size),
+        "duration_s": float(res.t[-1] - res.t[0]),
+        "holdout_start_s": res.split_s,
+        "channels": res.channels,
+        "channel_scale": res.scale,
+        "conclusion": f"missing effect found: {', '.join(named)}" if named else "no missing effect found",
+        "chosen": [{
+            "effect": f.effect, "params": f.params, "stderr": f.stderr,
+            "seed": EFFECTS[f.effect].seed, "description": EFFECTS[f.effect].description,
+        } for f in res.chosen],
+        "metrics": {
+            "nominal": before, "augmented": after,
+            "nominal_holdout": res.metrics("nominal", "holdout"),
+            "augmented_holdout": res.metrics("augmented", "holdout"),
+        },
+        "gap_reduction_pct": gap,
+        "rounds": rounds,
+        "localisation": {
+            "time_windows": localise.time_windows(res.t, combined0),
+            "regions": localise.regions(res.t, res.measured, r0, res.channels),
+            "regions_after": localise.regions(res.t, res.measured, r1, res.channels),
+            "signatures": localise.signatures(res.t, res.measured, res.nominal, res.channels),
+        },
+        "wall_s": res.wall_s,
+        "figures": figures,
+    })
+
+
+def augmented_toml(res: Result, config_path: Path) -> str:
+    """The input config's text with one ``[[effects]]`` table per chosen effect appended."""
+    text = config_path.read_text(encoding="utf-8").rstrip("\n") + "\n"
+    for f in res.chosen:
+        params = ", ".join(f"{k} = {float(v)!r}" for k, v in f.params.items())
+        text += (f"\n# added by rehab-hil discrepancy ({EFFECTS[f.effect].seed})\n"
+                 f"[[effects]]\nname = \"{f.effect}\"\nparams = {{ {params} }}\n")
+    return text
+
+
+def _figures(res: Result, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    n = len(res.channels)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.8 * n), sharex=True, squeeze=False)
+    for ax, c in zip(axes[:, 0], res.channels, strict=True):
+        ax.plot(res.t, res.measured[c], "k.", ms=1.5, label="measured")
+        ax.plot(res.t, res.nominal[c], "C0-", lw=1, label="nominal")
+        ax.plot(res.t, res.augmented[c], "C3--", lw=1, label="augmented" + (f" (+{', '.join(res.named)})"
+                                                                           if res.named else ""))
+        ax.axvspan(res.split_s, res.t[-1], color="0.9", zorder=-1)
+        ax.set_ylabel(c)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time_s (grey: held out from the fit)")
+    fig.tight_layout()
+    fig.savefig(out / "overlay.png", dpi=110)
+    plt.close(fig)
+    names.append("overlay.png")
+
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.5 * n), sharex=True, squeeze=False)
+    for ax, c in zip(axes[:, 0], res.channels, strict=True):
+        ax.plot(res.t, res.nominal[c] - res.measured[c], "C0-", lw=0.8, label="residual before (nominal)")
+        ax.plot(res.t, res.augmented[c] - res.measured[c], "C3-", lw=0.8, label="residual after (augmented)")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(f"{c} residual")
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time_s")
+    fig.tight_layout()
+    fig.savefig(out / "residual.png", dpi=110)
+    plt.close(fig)
+    names.append("residual.png")
+
+    r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
+    reg0 = localise.regions(res.t, res.measured, r0, res.channels)
+    reg1 = localise.regions(res.t, res.measured, r1, res.channels)
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    x = np.arange(len(reg0))
+    ax.bar(x - 0.2, [g["rms"] for g in reg0], 0.4, label="before")
+    ax.bar(x + 0.2, [g["rms"] for g in reg1], 0.4, label="after")
+    ax.set_xticks(x, [str(g["region"]) for g in reg0], rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("RMS scaled residual")
+    ax.set_title("where the residual concentrates")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "regions.png", dpi=110)
+    plt.close(fig)
+    names.append("regions.png")
+    return names
+
+
+def _markdown(rep: dict[str, Any]) -> str:
+    L = [f"# Discrepancy report: {rep['plant']}", "",
+         f"Data `{rep['data']}` ({rep['samples']} samples, {rep['duration_s']:.2f} s; held out from "
+         f"{rep['holdout_start_s']:.2f} s), config `{rep['config']}`.", "",
+         f"**{rep['conclusion']}**", ""]
+    for c in rep["chosen"]:
+        ps = ", ".join(f"{k} = {v:.4g} ± {rep_se:.2g}" if rep_se is not None else f"{k} = {v:.4g}"
+                       for (k, v), rep_se in zip(c["params"].items(), c["stderr"].values(), strict=True))
+        L.append(f"- `{c['effect']}`: {ps} ({c['description']}; {c['seed']})")
+    L += ["", "| channel | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut |",
+          "|---|---|---|---|---|---|---|---|"]
+    for ch in rep["channels"]:
+        b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
+        L.append(f"| {ch} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | {a['mae']:.4g} | "
+                 f"{b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | {rep['gap_reduction_pct'][ch]:.1f} % |")
+    for i, rd in enumerate(rep["rounds"], 1):
+        L += ["", f"## Round {i}: candidates (held-out BIC, best first)", "",
+              "| effect | parameters | ΔBIC | best channel cut | significant |", "|---|---|---|---|---|"]
+        for c in rd["candidates"]:
+            ps = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
+            L.append(f"| {c['effect']} | {ps} | {c['delta_bic']:.1f} | {100 * c['improvement']:.1f} % | "
+                     f"{'yes' if c['significant'] else 'no'} |")
+    L += ["", "## Where the nominal residual concentrates", "", "| region | share of time | RMS | ratio |",
+          "|---|---|---|---|"]
+    for g in rep["localisation"]["regions"]:
+        ratio = "n/a" if g["ratio"] is None else f"{g['ratio']:.2f}"
+        rms = "n/a" if g["rms"] is None else f"{g['rms']:.3g}"
+        L.append(f"| {g['region']} | {100 * g['share_of_time']:.1f} % | {rms} | {ratio} |")
+    L += ["", "| channel | lag [s] | offset | gain error | dead-zone ratio |", "|---|---|---|---|---|"]
+    for ch, s in rep["localisation"]["signatures"].items():
+        f = ["n/a" if s[k] is None else f"{s[k]:.3g}" for k in ("lag_s", "offset", "gain_error", "dead_zone_ratio")]
+        L.append(f"| {ch} | {' | '.join(f)} |")
+    L += [""] + [f"![{n}]({n})" for n in rep["figures"]] + [""]
+    return "\n".join(L)
+
+
+def write_report(res: Result, config_path: Path, data_path: Path, out: Path) -> dict[str, Any]:
+    """Write every report file into ``out``; checks augmented.toml loads."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = _figures(res, out)
+    rep = report_dict(res, config_path, data_path, figures)
+    (out / "report.json").write_text(json.dumps(rep, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    (out / "report.md").write_text(_markdown(rep), encoding="utf-8")
+    aug = out / "augmented.toml"
+    aug.write_text(augmented_toml(res, config_path), encoding="utf-8")
+    load_config(aug)
+    return rep
