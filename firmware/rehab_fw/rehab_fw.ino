@@ -51,6 +51,7 @@ static volatile uint16_t duty[2] = {0, 0};    // applied
 static volatile uint8_t direction = 0;
 static volatile bool pwm_enabled = false;
 static volatile uint16_t tick_phase = 0;  // base ticks since the last SAMPLE tick
+static volatile uint32_t tick_count = 0;  // base ticks since boot
 
 struct Snapshot {
   uint32_t time_us;
@@ -121,12 +122,15 @@ void io::on_tick() {
   }
   if (trip) latch(trip);
 
+  ++tick_count;
   // A SAMPLE every k-th tick (a counter, not a 32-bit modulo: this ISR must stay short,
   // or encoder edges closer than its run time are lost).
   if (cfg.divider) {
     if (++tick_phase >= cfg.divider) {
       tick_phase = 0;
-      snap.time_us = micros();
+      // The tick's time: the tick count (Timer2 runs off the crystal, exactly 1 ms), not micros(),
+      // which reads Timer0 with 4 us resolution plus this interrupt's entry latency.
+      snap.time_us = tick_count * 1000ul;
       snap.enc = io::encoder_count();
       snap.adc0 = io::adc_value[0];
       snap.adc1 = io::adc_value[1];

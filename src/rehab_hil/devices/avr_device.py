@@ -30,7 +30,7 @@ from pathlib import Path
 from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
 from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess
 
-__all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spawn_avr_device"]
+__all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spawn_avr_device", "unavailable_reason"]
 
 ROOT = Path(__file__).resolve().parents[3]
 ADC_REF_MV = 5000
@@ -40,6 +40,14 @@ CLOCKS = ("realtime", "free")
 def default_paths() -> tuple[Path, Path]:
     """(harness binary, firmware ELF) as built by ``make harness firmware``."""
     return ROOT / "sim_devices" / "build" / "avr_harness", ROOT / "firmware" / "build" / "rehab_fw.elf"
+
+
+def unavailable_reason() -> str | None:
+    """Why the avr device cannot start here (a binary not built), or None."""
+    for p in default_paths():
+        if not p.exists():
+            return f"{p} is missing: run `make firmware harness`"
+    return None
 
 
 def adc_counts_to_mv(counts: int) -> int:
