@@ -1,0 +1,203 @@
+"""SerialHardware on a real pty: the test plays the device by writing and reading raw frames."""
+
+from __future__ import annotations
+
+import os
+import select
+import termios
+import threading
+import tty
+from collections.abc import Iterator
+
+import pytest
+
+from rehab_hil.config import load_config
+from rehab_hil.hardware import HardwareError, SerialHardware, configure_from_config, duty_units
+from rehab_hil.protocol import (
+    Ack,
+    AckResult,
+    Clear,
+    Command,
+    Configure,
+    FrameDecoder,
+    Hello,
+    HelloReq,
+    Sample,
+    encode_frame,
+)
+
+HELLO = Hello(1, 1, 0, 0, 2, 2, 2000, 5000, 10, 1000, 1)
+
+
+class PtyPeer:
+    """The device end of a raw pty: read host frames, write device frames."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave, termios.TCSANOW)
+        self.path = os.ttyname(self.slave)
+        self.decoder = FrameDecoder()
+        self.seq = 0
+
+    def send(self, *msgs: object, seq: int | None = None) -> None:
+        for m in msgs:
+            os.write(self.master, encode_frame(m, self.seq if seq is None else seq))  # type: ignore[arg-type]
+            self.seq += 1
+
+    def receive(self, timeout: float = 2.0) -> list:
+        ready, _, _ = select.select([self.master], [], [], timeout)
+        return self.decoder.feed(os.read(self.master, 4096)) if ready else []
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+@pytest.fixture
+def peer() -> Iterator[PtyPeer]:
+    p = PtyPeer()
+    yield p
+    p.close()
+
+
+def _answer(peer: PtyPeer, reply: object | None = None) -> threading.Thread:
+    """Answer the host's next request in the background (HELLO for HELLO_REQ, else ``reply``)."""
+
+    def run() -> None:
+        for _ in range(20):
+            for frame in peer.receive(0.25):
+                if isinstance(frame.msg, HelloReq):
+                    peer.send(HELLO)
+                    return
+                if reply is not None:
+                    msg = reply(frame) if callable(reply) else reply
+                    peer.send(msg)
+                    return
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t
+
+
+def _connected(peer: PtyPeer) -> SerialHardware:
+    hw = SerialHardware(peer.path)
+    t = _answer(peer)
+    assert hw.connect(timeout=3.0) == HELLO
+    t.join()
+    return hw
+
+
+def _sample(index: int, echo: int = 0, **kw: int) -> Sample:
+    base = dict(device_time_us=index * 1000, sample_index=index, encoder_count=0, adc0=512, adc1=0, duty0=0,
+                duty1=0, direction=0, status=1, faults=0, cmd_seq_echo=echo, rx_bad_frames=0)
+    base.update(kw)
+    return Sample(**base)
+
+
+def test_connect_handshakes_and_reports_capabilities(peer: PtyPeer) -> None:
+    with _connected(peer) as hw:
+        assert hw.info == HELLO
+
+
+def test_connect_without_an_answer_raises_a_clear_error(peer: PtyPeer) -> None:
+    with SerialHardware(peer.path) as hw, pytest.raises(HardwareError, match="no HELLO"):
+        hw.connect(timeout=0.3)
+
+
+def test_opening_a_missing_port_raises_hardware_error(tmp_path: os.PathLike) -> None:
+    with pytest.raises(HardwareError, match="cannot open"):
+        SerialHardware(str(tmp_path) + "/nope").connect(timeout=0.1)
+
+
+def test_samples_arrive_in_order_and_gaps_count_as_dropped(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    peer.send(*(_sample(i) for i in (10, 11, 14, 15)))
+    got = [hw.read_sample(1.0).sample_index for _ in range(4)]
+    assert got == [10, 11, 14, 15]
+    assert hw.stats.dropped_samples == 2 and hw.stats.samples == 4
+    assert hw.read_sample(0.05) is None
+    hw.close()
+
+
+def test_garbage_and_corrupt_frames_are_counted_and_skipped(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    bad = bytearray(encode_frame(_sample(1), 0))
+    bad[5] ^= 0xFF
+    os.write(peer.master, b"\x13\x37garbage\x00" + bytes(bad))
+    peer.send(_sample(2))
+    assert hw.read_sample(1.0).sample_index == 2
+    assert hw.stats.bad_frames.total() == 2
+    hw.close()
+
+
+def test_command_echo_gives_a_latency(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    seq = hw.write_command(0.25, direction=1)
+    (frame,) = [f for f in peer.receive() if isinstance(f.msg, Command)]
+    assert frame.seq == seq and frame.msg == Command(2500, 0, 1, 1)
+    peer.send(_sample(1, echo=seq, duty0=2500))
+    assert hw.read_sample(1.0).cmd_seq_echo == seq
+    assert len(hw.stats.latencies_s) == 1 and hw.stats.latencies_s[0] > 0
+    hw.close()
+
+
+def test_configure_refused_by_the_device_raises(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    _answer(peer, lambda f: Ack(Configure.TYPE, f.seq, AckResult.BAD_PARAMETER))
+    with pytest.raises(HardwareError, match="refused"):
+        hw.configure(Configure(1000, 0, 10000, 1000, 1023, -1, 1, 0))
+    hw.close()
+
+
+def test_clear_reports_whether_faults_remain(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    _answer(peer, lambda f: Ack(Clear.TYPE, f.seq, AckResult.REFUSED))
+    assert hw.clear() is False
+    hw.close()
+
+
+def test_request_without_ack_times_out_with_hardware_error(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    with pytest.raises(HardwareError, match="no ACK"):
+        hw.estop(timeout=0.2)
+    hw.close()
+
+
+def test_unsolicited_hello_counts_as_a_reboot(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    peer.send(HELLO, seq=0)
+    peer.send(_sample(0))
+    assert hw.read_sample(1.0).sample_index == 0
+    assert hw.stats.reboots == 1 and hw.stats.dropped_samples == 0
+    hw.close()
+
+
+def test_device_going_away_raises_hardware_error(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    peer.close()
+    with pytest.raises(HardwareError, match="lost"):
+        for _ in range(10):
+            hw.read_sample(0.1)
+    hw.close()
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_duty_is_refused(bad: float) -> None:
+    with pytest.raises(ValueError, match="finite"):
+        duty_units(bad)
+
+
+def test_duty_is_clipped_to_the_unit_range() -> None:
+    assert [duty_units(d) for d in (-0.5, 0.0, 0.33333, 1.0, 7.0)] == [0, 0, 3333, 10000, 10000]
+
+
+@pytest.mark.slow  # importing the plant configs pulls in python-control and scipy
+def test_configure_from_config_converts_limits_to_counts(configs_dir: os.PathLike) -> None:
+    cfg = load_config(f"{configs_dir}/finger_extensor.toml")
+    c = configure_from_config(cfg, encoder_counts_per_rev=2000)
+    assert (c.sample_rate_hz, c.watchdog_ms, c.max_duty) == (1000, 50, 10000)
+    assert (c.enc_min, c.enc_max) == (-28, 723)  # -5 deg and 130 deg at 2000 counts/rev, rounded outward
+    assert c.max_heating_ms == 600_000 and c.force_limit_counts == 1023
