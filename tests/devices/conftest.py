@@ -1,5 +1,6 @@
-"""Simulated devices for the device tests: started once per test module (startup costs seconds),
-always terminated at module teardown, also when a test fails."""
+"""Simulated devices for the device tests: started once per test session and worker (startup
+costs seconds), always terminated at teardown, also when a test fails. The device test modules
+share one xdist group so one worker starts them."""
 
 from __future__ import annotations
 
@@ -24,10 +25,10 @@ def avr_skip_reason() -> str | None:
     return reason() if callable(reason) else None
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def device_pool() -> Iterator[Callable[..., Any]]:
-    """``get(kind, clock)`` -> (running device, connected ``SerialHardware``), shared within the
-    test module; one connection per device keeps the host's sequence numbers unique."""
+    """``get(kind, clock)`` -> (running device, connected ``SerialHardware``), shared
+    by the tests; one connection per device keeps the host's sequence numbers unique."""
     from rehab_hil.devices import spawn_device
     from rehab_hil.hardware import SerialHardware
 

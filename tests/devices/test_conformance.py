@@ -30,7 +30,7 @@ from rehab_hil.protocol import (
 
 from .conftest import avr_skip_reason
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180), pytest.mark.xdist_group("sim_devices")]
 
 WIDE = 1 << 30
 
