@@ -27,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="plant config (default: the one the rig reports in rehab/<rig>/info)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: until "
                    "the rig stops)")
-    p.add_argument("--wait", type=float, default=10.0, help="how long to wait for the rig to appear [s]")
+    p.add_argument("--wait", type=float, default=10.0,
+                   help="how long to wait for the hub and the rig to appear [s] (default 10)")
     add_network_args(p)
     return p
 
@@ -59,13 +60,17 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
     if not 0 <= args.wait <= 3600:
         raise UserError(f"--wait must be in [0, 3600] s, got {args.wait}")
-    try:
-        session = open_session(net)
-    except TelemetryConfigError as e:
-        raise UserError(str(e)) from None
+    end_wait = time.monotonic() + args.wait
+    while True:  # the rig (hosting the loopback hub) may start after the recorder
+        try:
+            session = open_session(net)
+            break
+        except TelemetryConfigError as e:
+            if time.monotonic() >= end_wait:
+                raise UserError(str(e)) from None
+            time.sleep(0.25)
     try:
         info = None
-        end_wait = time.monotonic() + args.wait
         while info is None and time.monotonic() < end_wait:
             info = query_info(session, rig, timeout_s=min(1.0, max(0.1, end_wait - time.monotonic())))
         if info is None and args.config is None:

@@ -38,6 +38,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
     p.add_argument("--lockstep", action="store_true", help="sim device: one sample per command (deterministic)")
     p.add_argument("--no-display", action="store_true", help="no live display (logs and CI)")
+    p.add_argument("--telemetry", metavar="RIG", default=None,
+                   help="publish telemetry over zenoh as rig RIG on loopback (docs/telemetry.md)")
+    p.add_argument("--telemetry-port", type=int, default=7447, help="loopback zenoh hub port (default 7447)")
     return p
 
 
@@ -52,6 +55,18 @@ def _spawn(kind: str, config: Path, lockstep: bool) -> Any:
     except ImportError:
         raise UserError("--device avr: the simavr backend (rehab_hil.devices.avr_device) is not available") from None
     return avr_device.spawn_avr_device(config, clock=clock)
+
+
+def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: Any) -> Any:
+    """The zenoh publisher for ``--telemetry RIG`` (rehab_hil.telemetry.rig)."""
+    from rehab_hil.telemetry import NetworkConfig, RigIdError, TelemetryConfigError
+    from rehab_hil.telemetry.rig import RigTelemetry, rig_info
+
+    info = rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), getattr(hw, "info", None))
+    try:
+        return RigTelemetry(args.telemetry, info, NetworkConfig(port=args.telemetry_port), queue_size=20_000)
+    except (RigIdError, TelemetryConfigError, ValueError) as e:
+        raise UserError(f"--telemetry: {e}") from None
 
 
 def _progress_table(p: Progress) -> Table:
@@ -125,9 +140,14 @@ def run(args: argparse.Namespace) -> int:
         recorder = Recorder(args.record, binding) if args.record else None
         if recorder is not None:
             stack.callback(recorder.close)
+        telemetry = _telemetry(args, cfg, binding, hw) if args.telemetry else None
+        if telemetry is not None:
+            stack.callback(telemetry.close)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
                           assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
-                          assembly.period_s(cfg), recorder=recorder)
+                          assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink)
+        if telemetry is not None:
+            telemetry.watch(svc, hw)
         previous = {s: signal.signal(s, lambda n, f: svc.request_stop(signal.Signals(n).name))
                     for s in (signal.SIGINT, signal.SIGTERM)}
         stack.callback(lambda: [signal.signal(s, h) for s, h in previous.items()])
@@ -137,7 +157,8 @@ def run(args: argparse.Namespace) -> int:
         def work() -> None:
             try:
                 result.append(svc.run(args.duration, pacing=args.pacing, realtime=not args.lockstep,
-                                      sample_timeout_s=0.5 if args.lockstep else None))
+                                      sample_timeout_s=0.5 if args.lockstep else None,
+                                      on_trip=telemetry.on_trip if telemetry else None))
             except BaseException as e:  # reported on the main thread
                 errors.append(e)
 

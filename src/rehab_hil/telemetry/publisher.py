@@ -91,6 +91,10 @@ class TelemetryPublisher:
         """Replace the loop and link figures merged into the next 1 Hz ``.../stats`` message."""
         self._loop_stats = dict(stats)
 
+    def set_stats_source(self, source: Callable[[], Mapping[str, Any]] | None) -> None:
+        """Replace the callable the worker asks for loop and link figures once per stats period."""
+        self._stats_source = source
+
     def set_info(self, info: Mapping[str, Any]) -> None:
         """Replace what ``.../info`` queries are answered with."""
         self._info = dict(info)

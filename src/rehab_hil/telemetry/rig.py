@@ -68,6 +68,26 @@ class RigTelemetry:
             self.session.close()
             raise
 
+    def watch(self, service: Any, hw: Any) -> None:
+        """Publish ``service.progress`` and ``hw.stats`` in the 1 Hz stats message (read off the loop thread)."""
+
+        def stats() -> dict[str, Any]:
+            p = service.progress
+            out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "missed", "tripped")}
+            link = getattr(hw, "stats", None)
+            if link is not None:
+                d = link.as_dict()
+                d["bad_frames"] = sum(d["bad_frames"].values())
+                out["link"] = d
+            return out
+
+        self.sink.set_stats_source(stats)
+
+    def on_trip(self, event: Any) -> None:
+        """``LoopService.run(on_trip=...)`` hook: publish the supervisor's event on ``.../safety``."""
+        self.sink.offer_safety({"state": "tripped", "t_s": getattr(event, "t_s", None),
+                                "reason": getattr(event, "reason", str(event)), "detail": getattr(event, "detail", "")})
+
     def close(self) -> None:
         """Flush and undeclare the publisher, then close the session; idempotent."""
         self.sink.close()
