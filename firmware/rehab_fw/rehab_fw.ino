@@ -275,11 +275,21 @@ static void handle_packet(const uint8_t *pkt, uint8_t n) {
   rx.count_bad();  // unknown type or wrong payload length
 }
 
+static void send_fault(uint16_t fresh, uint16_t all) {
+  uint8_t p[4];
+  proto::put_u16(p, fresh);
+  proto::put_u16(p + 2, all);
+  send(proto::FAULT, p, 4);
+}
+
 static void send_sample() {
   Snapshot s;
-  uint16_t d0, d1, st, f;
+  uint16_t d0, d1, st, f, fresh;
   uint8_t dir;
   ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+    // Trips not reported yet go out first, so a FAULT never arrives after a SAMPLE showing it.
+    fresh = faults_unreported;
+    faults_unreported = 0;
     s.time_us = snap.time_us; s.enc = snap.enc; s.adc0 = snap.adc0; s.adc1 = snap.adc1;
     sample_due = false;
     d0 = duty[0]; d1 = duty[1]; dir = direction; f = faults;
@@ -287,6 +297,7 @@ static void send_sample() {
          (faults ? ST_FAULT_LATCHED : 0) | (io::estop_pin_active() ? ST_ESTOP_INPUT_ACTIVE : 0) |
          (duty_clamped ? ST_DUTY_CLAMPED : 0) | (wd_armed ? ST_WATCHDOG_ARMED : 0);
   }
+  if (fresh) send_fault(fresh, f);
   uint8_t p[proto::LEN_SAMPLE];
   proto::put_u32(p, s.time_us);
   proto::put_u32(p + 4, sample_index++);
@@ -328,12 +339,7 @@ void loop() {
     fresh = faults_unreported;
     faults_unreported = 0;
   }
-  if (fresh) {
-    uint8_t p[4];
-    proto::put_u16(p, fresh);
-    proto::put_u16(p + 2, faults);
-    send(proto::FAULT, p, 4);
-  }
+  if (fresh) send_fault(fresh, faults);
   if (sample_due) send_sample();
 #ifdef FW_TEST_HANG
   // Test builds only (firmware/Makefile TEST_HOOKS=1): the e-stop pin held low with the e-stop
