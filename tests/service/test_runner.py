@@ -1,0 +1,123 @@
+"""Closed-loop sessions against the Python simulated device in lockstep mode (deterministic)."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+
+import numpy as np
+import pytest
+
+from rehab_hil.interchange import read_csv
+from rehab_hil.protocol import Status
+from rehab_hil.service import assembly
+from rehab_hil.service.controllers import Actuator, OpenLoopPWM
+from rehab_hil.service.recorder import Recorder, read_mcap
+from rehab_hil.service.runner import LoopService
+from rehab_hil.service.supervisor import Supervisor
+from rehab_hil.service.thermal import FirstOrderThermal
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("service-shared-device")]
+
+TIMEOUT = 0.5  # lockstep: how long a cycle waits for its sample on a busy machine
+
+
+def service(cfg, binding, hw, controller="pid", supervisor=None, recorder=None, configure=None):
+    ctl = assembly.build_controller(cfg, binding, controller) if isinstance(controller, str) else controller
+    return LoopService(hw, configure or assembly.firmware_configure(cfg, binding),
+                       ctl, assembly.build_estimator(cfg, binding),
+                       supervisor or assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
+                       recorder=recorder)
+
+
+def supervisor_with(cfg, binding, force_signals=None, thermal=None, **limits):
+    base = assembly.build_supervisor(cfg, binding)
+    return Supervisor(dataclasses.replace(base.limits, **limits), base.dt_s,
+                      base.force_signals if force_signals is None else force_signals,
+                      thermal if thermal is not None else base.thermal)
+
+
+def assert_safe_end(res):
+    s = res.final_sample
+    assert s is not None
+    assert (s.duty0, s.duty1) == (0, 0)
+    assert not s.status & Status.PWM_ENABLED
+
+
+def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, fresh_hw):
+    res = service(cfg, binding, fresh_hw, "pid").run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
+    assert res.events == []
+    assert res.cycles == 2000 and res.sample_gaps == 0
+    angle_end = res.final_sample.encoder_count * 360.0 / binding.encoder_counts_per_rev
+    assert abs(angle_end - cfg.rig.session.step_deg) < 1.5  # settled on the target
+    assert res.tracking["mae"] < 10.0  # mostly the initial 59.58 deg step error
+    assert_safe_end(res)
+
+
+@pytest.mark.parametrize(("reason", "kwargs"), [
+    ("range_of_motion", {"max_angle_deg": 20.0}),
+    ("contact_force", {"max_force_n": 0.05, "force_signals": ("drive_torque_nm",)}),  # the torque channel
+    ("heating_time", {"max_heating_s": 0.2}),
+    ("temperature", {"max_temperature_c": 26.0, "thermal": FirstOrderThermal(23.0, 100.0, 0.5)}),
+])
+def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, binding, fresh_hw, reason, kwargs):
+    sup = supervisor_with(cfg, binding, **kwargs)
+    # a steady push (duty 0.2, towards opening) whatever angle the shared plant starts from
+    push = OpenLoopPWM(Actuator(binding), 0.2, on_s=100.0, off_s=0.0)
+    res = service(cfg, binding, fresh_hw, push, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)
+    assert [e.reason for e in res.events][:1] == [reason]
+    assert res.cycles < 3000  # the session stopped early
+    assert_safe_end(res)
+
+
+def test_a_firmware_fault_trips_the_host(cfg, binding, fresh_hw):
+    conf = assembly.firmware_configure(cfg, binding)
+    conf = dataclasses.replace(conf, enc_max=int(10 * binding.encoder_counts_per_rev / 360))  # 10 deg
+    res = service(cfg, binding, fresh_hw, "pid", configure=conf).run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
+    assert res.events[0].reason == "device_fault" and "RANGE_OF_MOTION" in res.events[0].detail
+    assert_safe_end(res)
+
+
+def test_link_loss_is_detected_after_n_periods_and_reported(cfg, binding, fresh_hw, shared_device):
+    svc = service(cfg, binding, fresh_hw, "pid")
+    threading.Timer(0.3, shared_device.control, args=("stall 600",)).start()
+    res = svc.run(30.0, realtime=False, sample_timeout_s=0.02)
+    assert res.events[0].reason == "link_loss"
+    assert res.cycles < 30000
+
+
+def test_device_reboot_is_detected_and_puts_the_rig_in_the_safe_state(cfg, binding, fresh_hw, shared_device):
+    svc = service(cfg, binding, fresh_hw, "pid")
+    threading.Timer(0.3, shared_device.control, args=("reboot",)).start()
+    res = svc.run(30.0, realtime=False, sample_timeout_s=0.05)
+    assert res.events[0].reason == "device_reboot"
+    assert res.reboots >= 1
+    assert res.final_sample is not None
+
+
+def test_recording_holds_every_sample_sent_with_gaps_counted(cfg, binding, fresh_hw, shared_device, tmp_path):
+    rec = Recorder(tmp_path, binding)
+    threading.Timer(0.1, shared_device.control, args=("drop 0.01",)).start()  # after CONFIGURE's ACK
+    try:
+        res = service(cfg, binding, fresh_hw, "session", recorder=rec).run(2.0, realtime=False,
+                                                                           sample_timeout_s=0.02)
+    finally:
+        shared_device.control("drop 0")
+        rec.close()
+    csv = read_csv(rec.csv_path)
+    idx = csv["sample_index"].astype(int)
+    steps = np.diff(idx)
+    assert (steps >= 1).all()
+    assert int((steps - 1).sum()) == res.sample_gaps  # every gap counted
+    assert res.sample_gaps > 0  # frames were dropped on purpose
+    assert len(idx) == res.samples  # every sample that arrived is in the file
+    mcap_samples = [m for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/sample"]
+    assert [int(m["sample_index"]) for m in mcap_samples] == list(idx)
+
+
+def test_session_tracks_open_close_cycles(cfg, binding, hw):
+    res = service(cfg, binding, hw, "session").run(4.0, realtime=False, sample_timeout_s=TIMEOUT)
+    assert res.events == []
+    assert res.tracking["mae"] < 3.0 and res.tracking["max_abs_error"] < 10.0
+
+

@@ -1,0 +1,168 @@
+"""Unit behaviour of the loop parts that need no device: timer, estimation, controllers,
+supervisor, thermal estimate, recorder and telemetry sink."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from rehab_hil.interchange import read_csv
+from rehab_hil.plants.base import AdcChannel
+from rehab_hil.protocol import Fault, Sample
+from rehab_hil.service.controllers import Actuator, Command, PWMRatio, constant_reference, cycle_reference
+from rehab_hil.service.estimation import Estimator, State, adc_to_si, unwrap_delta
+from rehab_hil.service.loop import DeadlineTimer, realtime_setup, realtime_teardown
+from rehab_hil.service.recorder import Record, Recorder, read_mcap
+from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
+from rehab_hil.service.telemetry import NullSink, QueueSink, TelemetrySink
+from rehab_hil.service.thermal import FirstOrderThermal
+
+
+def limits(**kw):
+    base = {"min_angle_deg": -5.0, "max_angle_deg": 120.0, "max_force_n": 10.0, "max_heating_s": 1.0,
+            "max_temperature_c": 80.0, "link_loss_periods": 5, "max_duty": 0.8}
+    base.update(kw)
+    return SupervisorLimits(**base)
+
+
+def state(angle_deg=0.0, **analog):
+    return State(0.0, math.radians(angle_deg), 0.0, analog)
+
+
+def test_timer_skips_overrun_deadlines_and_counts_them_instead_of_catching_up():
+    timer = DeadlineTimer(0.002, capacity=100)
+    timer.start()
+    assert timer.wait() == 0
+    time.sleep(0.0105)  # overrun by more than 4 periods
+    k = timer.wait()
+    assert k >= 5 and timer.stats.missed == k - 1
+    assert timer.wait() == k + 1  # the next deadline follows, no burst of late cycles
+    assert timer.stats.n == 3
+
+
+def test_realtime_setup_reports_the_scheduler_it_got():
+    rep = realtime_setup()
+    try:
+        assert rep.gc_frozen
+        assert rep.scheduler.startswith(("SCHED_FIFO", "SCHED_OTHER ("))
+    finally:
+        realtime_teardown()
+
+
+def test_unwrap_delta_crosses_the_32_bit_wrap():
+    assert unwrap_delta(5, 2**32 - 3) == 8
+    assert unwrap_delta(2**32 - 3, 5) == -8
+
+
+def test_estimator_angle_velocity_and_calibration(binding):
+    est = Estimator(binding, velocity_cutoff_hz=50.0)
+    cpr = binding.encoder_counts_per_rev
+    s = None
+    for k in range(400):  # constant speed: 1 count per ms
+        s = est.update(k, 1000 * k, (612, 0))
+    assert s.angle_rad == pytest.approx(399 * 2 * math.pi / cpr)
+    assert s.velocity_rad_s == pytest.approx(1000 * 2 * math.pi / cpr, rel=1e-3)
+    ch = binding.adc[0]
+    assert s.analog[ch.signal] == pytest.approx(adc_to_si(612, ch))
+    assert adc_to_si(612, AdcChannel("x_n", 100.0, 512.0)) == pytest.approx(1.0)
+
+
+def test_actuator_maps_signed_effort_to_duty_and_direction(binding):
+    act = Actuator(binding)
+    cmd = act.command(-0.5 * act.max_effort)
+    assert cmd.duty[act.input.channel] == pytest.approx(0.5)
+    assert cmd.direction == 1 << act.input.channel and cmd.enable
+
+
+def test_pwm_ratio_is_linear_between_seed_000_duty_bounds(binding):
+    ctl = PWMRatio(Actuator(binding), constant_reference(0.0), 0.4, 1.0, 0.0, 37.5)
+    assert ctl.duty_for(0.0) == 0.0
+    assert ctl.duty_for(37.5) == pytest.approx(1.0)
+    assert ctl.duty_for(18.75) == pytest.approx(0.7)
+    assert ctl.duty_for(100.0) == pytest.approx(1.0)
+
+
+def test_cycle_reference_runs_five_cycles_per_minute():
+    ref = cycle_reference(0.0, 40.0, 5.0, 0.25)
+    t = np.arange(0.0, 60.0, 0.01)
+    r = np.array([ref(x) for x in t])
+    rises = np.sum((r[1:] >= 39.99) & (r[:-1] < 39.99))
+    assert rises == 5
+
+
+def test_supervisor_clamps_duty_and_latches_pwm_off_after_a_trip():
+    sup = Supervisor(limits(), 0.001, ("contact_force_n",))
+    assert sup.filter(0.0, Command((1.0, 0.0), 0, True)).duty == (0.8, 0.0)
+    sup.observe(0.0, state(10.0, contact_force_n=12.0), 0)
+    assert sup.events[0].reason == "contact_force"
+    sup.observe(0.0, state(10.0, contact_force_n=0.0), 0)  # cause gone: still latched
+    out = sup.filter(0.001, Command((0.5, 0.0), 0, True))
+    assert out.duty == (0.0, 0.0) and not out.enable
+
+
+@pytest.mark.parametrize(("reason", "act"), [
+    ("range_of_motion", lambda s: s.observe(0.0, state(121.0), 0)),
+    ("device_fault", lambda s: s.observe(0.0, state(0.0), Fault.WATCHDOG)),
+    ("link_loss", lambda s: [s.no_sample(0.0) for _ in range(5)]),
+    ("heating_time", lambda s: [s.filter(0.0, Command((0.1, 0.0), 0, True)) for _ in range(1001)]),
+])
+def test_supervisor_trips_on_each_check(reason, act):
+    sup = Supervisor(limits(), 0.001)
+    act(sup)
+    assert [e.reason for e in sup.events] == [reason]
+
+
+def test_link_loss_needs_n_consecutive_missing_samples():
+    sup = Supervisor(limits(), 0.001)
+    for _ in range(4):
+        sup.no_sample(0.0)
+    sup.observe(0.0, state(), 0)
+    for _ in range(4):
+        sup.no_sample(0.0)
+    assert not sup.tripped
+
+
+def test_thermal_estimate_approaches_the_duty_proportional_equilibrium():
+    th = FirstOrderThermal(20.0, 100.0, 1.0)
+    for _ in range(10_000):
+        th.step(0.5, 0.001)
+    assert th.temperature_c == pytest.approx(20.0 + 50.0 * (1 - math.exp(-10.0)), rel=1e-6)
+
+
+def _sample(i):
+    return Sample(device_time_us=1000 * i, sample_index=i, encoder_count=i, adc0=512, adc1=0, duty0=100, duty1=0,
+                  direction=0, status=0, faults=0, cmd_seq_echo=i, rx_bad_frames=0)
+
+
+def test_recording_read_while_running_holds_everything_up_to_the_last_flush(binding, tmp_path):
+    rec = Recorder(tmp_path, binding, flush_s=0.05)
+    try:
+        est = Estimator(binding)
+        for i in range(200):
+            s = _sample(i)
+            rec.offer(Record(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
+                             Command((0.01, 0.0), 0, True), i, 23.0))
+        deadline = time.monotonic() + 10.0
+        while rec.rows < 200 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.2)  # at least one flush after the last record
+        csv = read_csv(rec.csv_path)  # the run has not ended: no close() yet
+        assert list(csv["sample_index"].astype(int)) == list(range(200))
+        got = [m["sample_index"] for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/sample"]
+        assert got == list(range(200))
+    finally:
+        rec.close()
+    assert [m["sample_index"] for t, _, m in read_mcap(rec.mcap_path) if t == "/rig/sample"] == list(range(200))
+
+
+def test_telemetry_sinks_never_block_and_count_drops():
+    assert isinstance(NullSink(), TelemetrySink)
+    gate = []
+    sink = QueueSink(lambda s: gate.append(s) or time.sleep(0.05), maxsize=2)
+    accepted = sum(sink.offer(i) for i in range(50))
+    assert sink.dropped == 50 - accepted and sink.dropped > 0
+    sink.close()
+    assert sink.delivered == accepted
