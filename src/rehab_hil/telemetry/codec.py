@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import operator
 import struct
 from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
@@ -29,6 +30,8 @@ __all__ = [
     "decode_state",
     "encode_json",
     "encode_state",
+    "join_records",
+    "pack_record",
     "to_state_sample",
 ]
 
@@ -152,29 +155,84 @@ def to_state_sample(obj: Any) -> StateSample:
                        float(_get(obj, "temperature_c", _NAN)), safety)
 
 
+_RAW_GET = operator.attrgetter(*_RAW)
+_NO_RAW = (0,) * len(_RAW)
+_SAFETY_CODE = {name: i for i, name in enumerate(SAFETY_STATES)}
+
+
+def _record_values(r: Any) -> tuple[Any, ...]:
+    """Wire values of a loop ``Record`` (duck-typed) without building a ``StateSample``: the hot path."""
+    s, st, c = r.sample, r.state, r.command
+    flags = 0
+    if s is not None:
+        flags |= 1
+        raw = _RAW_GET(s)
+    else:
+        raw = _NO_RAW
+    if st is not None:
+        a = tuple(st.analog.values())
+        n = len(a)
+        if n > MAX_ANALOG:
+            raise PayloadError(f"at most {MAX_ANALOG} analog signals fit the wire format, got {n}")
+        flags |= 2 | n << 3
+        a0 = a[0] if n > 0 else _NAN
+        a1 = a[1] if n > 1 else _NAN
+        stv = (st.t_s, st.angle_rad, st.velocity_rad_s, a0, a1)
+    else:
+        stv = (_NAN, _NAN, _NAN, _NAN, _NAN)
+    if c.enable:
+        flags |= 4
+    safety = getattr(r, "safety", "unknown")
+    code = _SAFETY_CODE.get(getattr(safety, "value", safety), 0)
+    return (r.host_time_s, r.time_s, flags, *raw, *stv, c.duty[0], c.duty[1], c.direction, c.reference_deg,
+            r.command_seq, r.temperature_c, code)
+
+
+def _sample_values(r: StateSample) -> tuple[Any, ...]:
+    if len(r.analog) > MAX_ANALOG:
+        raise PayloadError(f"at most {MAX_ANALOG} analog signals fit the wire format, got {len(r.analog)}")
+    flags = int(r.has_sample) | int(r.has_state) << 1 | int(r.command_enable) << 2 | len(r.analog) << 3
+    a = (*r.analog, _NAN, _NAN)[:MAX_ANALOG]
+    return (r.host_time_s, r.time_s, flags, *r[3:15], r.state_t_s, r.angle_rad, r.velocity_rad_s, *a,
+            r.command_duty0, r.command_duty1, r.command_direction, r.reference_deg, r.command_seq,
+            r.temperature_c, _SAFETY_CODE.get(r.safety, 0))
+
+
+def _values(obj: Any) -> tuple[Any, ...]:
+    if type(obj) is StateSample:
+        return _sample_values(obj)
+    if hasattr(obj, "command") and hasattr(obj, "state") and hasattr(obj, "command_seq"):
+        try:
+            return _record_values(obj)
+        except (AttributeError, TypeError, IndexError):
+            pass  # not quite a Record: take the general path, which explains what is missing
+    return _sample_values(to_state_sample(obj))
+
+
+def pack_record(obj: Any) -> bytes:
+    """One record of the state encoding (what ``encode_state`` packs per sample; ``PayloadError`` on bad input)."""
+    v = _values(obj)
+    try:
+        return STATE_RECORD.pack(*v)
+    except struct.error as e:
+        raise PayloadError(f"sample {v[4]}: field out of range for the wire format: {e}") from None
+
+
+def join_records(records: list[bytes], batch_seq: int = 0, dropped_total: int = 0) -> bytes:
+    """A state payload from records made by ``pack_record`` (lets a publisher pack as samples arrive)."""
+    if not 1 <= len(records) <= MAX_BATCH:
+        raise PayloadError(f"a state batch holds 1..{MAX_BATCH} samples, got {len(records)}")
+    head = STATE_HEADER.pack(STATE_MAGIC, STATE_VERSION, _KIND_STATE, len(records), STATE_RECORD.size,
+                             batch_seq & 0xFFFFFFFF, min(dropped_total, 0xFFFFFFFF))
+    return head + b"".join(records)
+
+
 def encode_state(samples: Iterable[Any], batch_seq: int = 0, dropped_total: int = 0) -> bytes:
     """Pack up to ``MAX_BATCH`` samples behind a version header (``PayloadError`` on bad input)."""
-    recs = [to_state_sample(s) for s in samples]
-    if not 1 <= len(recs) <= MAX_BATCH:
-        raise PayloadError(f"a state batch holds 1..{MAX_BATCH} samples, got {len(recs)}")
-    out = bytearray(STATE_HEADER.pack(STATE_MAGIC, STATE_VERSION, _KIND_STATE, len(recs), STATE_RECORD.size,
-                                      batch_seq & 0xFFFFFFFF, min(dropped_total, 0xFFFFFFFF)))
-    for r in recs:
-        try:
-            code = SAFETY_STATES.index(r.safety)
-        except ValueError:
-            code = 0
-        flags = int(r.has_sample) | int(r.has_state) << 1 | int(r.command_enable) << 2 | len(r.analog) << 3
-        a = (*r.analog, _NAN, _NAN)[:MAX_ANALOG] if len(r.analog) <= MAX_ANALOG else None
-        if a is None:
-            raise PayloadError(f"at most {MAX_ANALOG} analog signals fit the wire format, got {len(r.analog)}")
-        try:
-            out += STATE_RECORD.pack(r.host_time_s, r.time_s, flags, *r[3:15], r.state_t_s, r.angle_rad,
-                                     r.velocity_rad_s, *a, r.command_duty0, r.command_duty1, r.command_direction,
-                                     r.reference_deg, r.command_seq, r.temperature_c, code)
-        except struct.error as e:
-            raise PayloadError(f"sample {r.sample_index}: field out of range for the wire format: {e}") from None
-    return bytes(out)
+    items = samples if isinstance(samples, list) else list(samples)
+    if not 1 <= len(items) <= MAX_BATCH:
+        raise PayloadError(f"a state batch holds 1..{MAX_BATCH} samples, got {len(items)}")
+    return join_records([pack_record(x) for x in items], batch_seq, dropped_total)
 
 
 def decode_state(payload: bytes | bytearray | memoryview) -> StateBatch:

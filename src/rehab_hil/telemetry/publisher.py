@@ -16,7 +16,7 @@ from typing import Any
 
 import zenoh
 
-from rehab_hil.telemetry.codec import PayloadError, decode_json, encode_json, encode_state
+from rehab_hil.telemetry.codec import PayloadError, decode_json, encode_json, join_records, pack_record
 from rehab_hil.telemetry.keys import RigKeys
 
 __all__ = ["COMMAND_OPS", "CommandHandler", "TelemetryPublisher"]
@@ -132,19 +132,28 @@ class TelemetryPublisher:
 
     # -- worker thread -----------------------------------------------------------------------------
     def _run(self) -> None:
-        pending: list[Any] = []
+        # Records are packed one at a time as they are taken, with a GIL release after each, so the
+        # loop thread never waits long for the interpreter while this thread works.
+        pending: list[bytes] = []
         first_at = 0.0
         next_stats = time.monotonic() + self._stats_period
         while True:
             stopping = self._stop.is_set()
             q = self._queue
             while q:
+                item = q.popleft()
+                try:
+                    rec = pack_record(item)
+                except PayloadError:
+                    self.publish_errors += 1
+                    continue
                 if not pending:
                     first_at = time.monotonic()
-                pending.append(q.popleft())
+                pending.append(rec)
                 if len(pending) == self._batch:
                     self._put_batch(pending)
                     pending = []
+                time.sleep(0)
             now = time.monotonic()
             if pending and (stopping or now - first_at >= self._max_delay):
                 self._put_batch(pending)
@@ -165,15 +174,15 @@ class TelemetryPublisher:
                 return
             self._stop.wait(0.002)
 
-    def _put_batch(self, samples: list[Any]) -> None:
+    def _put_batch(self, records: list[bytes]) -> None:
         try:
-            payload = encode_state(samples, self.published_batches, self.dropped)
+            payload = join_records(records, self.published_batches, self.dropped)
             self._pub.put(payload)
         except (PayloadError, zenoh.ZError):
             self.publish_errors += 1
             return
         self.published_batches += 1
-        self.published_samples += len(samples)
+        self.published_samples += len(records)
 
     def _put_json(self, key: str, kind: str, body: dict[str, Any]) -> None:
         try:
