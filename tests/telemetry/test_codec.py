@@ -18,6 +18,7 @@ from rehab_hil.telemetry.codec import (
     decode_state,
     encode_json,
     encode_state,
+    pack_record,
     to_state_sample,
 )
 
@@ -144,3 +145,14 @@ def test_unknown_json_kinds_and_reserved_keys_are_refused_when_encoding() -> Non
 
 def test_record_layout_matches_the_documented_size() -> None:
     assert STATE_RECORD.size == 8 + 8 + 1 + 29 + 5 * 8 + 2 * 8 + 1 + 8 + 4 + 8 + 1 == 124
+
+
+def test_the_record_fast_path_packs_the_same_bytes_as_the_general_path() -> None:
+    recs = [Record(3.5, 0.002, Sample(9, 8, -7, 6, 5, 4, 3, 1, 2, 1, 0, 1), State(0.002, 1.25, -0.5, {"a_n": 2.0,
+                   "b_n": -1.0}), Command((0.75, 0.5), 2, False, float("nan")), 4, 40.5),
+            Record(3.6, 0.003, None, None, Command((0.0, 0.0), 0, True, 1.0), 5, 41.0)]
+    assert pack_record(recs[0]) == pack_record(to_state_sample(recs[0]))
+    assert encode_state(recs) == encode_state([to_state_sample(r) for r in recs])
+    (a, b) = decode_state(encode_state(recs)).samples
+    assert a.analog == (2.0, -1.0) and not a.command_enable and math.isnan(a.reference_deg)
+    assert not b.has_sample and b.command_enable
