@@ -120,3 +120,11 @@ def test_device_binding_maps_pwm_duty_to_power_and_reads_mcp_and_force(cfg):
     assert b.adc[0].signal == "tcp_force_n"
     produced = Diagram(b.parts).signal_names
     assert "theta_mcp_rad" in produced and "tcp_force_n" in produced
+
+
+def test_a_damping_that_makes_the_integrator_unstable_is_refused(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(CFG_PATH.read_text().replace("damping_nm_s_per_rad = 1.0e-3", "damping_nm_s_per_rad = 0.05"))
+    with pytest.raises(ConfigError, match=r"(?i)rk4 unstable") as e:
+        load_config(bad)
+    assert "simulation.substeps" in str(e.value)

@@ -24,7 +24,7 @@ import control
 import numpy as np
 
 from rehab_hil.config import Field, RigSection, Section, SimulationSection, model_validator, register_plant
-from rehab_hil.models.finger_chain import CHAIN_PARAMS, FingerChain
+from rehab_hil.models.finger_chain import CHAIN_PARAMS, FingerChain, chain_param_vector, mass_matrix
 from rehab_hil.models.lti import lti_part
 from rehab_hil.models.mechanics import TorsionSpring, ViscousFriction
 from rehab_hil.models.sensors import Gain
@@ -38,6 +38,7 @@ __all__ = [
     "SPEC",
     "TcpFingerConfig",
     "build",
+    "fastest_finger_pole",
     "muscle_tf",
     "sensitivity",
     "sensitivity_table",
@@ -159,7 +160,27 @@ class TcpFingerConfig(Section):
             name = getattr(self.muscle, key)
             if name not in self.table1:
                 raise ValueError(f"muscle.{key} = {name!r} is not a [table1] entry ({sorted(self.table1)})")
+        fastest = fastest_finger_pole(self)
+        h = self.simulation.step_s / self.simulation.substeps
+        if fastest * h > RK4_LIMIT:
+            raise ValueError(f"finger: the stiffest joint mode ({fastest:.4g} 1/s) makes RK4 unstable at "
+                             f"h = {h:g} s ({fastest * h:.3g} > {RK4_LIMIT}); raise simulation.substeps "
+                             f"or lower finger.damping_nm_s_per_rad")
         return self
+
+
+RK4_LIMIT = 2.5  # |lambda h| below RK4's real-axis stability bound 2.785, with a margin
+
+
+def fastest_finger_pole(cfg: TcpFingerConfig) -> float:
+    """Largest |eigenvalue| of the finger linearised at rest: M(0) q'' + c_d q' + K q = 0 (eq 5 with
+    eq 3's springs and damping), in 1/s; decides the largest stable RK4 step."""
+    M = np.empty((3, 3))
+    mass_matrix(np.zeros(3), chain_param_vector(_chain_params(cfg)), M)
+    k = cfg.finger.spring_nm_per_deg * 180.0 / math.pi
+    Minv = np.linalg.inv(M)
+    A = np.block([[np.zeros((3, 3)), np.eye(3)], [-k * Minv, -cfg.finger.damping_nm_s_per_rad * Minv]])
+    return float(np.max(np.abs(np.linalg.eigvals(A))))
 
 
 def table1(cfg: TcpFingerConfig) -> dict[str, control.TransferFunction]:
