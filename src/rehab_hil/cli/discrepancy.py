@@ -41,12 +41,18 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from rehab_hil.cli import UserError
+    from rehab_hil.config import load_config
+    from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.discrepancy.workflow import run as run_workflow
+    from rehab_hil.interchange import read_csv
+    from rehab_hil.plants import get_plant
 
     if not 1 <= args.max_effects <= 5:
         raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
     if not 0.1 <= args.holdout <= 0.9:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
+    # check the inputs before the progress display starts, so a user error prints one line only
+    check_recording(get_plant(load_config(args.config).plant), read_csv(args.data), args.data)
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())

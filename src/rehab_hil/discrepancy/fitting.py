@@ -27,7 +27,7 @@ __all__ = ["Fit", "fit_effect"]
 # Finite-difference step on parameters scaled by their typical value: large enough to see through
 # encoder quantisation and stick-slip switching, which make the simulated error piecewise flat.
 DIFF_STEP = 0.05
-MAX_NFEV = 8
+MAX_NFEV = 8  # per fitted parameter beyond the first, 6 more (shape parameters start far off)
 
 
 @dataclass
@@ -67,7 +67,7 @@ def fit_effect(replay: Replay, base: np.ndarray, effect: Effect, n_train: int,
     def fun(z: np.ndarray) -> np.ndarray:
         return residual(dict(zip(names, z * typ, strict=True)))
 
-    sol = least_squares(fun, z0, bounds=(lo, hi), diff_step=DIFF_STEP, max_nfev=MAX_NFEV,
+    sol = least_squares(fun, z0, bounds=(lo, hi), diff_step=DIFF_STEP, max_nfev=MAX_NFEV + 6 * (len(names) - 1),
                         xtol=1e-3, ftol=1e-4, x_scale=1.0)
     z = sol.x
     values = dict(zip(names, (z * typ).tolist(), strict=True))

@@ -1,0 +1,92 @@
+"""The effect library: bounds, option parsing, attachment, and the new parts' kernels."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rehab_hil.discrepancy.effects import EFFECTS, applicable, attach, check_spec, parse_effect_option
+from rehab_hil.discrepancy.parts import DELAY_SLOTS, Backlash, ContactSpringDamper, TransportDelay
+from rehab_hil.models.system import DiagramError
+
+REQUIRED = {"coulomb_friction", "viscous_friction", "backlash", "time_delay", "contact_spring_damper",
+            "passive_muscle", "sma_hysteresis", "nonlinear_convection"}
+
+
+def test_library_has_every_required_effect_with_bounded_unit_named_params():
+    assert REQUIRED <= set(EFFECTS)
+    for eff in EFFECTS.values():
+        assert eff.seed and eff.description
+        for p in eff.params:
+            assert "_" in p.name, p.name  # unit in the name
+            assert p.lower <= p.typical <= p.upper
+            if p.off is not None:
+                assert p.lower <= p.off <= p.upper
+
+
+def test_finger_extensor_gets_the_mechanical_effects():
+    names = {e.name for e in applicable("finger_extensor")}
+    assert {"coulomb_friction", "viscous_friction", "backlash", "time_delay", "contact_spring_damper"} <= names
+    assert "sma_hysteresis" not in names
+
+
+def test_check_spec_rejects_unknown_effect_unknown_param_and_out_of_bounds():
+    with pytest.raises(ValueError, match="unknown effect 'friction'"):
+        check_spec("friction", {})
+    with pytest.raises(ValueError, match="no parameters \\['torque_nm'\\]"):
+        check_spec("coulomb_friction", {"torque_nm": 0.1})
+    with pytest.raises(ValueError, match="outside"):
+        check_spec("coulomb_friction", {"level_nm": -0.1})
+    assert check_spec("coulomb_friction", {"level_nm": 0.1}) == {"level_nm": 0.1}
+
+
+def test_parse_effect_option_reads_name_and_params():
+    assert parse_effect_option("time_delay:delay_s=0.01") == ("time_delay", {"delay_s": 0.01})
+    name, params = parse_effect_option("contact_spring_damper:stiffness_nm_per_rad=1,contact_angle_rad=0.4")
+    assert name == "contact_spring_damper" and params == {"stiffness_nm_per_rad": 1.0, "contact_angle_rad": 0.4}
+    with pytest.raises(ValueError, match="expected key=value"):
+        parse_effect_option("time_delay:delay_s")
+    with pytest.raises(ValueError, match="not a number"):
+        parse_effect_option("time_delay:delay_s=soon")
+
+
+def test_attach_inserts_a_delay_on_the_motor_input_and_sums_friction_into_the_iris(fe):
+    spec, cfg = fe
+    parts = attach(spec.name, cfg, spec.build(cfg), [("time_delay", {"delay_s": 0.01}),
+                                                     ("coulomb_friction", {"level_nm": 0.02})])
+    by = {p.name: p for p in parts}
+    assert by["motor"].connections["voltage_v"] == [("effect_time_delay_y", 1.0)]
+    assert by["effect_time_delay"].connections["u"] == [("motor_voltage_v", 1.0)]
+    assert ("effect_coulomb_friction_torque_nm", 1.0) in by["iris"].connections["torque_nm"]
+
+
+def test_attach_refuses_an_effect_that_does_not_apply(fe):
+    spec, cfg = fe
+    with pytest.raises(DiagramError, match="does not apply to plant 'finger_extensor'"):
+        attach(spec.name, cfg, spec.build(cfg), [("sma_hysteresis", {"width_c": 5.0})])
+
+
+def _out(part_cls, u, p, xd=None):
+    y = np.zeros(1)
+    part_cls.output(0.0, np.zeros(0), np.zeros(1) if xd is None else xd, np.asarray(u, float),
+                    np.asarray(p, float), y)
+    return y[0]
+
+
+def test_transport_delay_returns_the_input_from_delay_steps_ago():
+    xd = np.arange(1.0, DELAY_SLOTS + 1.0)  # xd[i] = input i+1 steps ago
+    assert _out(TransportDelay, [0.0], [0.0, 0.001], xd) == 0.0
+    assert _out(TransportDelay, [0.0], [0.003, 0.001], xd) == pytest.approx(3.0)
+    assert _out(TransportDelay, [0.0], [0.0025, 0.001], xd) == pytest.approx(2.5)
+
+
+def test_backlash_holds_until_the_gap_is_taken_up():
+    assert _out(Backlash, [0.01], [0.04], np.array([0.0])) == 0.0  # inside the play
+    assert _out(Backlash, [0.05], [0.04], np.array([0.0])) == pytest.approx(0.03)  # dragged along
+    assert _out(Backlash, [0.05], [0.0], np.array([0.0])) == 0.05  # zero width: a wire
+
+
+def test_contact_pushes_back_past_the_contact_angle_and_never_pulls():
+    assert _out(ContactSpringDamper, [0.3, 1.0], [2.0, 0.1, 0.5]) == 0.0
+    assert _out(ContactSpringDamper, [0.7, 0.0], [2.0, 0.1, 0.5]) == pytest.approx(-0.4)
+    assert _out(ContactSpringDamper, [0.6, -5.0], [2.0, 0.1, 0.5]) == 0.0  # leaving fast: no pull
