@@ -25,7 +25,8 @@ def test_a_hub_listens_on_loopback_only() -> None:
     cfg = build_zenoh_config(NetworkConfig(role="hub", port=17447))
     assert get(cfg, "mode") == "router"
     assert get(cfg, "listen/endpoints") == ["tcp/127.0.0.1:17447"]
-    assert get(cfg, "scouting/multicast/enabled") is False
+    assert get(cfg, "scouting/multicast/enabled") is False and get(cfg, "scouting/gossip/enabled") is False
+    assert get(cfg, "connect/endpoints") == []
 
 
 def test_lab_mode_connects_to_the_router_endpoint() -> None:
