@@ -9,9 +9,11 @@ Usage: python bench/loop_timing.py [--duration 60] [--config configs/finger_exte
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import resource
+import socket
 import time
 from pathlib import Path
 
@@ -21,30 +23,44 @@ from rehab_hil.hardware import SerialHardware
 from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
-from rehab_hil.service.telemetry import QueueSink
+from rehab_hil.telemetry import NetworkConfig
+from rehab_hil.telemetry.rig import RigTelemetry, rig_info
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool) -> dict:
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watchdog_ms: int | None) -> dict:
     cfg = load_config(config)
     binding = get_plant(cfg.plant).device(cfg)
+    conf = assembly.firmware_configure(cfg, binding)
+    if watchdog_ms is not None:
+        conf = dataclasses.replace(conf, watchdog_ms=watchdog_ms)
     with spawn_sim_device(config, clock="realtime") as dev:
         hw = SerialHardware(dev.port, cfg.rig.baud)
         hw.connect()
-        sink = QueueSink(lambda s: json.dumps(s)) if telemetry else None  # stands in for a zenoh publisher
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
+        tel = None
+        if telemetry:  # the real zenoh publisher, hub on a free loopback port
+            info = rig_info(cfg.plant, config, binding, assembly.period_s(cfg), hw.info)
+            tel = RigTelemetry("bench", info, NetworkConfig(port=free_port()), queue_size=20_000)
+        sink = tel.sink if tel is not None else None
+        svc = LoopService(hw, conf,
                           assembly.build_controller(cfg, binding, "session"), assembly.build_estimator(cfg, binding),
                           assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), telemetry=sink)
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         res = svc.run(duration_s, pacing=pacing, realtime=True)
         r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        if sink is not None:
-            sink.close()
+        if tel is not None:
+            tel.close()
         hw.close()
     cpu = (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (t1 - t0)
     return {
-        "pacing": pacing, "telemetry": telemetry, "duration_s": duration_s,
+        "pacing": pacing, "telemetry": telemetry, "duration_s": duration_s, "watchdog_ms": conf.watchdog_ms,
         "scheduler": res.realtime.scheduler if res.realtime else "", "stop_reason": res.stop_reason,
         "cycles": res.cycles, "samples": res.samples, "sample_gaps": res.sample_gaps,
         "timing": res.timing, "reaction": res.reaction, "host_cpu_pct": 100.0 * cpu,
@@ -58,13 +74,15 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--config", type=Path, default=ROOT / "configs" / "finger_extensor.toml")
     ap.add_argument("--pacing", choices=("device", "host", "both"), default="both")
+    ap.add_argument("--watchdog-ms", type=int, default=None,
+                    help="override the firmware watchdog (a loaded VM stalls the sim device past 50 ms)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "loop_timing.json")
     args = ap.parse_args()
     pacings = ("device", "host") if args.pacing == "both" else (args.pacing,)
     runs = []
     for pacing in pacings:
         for telemetry in (False, True):
-            r = one_run(args.config, args.duration, pacing, telemetry)
+            r = one_run(args.config, args.duration, pacing, telemetry, args.watchdog_ms)
             t = r["timing"]
             print(f"{pacing:6s} telemetry={telemetry!s:5s}: lateness p50/p99/p99.9/max "
                   f"{t['lateness_p50_us']:.1f}/{t['lateness_p99_us']:.1f}/{t['lateness_p99_9_us']:.1f}/"

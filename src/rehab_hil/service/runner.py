@@ -126,6 +126,9 @@ class LoopService:
             rt = realtime_setup()
         try:
             self.hw.configure(self.configure_msg)
+            discard = getattr(self.hw, "discard_pending", None)
+            if discard is not None:  # samples queued before the ACK belong to the old stream, not this session
+                discard()
             self._send(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
             timer.start()
             k = 0
@@ -151,10 +154,9 @@ class LoopService:
                 if self.supervisor.tripped:
                     stop_reason = f"safety trip: {self.supervisor.events[0].reason}"
                     break
-                if got == 0:  # nothing new: hold the last command (the firmware watchdog backs this up)
-                    if pacing == "device":  # a lockstep device needs a COMMAND to produce a SAMPLE
-                        self._send(self._last_cmd())
-                        k += 1
+                if got == 0:  # nothing new: repeat the last command (a lockstep device needs a COMMAND
+                    self._send(self._last_cmd())  # to produce a SAMPLE; the link-loss count guards this)
+                    k += pacing == "device"
                     continue
                 state = self._state
                 assert state is not None
