@@ -88,3 +88,17 @@ def test_two_rigs_on_one_hub_do_not_see_each_others_samples(client: Callable[...
         pb.offer(raw(3))
         assert wait(lambda: len(got_a) == 1 and len(got_b) == 2)
     assert [s.sample_index for s in got_a] == [1] and [s.sample_index for s in got_b] == [2, 3]
+
+
+def test_an_unpublishable_offer_is_counted_and_the_stream_goes_on(client: Callable[..., zenoh.Session],
+                                                                  wait) -> None:
+    got: list[StateSample] = []
+    viewer = client()
+    with subscribe("g1", got.append, session=viewer), TelemetryPublisher(client(), "g1", batch=2) as pub:
+        assert wait(pub.has_subscribers)
+        pub.offer(raw(1))
+        pub.offer(object())  # not a sample: refused by the codec on the worker thread
+        pub.offer(Sample(0, 2, 0, 70_000, 0, 0, 0, 0, 0, 0, 0, 0))  # adc0 out of u16 range
+        pub.offer(raw(3))
+        assert wait(lambda: len(got) == 2)
+    assert [s.sample_index for s in got] == [1, 3] and pub.publish_errors == 2
