@@ -1,0 +1,83 @@
+"""Fixtures for the reliability suites: real simulated devices (real-time clock, so the firmware
+watchdog runs in device time while the host is stalled), a fault-injecting link proxy per test,
+and the host connected through it. Every process and descriptor is closed, also on failure."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from rehab_hil.config import load_config
+from rehab_hil.hardware import SerialHardware
+from rehab_hil.plants import get_plant
+
+from .link_proxy import LinkProxy
+
+CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
+
+
+def avr_skip_reason() -> str | None:
+    """Why the firmware-in-simavr backend cannot run here (None when it can)."""
+    try:
+        from rehab_hil.devices import avr_device
+    except ImportError:
+        return "rehab_hil.devices.avr_device is not available"
+    reason = getattr(avr_device, "unavailable_reason", None)
+    return reason() if callable(reason) else None
+
+
+@pytest.fixture(scope="module")
+def cfg() -> Any:
+    return load_config(CONFIG)
+
+
+@pytest.fixture(scope="module")
+def binding(cfg: Any) -> Any:
+    return get_plant(cfg.plant).device(cfg)
+
+
+@pytest.fixture(scope="module")
+def device_pool() -> Iterator[Callable[[str], Any]]:
+    """``get(kind)`` -> a running real-time device, shared by a module's tests (a start costs
+    seconds); respawned when a test ended it. All are closed at module teardown."""
+    from rehab_hil.devices import spawn_device
+
+    running: dict[str, Any] = {}
+
+    def get(kind: str) -> Any:
+        dev = running.get(kind)
+        if dev is None or not dev.alive() or not os.path.exists(dev.port):  # ended by a test (disconnect)
+            if dev is not None:
+                dev.close()
+            running[kind] = dev = spawn_device(kind, CONFIG, clock="realtime")
+        return dev
+
+    try:
+        yield get
+    finally:
+        for dev in running.values():
+            dev.close()
+
+
+@pytest.fixture
+def link(device_pool: Callable[[str], Any], request: pytest.FixtureRequest) -> Iterator[tuple[Any, LinkProxy,
+                                                                                                SerialHardware]]:
+    """(device, proxy, host) for the backend named by the test's ``backend`` parameter (default
+    python): a fresh proxy on the shared device, the host connected through it, faults cleared."""
+    kind = getattr(request, "param", None) or request.node.callspec.params.get("backend", "python") \
+        if hasattr(request.node, "callspec") else "python"
+    if kind == "avr" and (reason := avr_skip_reason()):
+        pytest.skip(reason)
+    dev = device_pool(kind)
+    proxy = LinkProxy(dev.port, seed=hash(request.node.name) & 0xFFFF)
+    hw = SerialHardware(proxy.port)
+    try:
+        hw.connect(timeout=10.0)
+        yield dev, proxy, hw
+    finally:
+        hw.close()
+        proxy.close()

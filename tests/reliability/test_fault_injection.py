@@ -1,0 +1,273 @@
+"""Fault injection across the stack (PX4-style): a real session of the loop service against a
+real simulated device on a pty, with one fault injected mid-session.
+
+Faults come from the device's own knobs (frames dropped, corrupted, delayed, truncated, garbage,
+stall, exit, reboot) or from ``LinkProxy`` between host and device (single bytes dropped, single
+bits flipped in both directions, a one-way stall, the cable pulled), or from the host itself (the
+loop paused 200 ms). For every fault:
+
+- the device's PWM is never on longer than the watchdog after the last COMMAND it applied, and
+  never on while a fault is latched (checked on the device's own output, tapped before the fault,
+  in device time);
+- the host never crashes: ``LoopService.run`` returns; it counts what it lost and, where the fault
+  is documented to stop a session (docs/safety.md), trips with that reason, logs it and records
+  it as an MCAP event;
+- the recording stays readable and holds every sample the host received, no more, no less.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+
+from rehab_hil.interchange import read_csv
+from rehab_hil.protocol import Fault
+from rehab_hil.service import assembly
+from rehab_hil.service.controllers import Actuator, Command, PIDPosition
+from rehab_hil.service.estimation import State
+from rehab_hil.service.recorder import Recorder, read_mcap
+from rehab_hil.service.runner import LoopService, RunResult
+
+from .link_proxy import LinkProxy
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
+
+FAULT_AT_S = 0.3  # session time of the injection
+DURATION_S = 1.0
+SAMPLE_TIMEOUT_S = 0.025  # x link_loss_periods (20) = 0.5 s without a sample is a lost link
+# The rig's watchdog is 50 ms (configs/finger_extensor.toml). On this loaded 2-core CI box (8
+# agents) the host loop itself was measured pausing 90-250 ms, which trips any watchdog that short:
+# sessions that must survive their fault run with 1 s (the watchdog is not what they test), and the
+# host stall (the issue's ~200 ms) is 1 s against a 300 ms watchdog. The device-time bound checked
+# below is the configured watchdog, whatever its value.
+WATCHDOG_TOLERANT_MS = 1000
+HOST_STALL_S = 1.0
+HOST_STALL_WATCHDOG_MS = 300
+
+
+class Hooked:
+    """The session's real controller, plus one action run when session time first reaches ``at_s``
+    (in the loop thread: a host stall blocks it, a knob returns at once)."""
+
+    def __init__(self, inner: Any, at_s: float, action: Callable[[], None]) -> None:
+        self.inner, self.at_s, self.action, self.fired_at = inner, at_s, action, None
+
+    def reset(self) -> None:
+        self.inner.reset()
+
+    def __call__(self, t_s: float, state: State) -> Command:
+        if self.fired_at is None and t_s >= self.at_s:
+            self.fired_at = t_s
+            self.action()
+        return self.inner(t_s, state)
+
+
+def gentle_pid(binding: Any, dt_s: float) -> PIDPosition:
+    """A PID that keeps the PWM on (a slow sine reference) at a few % duty: the motor moves under
+    100 deg/s, so a host that lags 100+ ms on a loaded box (or a 1 s watchdog) cannot carry the iris
+    out of its range of motion, and a shared device starts every test inside its range."""
+    return PIDPosition(Actuator(binding), lambda t: 30.0 + 20.0 * math.sin(math.pi * t), 0.05, 0.0, 0.0, 0.0, dt_s)
+
+
+@dataclass
+class Ctx:
+    device: Any
+    proxy: LinkProxy
+    hw: Any
+
+    knobs: threading.Thread | None = None
+    rx_bad_at_start: int = 0
+
+    def knob(self, *lines: str) -> None:
+        """Device control commands, in order, off the loop thread (each reply takes a pipe round trip);
+        ``settle()`` waits for them. A device that exits on ``disconnect`` answers nothing: ignored."""
+
+        def send() -> None:
+            for line in lines:
+                try:
+                    self.device.control(line)
+                except Exception:  # the device is gone (disconnect): the test checks the host's view
+                    return
+
+        self.knobs = threading.Thread(target=send, daemon=True)
+        self.knobs.start()
+
+    def settle(self) -> None:
+        if self.knobs is not None:
+            self.knobs.join(timeout=10)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    inject: Callable[[Ctx], None]
+    trip: str | None  # the supervisor's first reason, None: the session must run to its end
+    watchdog_ms: int = WATCHDOG_TOLERANT_MS
+    check: Callable[[RunResult, Ctx], None] = lambda res, ctx: None
+
+
+def _host_bad_frames(res: RunResult, ctx: Ctx) -> None:
+    assert sum(res.link["bad_frames"].values()) >= 1, res.link
+
+
+def _gaps_and_bad(res: RunResult, ctx: Ctx) -> None:
+    _host_bad_frames(res, ctx)
+    assert res.sample_gaps >= 1
+
+
+def _both_directions(res: RunResult, ctx: Ctx) -> None:
+    _gaps_and_bad(res, ctx)
+    if ctx.proxy.up.injected["flipped_bits"]:  # the device counted the commands it dropped
+        assert device_rx_bad(ctx) > ctx.rx_bad_at_start
+
+
+def device_rx_bad(ctx: Ctx) -> int:
+    """The device's own count of bad frames received (its control channel, not the link)."""
+    status = dict(kv.split("=") for kv in ctx.device.control("status").split()[1:])
+    return int(status["rx_bad"])
+
+
+def _delayed(res: RunResult, ctx: Ctx) -> None:
+    assert res.link["latency_p99_s"] >= 0.010  # command -> echo crosses the 5 ms delay twice
+
+
+def _device_dropped(res: RunResult, ctx: Ctx) -> None:
+    assert res.sample_gaps >= 1
+
+
+def _watchdog_latched(res: RunResult, ctx: Ctx) -> None:
+    assert "WATCHDOG" in res.events[0].detail
+    assert any(r.faults & Fault.WATCHDOG for r in ctx.proxy.device_tap.fault_reports)
+
+
+def _pwm_off_on_device_after_unplug(res: RunResult, ctx: Ctx) -> None:
+    wait_for(lambda: ctx.proxy.device_tap.last is not None and ctx.proxy.device_tap.last.faults & Fault.WATCHDOG)
+    last = ctx.proxy.device_tap.last
+    assert last is not None and (last.duty0, last.duty1) == (0, 0)
+
+
+def _rebooted(res: RunResult, ctx: Ctx) -> None:
+    assert res.reboots >= 1 and ctx.hw.stats.reboots >= 1
+    # the rebooted device is unconfigured (PWM off by construction) and the host latched an ESTOP on it
+    ctx.hw.configure(assembly.firmware_configure(*_cfg_binding))
+    ctx.hw.discard_pending()
+    s = ctx.hw.read_sample(timeout=2.0)
+    assert s is not None and (s.duty0, s.duty1) == (0, 0) and s.faults & Fault.ESTOP_COMMAND
+
+
+_cfg_binding: tuple[Any, Any] = (None, None)
+
+SCENARIOS = [
+    Scenario("byte_drop", lambda c: setattr(c.proxy.down, "drop_p", 5e-4), None, check=_gaps_and_bad),
+    Scenario("bit_flips_both_ways", lambda c: (setattr(c.proxy.down, "flip_p", 3e-4),
+                                               setattr(c.proxy.up, "flip_p", 3e-4)), None, check=_both_directions),
+    Scenario("garbage_burst", lambda c: setattr(c.proxy.down, "garbage", 3000), None, check=_host_bad_frames),
+    Scenario("truncated_frames", lambda c: setattr(c.proxy.down, "truncate", 5), None, check=_gaps_and_bad),
+    Scenario("delayed_frames", lambda c: (setattr(c.proxy.down, "delay_s", 0.005),
+                                          setattr(c.proxy.up, "delay_s", 0.005)), None, check=_delayed),
+    Scenario("device_drops_frames", lambda c: c.knob("drop 0.02"), None, check=_device_dropped),
+    Scenario("device_corrupts_frames", lambda c: c.knob("corrupt 0.02"), None, check=_gaps_and_bad),
+    Scenario("device_garbage_and_truncation", lambda c: c.knob("garbage 500", "truncate"), None,
+             check=_host_bad_frames),
+    Scenario("stalled_device_link", lambda c: c.proxy.stall(c.proxy.down, 3.0), "link_loss"),
+    Scenario("stalled_device_knob", lambda c: c.knob("stall 3000"), "link_loss"),
+    Scenario("unplug", lambda c: c.proxy.unplug(), "link_loss", watchdog_ms=HOST_STALL_WATCHDOG_MS,
+             check=_pwm_off_on_device_after_unplug),
+    Scenario("device_reboot", lambda c: c.knob("reboot"), "device_reboot", check=_rebooted),
+    Scenario("host_stall", lambda c: time.sleep(HOST_STALL_S), "device_fault", watchdog_ms=HOST_STALL_WATCHDOG_MS,
+             check=_watchdog_latched),
+    Scenario("device_exits", lambda c: c.knob("disconnect"), "link_loss"),  # last: the device is respawned after
+]
+
+
+def wait_for(pred: Callable[[], Any], timeout: float = 3.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not pred():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.01)
+
+
+@pytest.mark.parametrize("scenario", SCENARIOS, ids=[s.name for s in SCENARIOS])
+def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sample(
+        scenario: Scenario, link: tuple[Any, LinkProxy, Any], cfg: Any, binding: Any, tmp_path: Any,
+        caplog: pytest.LogCaptureFixture) -> None:
+    global _cfg_binding
+    _cfg_binding = (cfg, binding)
+    device, proxy, hw = link
+    ctx = Ctx(device, proxy, hw)
+    res, rec, conf = run_session(ctx, cfg, binding, tmp_path, scenario, caplog)
+
+    # the host: detected, logged, reported, stopped or carried on as documented
+    if scenario.trip is None:
+        assert res.events == [], res.events
+        assert res.stop_reason == "duration reached"
+    else:
+        assert res.events and res.events[0].reason == scenario.trip, res.events
+        assert any("safety trip" in r.getMessage() and scenario.trip in r.getMessage() for r in caplog.records)
+        kinds = [m["kind"] for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/event"]
+        assert scenario.trip in kinds
+    scenario.check(res, ctx)
+
+    # the device, in its own time: PWM never on past the watchdog, never on while a fault is latched
+    tap = proxy.device_tap
+    assert tap.violations == 0
+    assert tap.worst_on_since_command_us < conf.watchdog_ms * 1000 + 1000, tap.worst_on_since_command_us
+    assert all(t <= conf.watchdog_ms * 1000 + 1000 for t in tap.pwm_off_after_command_us)
+
+    # the recording: readable, every received sample exactly once, in order, CSV == MCAP
+    csv = read_csv(rec.csv_path)
+    idx = csv["sample_index"].astype(np.int64)
+    assert len(idx) == res.samples
+    assert set(np.unique(idx)) <= {s.sample_index for s in tap.samples} or scenario.name.startswith("device_")
+    mcap_idx = [int(m["sample_index"]) for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/sample"]
+    assert mcap_idx == list(idx)
+    if scenario.trip is None and not scenario.name.startswith("device_"):
+        # the tap saw everything the device sent: each sample the host missed is a counted gap
+        sent = {s.sample_index for s in tap.samples if idx[0] <= s.sample_index <= idx[-1]}
+        assert len(sent - set(idx)) == res.sample_gaps
+
+
+def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenario,
+                caplog: pytest.LogCaptureFixture) -> tuple[RunResult, Recorder, Any]:
+    conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), watchdog_ms=scenario.watchdog_ms)
+    controller = Hooked(gentle_pid(binding, assembly.period_s(cfg)), FAULT_AT_S, lambda: scenario.inject(ctx))
+    controller.inner(0.0, State(0.0, 0.0, 0.0, {}))  # compile before the device streams
+    if ctx.device.kind == "python":  # the shared device: knobs of earlier tests off
+        for line in ("drop 0", "corrupt 0", "delay 0"):
+            ctx.device.control(line)
+        ctx.rx_bad_at_start = device_rx_bad(ctx)
+    rec = Recorder(out_dir, binding, flush_s=0.05)
+    svc = LoopService(ctx.hw, conf, controller, assembly.build_estimator(cfg, binding),
+                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=rec)
+    caplog.set_level(logging.ERROR, logger="rehab_hil.supervisor")
+    try:
+        # the shared device: streaming off (no backlog while we set up), faults of earlier tests cleared
+        wide = dataclasses.replace(conf, sample_rate_hz=0, enc_min=-(1 << 30), enc_max=1 << 30)
+        ctx.hw.configure(wide, timeout=3.0)
+        assert ctx.hw.clear(timeout=3.0), "faults left latched by an earlier test would not clear"
+        ctx.hw.discard_pending()
+    except Exception as e:
+        rec.close()
+        raise AssertionError(f"{e}; {ctx.proxy.describe()}; device {ctx.device.control('status')}") from e
+    try:
+        res = svc.run(DURATION_S, pacing="device", realtime=False, sample_timeout_s=SAMPLE_TIMEOUT_S)
+    finally:
+        rec.close()
+        ctx.settle()
+    tap = ctx.proxy.device_tap
+    events = [(e.reason, e.detail, round(e.t_s, 3)) for e in res.events]
+    print(f"\n{scenario.name}: events={events} samples={res.samples} "
+          f"gaps={res.sample_gaps} link_bad={res.link['bad_frames']} dev_rx_bad={res.link['device_rx_bad_frames']} "
+          f"worst_pwm_on_after_cmd={tap.worst_on_since_command_us / 1000:.1f} ms "
+          f"pwm_off_after_cmd={[round(t / 1000, 1) for t in tap.pwm_off_after_command_us]} ms; {ctx.proxy.describe()}")
+    assert controller.fired_at is not None, "the session ended before the fault was injected"
+    return res, rec, conf
