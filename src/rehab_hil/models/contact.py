@@ -22,23 +22,26 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["PAD_PARAMS", "ContactForce", "ContactPad", "contact_displacement_m", "fingertip_lever"]
+__all__ = ["PAD_PARAMS", "ContactForce", "ContactPad", "contact_displacement_m", "fingertip_lever",
+           "fingertip_lever_entries"]
 
 PAD_PARAMS = ("stiffness_n_per_m", "damping_n_s_per_m", "exo_radius_m", "finger_radius_m",
               "length1_m", "length2_m", "length3_m")
 
 
 @njit
-def fingertip_lever(q1, q2, q3, L1, L2, L3, out):
+def fingertip_lever_entries(q2, q3, L1, L2, L3):
     """J_tip^T n: joint torques per newton of a fingertip force normal to the distal phalanx
-    (eq 6 differentiated, eq 8 direction)."""
-    out[0] = L1 * math.cos(q2 + q3) + L2 * math.cos(q3) + L3
-    out[1] = L2 * math.cos(q3) + L3
-    out[2] = L3
+    (eq 6 differentiated, eq 8 direction), as a tuple (MCP, PIP, DIP)."""
+    return L1 * math.cos(q2 + q3) + L2 * math.cos(q3) + L3, L2 * math.cos(q3) + L3, L3
+
+
+@njit
+def fingertip_lever(q1, q2, q3, L1, L2, L3, out):
+    """``fingertip_lever_entries`` written into ``out``."""
+    out[0], out[1], out[2] = fingertip_lever_entries(q2, q3, L1, L2, L3)
 
 
 @njit
@@ -50,15 +53,15 @@ def contact_displacement_m(phi, c_e, c_s):
 
 
 @njit
-def _pad(u, phi, p, lev):
-    """Contact force [N] and pad rate phi' [rad/s] for wire torque u[0] on the exoskeleton."""
-    fingertip_lever(u[1], u[2], u[3], p[4], p[5], p[6], lev)
-    lever = lev[0] + 1.2 * lev[1] + 0.8 * lev[2]  # s^T J^T n with s of eq 9
+def _pad(u, phi, p):
+    """Contact force [N], pad rate phi' [rad/s] and the three levers for wire torque u[0]."""
+    l1, l2, l3 = fingertip_lever_entries(u[2], u[3], p[4], p[5], p[6])
+    lever = l1 + 1.2 * l2 + 0.8 * l3  # s^T J^T n with s of eq 9
     force = u[0] / lever
     d = contact_displacement_m(phi, p[2], p[3]) - abs(p[2] - p[3])  # deformation from the rest gap
     spring = p[0] * d if phi >= 0.0 else -p[0] * d
     rate = (force - spring) / (p[1] * p[2])
-    return force, rate
+    return force, rate, l1, l2, l3
 
 
 class ContactPad(Part):
@@ -82,9 +85,7 @@ class ContactPad(Part):
     @staticmethod
     @njit
     def derivatives(t, x, xd, u, p, dx):
-        lev = np.empty(3)
-        _, rate = _pad(u, x[0], p, lev)
-        dx[0] = rate
+        dx[0] = _pad(u, x[0], p)[1]
 
 
 class ContactForce(Part):
@@ -99,10 +100,9 @@ class ContactForce(Part):
     @staticmethod
     @njit
     def output(t, x, xd, u, p, y):
-        lev = np.empty(3)
-        force, rate = _pad(u, u[4], p, lev)
+        force, rate, l1, l2, l3 = _pad(u, u[4], p)
         y[0] = force
         y[1] = p[2] * abs(rate)
-        y[2] = lev[0] * force
-        y[3] = lev[1] * force
-        y[4] = lev[2] * force
+        y[2] = l1 * force
+        y[3] = l2 * force
+        y[4] = l3 * force

@@ -34,8 +34,11 @@ __all__ = [
     "coupled_dynamics",
     "energy",
     "forward_dynamics",
+    "gravity_entries",
     "gravity_vector",
     "inverse_dynamics",
+    "mass_derivative_entries",
+    "mass_entries",
     "mass_matrix",
     "mass_matrix_derivatives",
     "rod_link_params",
@@ -80,16 +83,18 @@ def chain_param_vector(params: dict[str, float]) -> np.ndarray:
 
 
 @njit
-def mass_matrix(q, p, M):
+def mass_entries(q2, q3, p):
     """Closed-form M(q) of the planar 3R chain (seed 000 eq 29; derivation: sum over links of
-    m_k J_vk^T J_vk + I_k J_wk^T J_wk). Depends on q2, q3 only. Writes the 3x3 ``M``."""
+    m_k J_vk^T J_vk + I_k J_wk^T J_wk) as (M11, M12, M13, M22, M23, M33); it depends on q2, q3 only."""
+    return _mass_cos(math.cos(q2), math.cos(q3), math.cos(q2 + q3), p)
+
+
+@njit
+def _mass_cos(c2, c3, c23, p):
     L1, L2 = p[0], p[1]
     m1, m2, m3 = p[3], p[4], p[5]
     a1, a2, a3 = p[6], p[7], p[8]
     i1, i2, i3 = p[9], p[10], p[11]
-    c2 = math.cos(q[1])
-    c3 = math.cos(q[2])
-    c23 = math.cos(q[1] + q[2])
     m33 = i3 + m3 * a3 * a3
     m23 = m33 + m3 * L2 * a3 * c3
     m22 = i2 + m2 * a2 * a2 + i3 + m3 * (L2 * L2 + a3 * a3 + 2.0 * L2 * a3 * c3)
@@ -97,6 +102,13 @@ def mass_matrix(q, p, M):
     m12 = m22 + m2 * L1 * a2 * c2 + m3 * (L1 * L2 * c2 + L1 * a3 * c23)
     m11 = (i1 + m1 * a1 * a1 + m22 + m2 * (L1 * L1 + 2.0 * L1 * a2 * c2)
            + m3 * (L1 * L1 + 2.0 * L1 * L2 * c2 + 2.0 * L1 * a3 * c23))
+    return m11, m12, m13, m22, m23, m33
+
+
+@njit
+def mass_matrix(q, p, M):
+    """M(q) of ``mass_entries`` written into the 3x3 array ``M``."""
+    m11, m12, m13, m22, m23, m33 = mass_entries(q[1], q[2], p)
     M[0, 0] = m11
     M[0, 1] = m12
     M[1, 0] = m12
@@ -109,18 +121,31 @@ def mass_matrix(q, p, M):
 
 
 @njit
-def mass_matrix_derivatives(q, p, dM2, dM3):
-    """dM/dq2 and dM/dq3 of ``mass_matrix`` (dM/dq1 = 0), for the Christoffel symbols."""
+def mass_derivative_entries(q2, q3, p):
+    """Non-zero entries of dM/dq2 (d11, d12, d13) and dM/dq3 (e11, e12, e13, e22, e23); dM/dq1 = 0."""
+    return _dmass_sin(math.sin(q2), math.sin(q3), math.sin(q2 + q3), p)
+
+
+@njit
+def _dmass_sin(s2, s3, s23, p):
     L1, L2 = p[0], p[1]
     m2, m3 = p[4], p[5]
     a2, a3 = p[7], p[8]
-    s2 = math.sin(q[1])
-    s3 = math.sin(q[2])
-    s23 = math.sin(q[1] + q[2])
-    # d/dq2: terms in c2 and c23
     d11 = -2.0 * L1 * (m2 * a2 + m3 * L2) * s2 - 2.0 * m3 * L1 * a3 * s23
     d12 = -L1 * (m2 * a2 + m3 * L2) * s2 - m3 * L1 * a3 * s23
     d13 = -m3 * L1 * a3 * s23
+    e11 = -2.0 * m3 * L2 * a3 * s3 - 2.0 * m3 * L1 * a3 * s23
+    e12 = -2.0 * m3 * L2 * a3 * s3 - m3 * L1 * a3 * s23
+    e13 = -m3 * L2 * a3 * s3 - m3 * L1 * a3 * s23
+    e22 = -2.0 * m3 * L2 * a3 * s3
+    e23 = -m3 * L2 * a3 * s3
+    return d11, d12, d13, e11, e12, e13, e22, e23
+
+
+@njit
+def mass_matrix_derivatives(q, p, dM2, dM3):
+    """dM/dq2 and dM/dq3 of ``mass_matrix`` as 3x3 arrays (dM/dq1 = 0), for the Christoffel symbols."""
+    d11, d12, d13, e11, e12, e13, e22, e23 = mass_derivative_entries(q[1], q[2], p)
     dM2[0, 0] = d11
     dM2[0, 1] = d12
     dM2[1, 0] = d12
@@ -130,12 +155,6 @@ def mass_matrix_derivatives(q, p, dM2, dM3):
     dM2[1, 2] = 0.0
     dM2[2, 1] = 0.0
     dM2[2, 2] = 0.0
-    # d/dq3: terms in c3 and c23
-    e11 = -2.0 * m3 * L2 * a3 * s3 - 2.0 * m3 * L1 * a3 * s23
-    e12 = -2.0 * m3 * L2 * a3 * s3 - m3 * L1 * a3 * s23
-    e13 = -m3 * L2 * a3 * s3 - m3 * L1 * a3 * s23
-    e22 = -2.0 * m3 * L2 * a3 * s3
-    e23 = -m3 * L2 * a3 * s3
     dM3[0, 0] = e11
     dM3[0, 1] = e12
     dM3[1, 0] = e12
@@ -179,15 +198,15 @@ def coriolis_vector(q, qd, p, out):
 
 
 @njit
-def gravity_vector(q, p, out):
-    """G(q) = dV/dq with V = -sum m_k g . p_ck (seed 000 eq 29), gravity g = (g_x, g_y)."""
+def gravity_entries(q1, q2, q3, p):
+    """G(q) = dV/dq with V = -sum m_k g . p_ck (seed 000 eq 29), gravity g = (g_x, g_y), as a tuple."""
     L1, L2 = p[0], p[1]
     m1, m2, m3 = p[3], p[4], p[5]
     a1, a2, a3 = p[6], p[7], p[8]
     gx, gy = p[12], p[13]
-    f1 = q[0]
-    f2 = f1 + q[1]
-    f3 = f2 + q[2]
+    f1 = q1
+    f2 = f1 + q2
+    f3 = f2 + q3
     # w(phi) = g . d(cos phi, sin phi)/dphi
     w1 = -gx * math.sin(f1) + gy * math.cos(f1)
     w2 = -gx * math.sin(f2) + gy * math.cos(f2)
@@ -195,9 +214,16 @@ def gravity_vector(q, p, out):
     g3 = m3 * a3 * w3
     g2 = m2 * a2 * w2 + m3 * (L2 * w2) + g3
     g1 = m1 * a1 * w1 + (m2 + m3) * L1 * w1 + g2
-    out[0] = -g1
-    out[1] = -g2
-    out[2] = -g3
+    return -g1, -g2, -g3
+
+
+@njit
+def gravity_vector(q, p, out):
+    """G(q) of ``gravity_entries`` written into ``out``."""
+    g1, g2, g3 = gravity_entries(q[0], q[1], q[2], p)
+    out[0] = g1
+    out[1] = g2
+    out[2] = g3
 
 
 @njit
@@ -273,31 +299,24 @@ def energy(q, qd, p):
 @njit
 def coupled_dynamics(theta, omega, p):
     """Projected 1-DOF terms for q = s theta, s = (1, 6/5, 4/5) (seed 000 eq 9 in eq 29):
-    returns (s^T M s, s^T C(q, s omega) s omega, s^T G)."""
-    s = np.empty(3)
-    s[0] = COUPLING[0]
-    s[1] = COUPLING[1]
-    s[2] = COUPLING[2]
-    q = np.empty(3)
-    qd = np.empty(3)
-    for i in range(3):
-        q[i] = s[i] * theta
-        qd[i] = s[i] * omega
-    M = np.empty((3, 3))
-    h = np.empty(3)
-    g = np.empty(3)
-    mass_matrix(q, p, M)
-    coriolis_vector(q, qd, p, h)
-    gravity_vector(q, p, g)
-    m_eff = 0.0
-    h_eff = 0.0
-    g_eff = 0.0
-    for i in range(3):
-        h_eff += s[i] * h[i]
-        g_eff += s[i] * g[i]
-        for j in range(3):
-            m_eff += s[i] * M[i, j] * s[j]
-    return m_eff, h_eff, g_eff
+    returns (s^T M s, s^T C(q, s omega) s omega, s^T G). For one coordinate the Coriolis term is
+    1/2 m'(theta) omega^2 with m' = s2 s^T (dM/dq2) s + s3 s^T (dM/dq3) s."""
+    s1, s2, s3 = COUPLING[0], COUPLING[1], COUPLING[2]
+    q1, q2, q3 = s1 * theta, s2 * theta, s3 * theta
+    c2, sn2 = math.cos(q2), math.sin(q2)
+    c3, sn3 = math.cos(q3), math.sin(q3)
+    c23, sn23 = c2 * c3 - sn2 * sn3, sn2 * c3 + c2 * sn3
+    m11, m12, m13, m22, m23, m33 = _mass_cos(c2, c3, c23, p)
+    m_eff = (s1 * s1 * m11 + s2 * s2 * m22 + s3 * s3 * m33
+             + 2.0 * (s1 * s2 * m12 + s1 * s3 * m13 + s2 * s3 * m23))
+    d11, d12, d13, e11, e12, e13, e22, e23 = _dmass_sin(sn2, sn3, sn23, p)
+    a2 = s1 * s1 * d11 + 2.0 * (s1 * s2 * d12 + s1 * s3 * d13)
+    a3 = s1 * s1 * e11 + s2 * s2 * e22 + 2.0 * (s1 * s2 * e12 + s1 * s3 * e13 + s2 * s3 * e23)
+    h_eff = 0.5 * (s2 * a2 + s3 * a3) * omega * omega
+    if p[12] == 0.0 and p[13] == 0.0:
+        return m_eff, h_eff, 0.0
+    g1, g2, g3 = gravity_entries(q1, q2, q3, p)
+    return m_eff, h_eff, s1 * g1 + s2 * g2 + s3 * g3
 
 
 class FingerChain(Part):

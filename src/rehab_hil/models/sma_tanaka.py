@@ -84,12 +84,13 @@ def _solve_branch(temp_c, strain, p, start_c, finish_c):
 def transform(xi_old, temp_c, excursion_m, p):
     """New martensite fraction after a sample at temperature T and tendon excursion e."""
     strain = p[8] - excursion_m / p[11]
-    heat = _solve_branch(temp_c, strain, p, p[4], p[5])
-    if xi_old > heat:
-        return heat
-    cool = _solve_branch(temp_c, strain, p, p[6], p[7])
-    if xi_old < cool:
-        return cool
+    sigma = wire_stress_pa(xi_old, strain, temp_c, p)
+    # the residual xi - xi_branch(sigma(xi)) increases with xi: its sign at xi_old says whether
+    # the branch's consistent fraction lies below (heating moves xi) or above (cooling moves xi)
+    if xi_old > branch_fraction(temp_c, sigma, p[4], p[5], p[3]):
+        return _solve_branch(temp_c, strain, p, p[4], p[5])
+    if xi_old < branch_fraction(temp_c, sigma, p[6], p[7], p[3]):
+        return _solve_branch(temp_c, strain, p, p[6], p[7])
     return xi_old
 
 
