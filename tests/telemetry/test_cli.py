@@ -118,3 +118,12 @@ def test_user_without_a_password_source_is_refused(hub: int, tmp_path: Path, mon
     monkeypatch.delenv("REHAB_ZENOH_PASSWORD", raising=False)
     assert main(["record", "--from-zenoh", "r", "--out", str(tmp_path), "--port", str(hub), "--user", "v"]) == 2
     assert "--password-file" in capsys.readouterr().err
+
+
+def test_monitor_live_screen_runs_and_exits_after_its_duration(client: Callable[..., zenoh.Session], hub: int,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    with TelemetryPublisher(client(), "live1", info=info()) as pub:
+        for r in records(20):
+            pub.offer(r)
+        assert main(["monitor", "live1", "--port", str(hub), "--duration", "0.6"]) == 0
+    assert "rig live1" in capsys.readouterr().out

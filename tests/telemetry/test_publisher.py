@@ -102,3 +102,10 @@ def test_an_unpublishable_offer_is_counted_and_the_stream_goes_on(client: Callab
         pub.offer(raw(3))
         assert wait(lambda: len(got) == 2)
     assert [s.sample_index for s in got] == [1, 3] and pub.publish_errors == 2
+
+
+def test_the_publisher_is_a_loop_telemetry_sink(client: Callable[..., zenoh.Session]) -> None:
+    from rehab_hil.service.telemetry import TelemetrySink
+
+    with TelemetryPublisher(client(), "sink1") as pub:
+        assert isinstance(pub, TelemetrySink)
