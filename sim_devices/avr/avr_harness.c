@@ -52,6 +52,7 @@
 #define R_OCR1AL 0x88
 #define R_OCR1BL 0x8A
 #define R_UCSR0B 0xC1
+#define R_MCUSR 0x54
 #define RXEN0_BIT 4
 
 static avr_t *avr;
@@ -218,7 +219,12 @@ static int handle_line(char *line) {
             if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a == 4) { estop_level = b ? 1 : 0; drive_inputs(); }
             return 0;
         case 'S': report_state(); return 0;
-        case 'R': avr_reset(avr); resets++; apply_workarounds(); return 0;  /* main loop only */
+        case 'R':  /* external reset (the RESET pin); never from a cycle timer: it crashed simavr */
+            avr_reset(avr);
+            avr->data[R_MCUSR] |= 0x02;  /* EXTRF */
+            resets++;
+            apply_workarounds();
+            return 0;
         case 'Q': stop = 1; return 1;
         case 'G': {
             int n = sscanf(line + 1, "%ld %ld %ld %ld", &a, &b, &c, &d);

@@ -19,6 +19,7 @@ from rehab_hil.protocol import (
     Configure,
     Fault,
     FaultReport,
+    ResetCause,
     Sample,
     Status,
     crc16_ccitt_false,
@@ -244,3 +245,16 @@ def test_corrupt_frames_are_counted_and_dropped(rig: tuple[Harness, SerialHardwa
                max_samples=200)
     assert s.rx_bad_frames - before.rx_bad_frames == len(bad)
     assert s.duty0 == 3000
+
+
+def test_external_reset_reboots_unconfigured_with_a_hello(rig: tuple[Harness, SerialHardware]) -> None:
+    harness, hw = rig
+    _applied(hw, Command(3000, 0, 0, 1))
+    harness.send("R")
+    # the reboot shows as an unsolicited HELLO with seq 0; SerialHardware counts it
+    hello = hw.connect(timeout=5.0)
+    assert hw.stats.reboots == 1 and hello.reset_cause == ResetCause.EXTERNAL
+    assert (harness.state()["duty0"], harness.state()["resets"]) == (0, 1)
+    hw.send_command(Command(3000, 0, 0, 1))  # unconfigured: ignored
+    hw.heartbeat()
+    assert harness.state()["duty0"] == 0
