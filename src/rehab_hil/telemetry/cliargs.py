@@ -25,7 +25,8 @@ def add_network_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--user", default=None, help="zenoh user name (user/password authentication)")
     g.add_argument("--password-file", type=Path, default=None,
                    help=f"file holding the password (or set {PASSWORD_ENV})")
-    g.add_argument("--tls-ca", type=Path, default=None, help="TLS root CA certificate (PEM)")
+    g.add_argument("--tls-ca", type=Path, default=None,
+                   help="TLS root CA certificate (PEM); without --connect: the loopback hub over TLS")
     g.add_argument("--tls-cert", type=Path, default=None, help="TLS client certificate (PEM), for mutual TLS")
     g.add_argument("--tls-key", type=Path, default=None, help="TLS client private key (PEM)")
 
@@ -46,6 +47,7 @@ def network_from_args(args: argparse.Namespace) -> NetworkConfig:
         password = None  # a password without a user is ignored, as zenoh would
     net = NetworkConfig(
         mode="lab" if args.connect else "loopback", role="client", port=args.port,
+        tls=args.tls_ca is not None and not args.connect,  # loopback hub over TLS when a CA is given
         router=tuple(args.connect or ()), user=args.user, password=password,
         tls_root_ca=args.tls_ca, tls_certificate=args.tls_cert, tls_private_key=args.tls_key,
     )

@@ -30,13 +30,15 @@ class NetworkConfig:
     """Where a telemetry session listens or connects, and how it authenticates.
 
     ``mode="loopback"`` (default): only 127.0.0.1; a ``hub`` listens on ``port``, a ``client`` connects
-    to it. ``mode="lab"``: a client that connects to ``router`` endpoints (e.g. ``tls/lab-router:7447``).
+    to it, over TLS when ``tls`` (hub: certificate and key; client: root CA). ``mode="lab"``: a client
+    that connects to ``router`` endpoints (e.g. ``tls/lab-router:7447``).
     ``user``/``password`` and the TLS files are passed through to zenoh unchanged.
     """
 
     mode: Literal["loopback", "lab"] = "loopback"
     role: Literal["hub", "client"] = "client"
     port: int = DEFAULT_PORT
+    tls: bool = False
     router: tuple[str, ...] = ()
     user: str | None = None
     password: str | None = None
@@ -50,7 +52,7 @@ class NetworkConfig:
     def endpoints(self) -> list[str]:
         """The endpoints this session listens on (hub) or connects to (client)."""
         if self.mode == "loopback":
-            return [f"tcp/127.0.0.1:{self.port}"]
+            return [f"{'tls' if self.tls else 'tcp'}/127.0.0.1:{self.port}"]
         return list(self.router)
 
     def validate(self) -> NetworkConfig:
@@ -63,6 +65,12 @@ class NetworkConfig:
             raise TelemetryConfigError(f"port must be an integer in 1..65535, got {self.port!r}")
         if self.mode == "loopback" and self.router:
             raise TelemetryConfigError("router endpoints need mode='lab' (loopback mode only uses 127.0.0.1)")
+        if self.tls and self.mode != "loopback":
+            raise TelemetryConfigError("tls=True is for loopback; in lab mode use tls/HOST:PORT router endpoints")
+        if self.tls and self.role == "hub" and self.tls_certificate is None:
+            raise TelemetryConfigError("a TLS hub needs tls_certificate and tls_private_key")
+        if self.tls and self.role == "client" and self.tls_root_ca is None:
+            raise TelemetryConfigError("a TLS client needs tls_root_ca to check the hub's certificate")
         if self.mode == "lab":
             if self.role != "client":
                 raise TelemetryConfigError("mode='lab' sessions are clients of the lab router (role='client')")
