@@ -136,6 +136,10 @@ static void apply_workarounds(void) {
     avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
     /* 3: externally driven pins (see drive_inputs). */
     drive_inputs();
+    /* A reset also cancels every cycle timer and empties the UART fifo. */
+    avr_cycle_timer_cancel(avr, encoder_timer, NULL);
+    avr_cycle_timer_register(avr, (avr_cycle_count_t)edge_us * CYC_PER_US, encoder_timer, NULL);
+    xoff = 0;
 }
 
 /* PWM duty of one Timer1 channel from the registers (simavr 1.6 does not model the waveform):
@@ -324,7 +328,6 @@ int main(int argc, char **argv) {
     for (int i = 0; i < 8; i++) pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i);
     adc_irq = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
     apply_workarounds();
-    avr_cycle_timer_register(avr, (avr_cycle_count_t)edge_us * CYC_PER_US, encoder_timer, NULL);
 
     /* Our own pty: a unique path per run, so parallel harnesses never collide. */
     if (openpty(&pty_master, &pty_slave, NULL, NULL, NULL) != 0) { perror("openpty"); return 1; }

@@ -87,5 +87,11 @@ def test_hardware_watchdog_resets_a_hung_firmware(hang_harness: Harness) -> None
         s = hw.read_sample(2.0)
         assert s is not None and s.faults & Fault.HW_WATCHDOG_RESET
         assert hw.clear()
+        hang_harness.send("E 25")  # the encoder still counts after the reset
+        for _ in range(300):
+            s = hw.read_sample(2.0)
+            if s is None or s.encoder_count == 25:
+                break
+        assert s is not None and s.encoder_count == 25
     finally:
         hw.close()
