@@ -16,7 +16,7 @@ pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs t
 
 
 def make_certs(d: Path) -> dict[str, Path]:
-    """A CA and a certificate for 127.0.0.1 / localhost, signed by it (valid one day)."""
+    """A CA, a hub certificate for 127.0.0.1 / localhost signed by it, and an unrelated CA (valid one day)."""
     def ssl(*args: str) -> None:
         subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True)
 
@@ -27,7 +27,9 @@ def make_certs(d: Path) -> dict[str, Path]:
                                "extendedKeyUsage=serverAuth,clientAuth\n")
     ssl("x509", "-req", "-in", "hub.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial", "-out", "hub.pem",
         "-days", "1", "-extfile", "ext.cnf")
-    return {"ca": d / "ca.pem", "cert": d / "hub.pem", "key": d / "hub.key", "other_ca": d / "hub.pem"}
+    ssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "other.key", "-out", "other.pem", "-days", "1",
+        "-subj", "/CN=some-other-ca")
+    return {"ca": d / "ca.pem", "cert": d / "hub.pem", "key": d / "hub.key", "other_ca": d / "other.pem"}
 
 
 def test_a_tls_hub_serves_clients_that_trust_its_ca_and_nobody_else(tmp_path: Path, hub_factory, wait) -> None:
