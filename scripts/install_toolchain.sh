@@ -4,7 +4,8 @@
 # Needs root to install; when not root and something is missing it says what to run and fails.
 set -eu
 
-PKGS="gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev pkg-config"
+# gcc, libc6-dev and make build the simavr harness (a fresh Debian image may lack them).
+PKGS="gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev pkg-config gcc libc6-dev make"
 
 missing=""
 for p in $PKGS; do
