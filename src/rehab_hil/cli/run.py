@@ -50,11 +50,14 @@ def _spawn(kind: str, config: Path, lockstep: bool) -> Any:
         from rehab_hil.devices.spawn import spawn_sim_device
 
         return spawn_sim_device(config, clock=clock)
-    try:
-        from rehab_hil.devices import avr_device  # type: ignore[attr-defined]
-    except ImportError:
-        raise UserError("--device avr: the simavr backend (rehab_hil.devices.avr_device) is not available") from None
-    return avr_device.spawn_avr_device(config, clock=clock)
+    if lockstep:
+        raise UserError("--lockstep is a mode of the Python sim device; the avr device runs in real time")
+    from rehab_hil.devices import avr_device
+
+    reason = avr_device.unavailable_reason()
+    if reason:
+        raise UserError(f"--device avr: {reason}")
+    return avr_device.spawn_avr_device(config, clock="realtime")
 
 
 def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: Any) -> Any:
