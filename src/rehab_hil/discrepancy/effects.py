@@ -12,7 +12,7 @@ disabled and enables them by editing the parameter vector.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from rehab_hil.discrepancy.parts import (
@@ -59,10 +59,11 @@ class Attachment:
 
     connect: Mapping[str, Any] = field(default_factory=dict)
     output_to: str | None = None
-    insert: tuple[str, str, str] | None = None
-    sum_into: tuple[str, str] | None = None
+    insert: tuple[Any, ...] | None = None
+    sum_into: tuple[Any, ...] | None = None
     fixed: Callable[[Any], dict[str, float]] = lambda cfg: {}
     xd0: Callable[[Any], Sequence[float]] | None = None
+    typical: Mapping[str, float] = field(default_factory=dict)  # per-plant typical magnitudes
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,12 @@ class Effect:
             if p.name == name:
                 return p
         raise KeyError(name)
+
+    def params_for(self, plant: str) -> tuple[EffectParam, ...]:
+        """The parameters with this plant's typical magnitudes (a finger's joint torques are
+        milli-newton-metres where the Finger Extensor's are tenths)."""
+        over = self.attachments[plant].typical if plant in self.attachments else {}
+        return tuple(replace(p, typical=over.get(p.name, p.typical)) for p in self.params)
 
     def defaults(self) -> dict[str, float]:
         return {p.name: p.typical for p in self.params}
@@ -112,6 +119,30 @@ _FE_DELAY = Attachment(insert=("motor", "voltage_v", "u"), fixed=_fe_step)
 _FE_CONTACT = Attachment(connect={"angle_rad": "iris_angle_rad", "velocity_rad_s": "iris_velocity_rad_s"},
                          output_to="drive_torque_nm")
 
+# SMA exoskeleton (plants/sma_exoskeleton.py): sma_thermal (duty, voltage_v) -> sma_temperature_c ->
+# sma_active (Tanaka wire); joint torques on tau_<joint>_nm. The MCP joint carries the joint effects.
+_SMA_DELAY = Attachment(insert=("sma_thermal", "duty", "u"), fixed=_fe_step)
+_SMA_HYST = Attachment(insert=("sma_active", "temperature_c", "temperature_c"),
+                       xd0=lambda cfg: [cfg.sma.ambient_c])
+_SMA_MCP = {"angle_rad": "theta_mcp_rad", "velocity_rad_s": "omega_mcp_rad_s"}
+_SMA_VISCOUS = Attachment(connect={"velocity_rad_s": "omega_mcp_rad_s"}, output_to="tau_mcp_nm",
+                          typical={"damping_nm_s_per_rad": 0.005})
+_SMA_JOINT = Attachment(connect=_SMA_MCP, output_to="tau_mcp_nm",
+                        typical={"stiffness_nm_per_rad": 0.05, "damping_nm_s_per_rad": 0.002, "scale_nm": 0.002})
+
+# TCP finger (plants/tcp_finger.py): power_w -> thermal model ("tf1" transfer function, or "thermal"
+# lumped) -> tcp_temperature_c -> tf2 -> tcp_force_n -> tendon; joint torques on tau<i>_nm.
+_TCP_THERMAL_IN = (("tf1", "u"), ("thermal", "power_w"))
+_TCP_DELAY = Attachment(insert=(("tf1", "u", "u"), ("thermal", "power_w", "u")), fixed=_fe_step)
+_TCP_CONVECTION = Attachment(connect={"temperature_c": "tcp_temperature_c"}, sum_into=_TCP_THERMAL_IN,
+                             fixed=lambda cfg: {"ambient_c": cfg.muscle.ambient_c},
+                             xd0=lambda cfg: [cfg.muscle.ambient_c])
+_TCP_MCP = {"angle_rad": "theta_mcp_rad", "velocity_rad_s": "omega_mcp_rad_s"}
+_TCP_VISCOUS = Attachment(connect={"velocity_rad_s": "omega_mcp_rad_s"}, output_to="tau1_nm",
+                          typical={"damping_nm_s_per_rad": 0.0005})
+_TCP_JOINT = Attachment(connect=_TCP_MCP, output_to="tau1_nm",
+                        typical={"scale_nm": 0.001, "damping_nm_s_per_rad": 0.0002})
+
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in [
@@ -127,7 +158,7 @@ EFFECTS: dict[str, Effect] = {
             (EffectParam("damping_nm_s_per_rad", 0.0, 0.5, 0.02),),
             "seed 002 eq 6-8 (V_c, B_v)",
             "extra viscous friction on the joint axis",
-            {"finger_extensor": _FE_VISCOUS},
+            {"finger_extensor": _FE_VISCOUS, "sma_exoskeleton": _SMA_VISCOUS, "tcp_finger": _TCP_VISCOUS},
         ),
         Effect(
             "backlash", Backlash,
@@ -142,7 +173,7 @@ EFFECTS: dict[str, Effect] = {
                          grid=(0.002, 0.005, 0.01, 0.02, 0.035)),),
             "seed 002 sec 4.2 (the hardware lags the simulation)",
             f"transport delay on the actuator input (FIFO of {DELAY_SLOTS - 1} steps)",
-            {"finger_extensor": _FE_DELAY},
+            {"finger_extensor": _FE_DELAY, "sma_exoskeleton": _SMA_DELAY, "tcp_finger": _TCP_DELAY},
         ),
         Effect(
             "contact_spring_damper", ContactSpringDamper,
@@ -152,7 +183,7 @@ EFFECTS: dict[str, Effect] = {
                          grid=(0.0, 0.4, 0.8, 1.2, 1.6))),
             "seed 000 eq 18-28 and Table 4 (contact force k dx + c dx', k and c by regression)",
             "one-sided spring-damper of the patient's finger beyond a contact angle",
-            {"finger_extensor": _FE_CONTACT},
+            {"finger_extensor": _FE_CONTACT, "sma_exoskeleton": _SMA_JOINT},
         ),
         Effect(
             "passive_muscle", PassiveMuscle,
@@ -160,22 +191,22 @@ EFFECTS: dict[str, Effect] = {
              EffectParam("shape_per_rad", 0.1, 10.0, 2.0, linear=False, off=None, grid=(1.0, 2.0, 4.0)),
              EffectParam("damping_nm_s_per_rad", 0.0, 0.1, 0.001)),
             "seed 000 eq 1-3, Table 1 (Hill passive muscle force)",
-            "exponential passive joint torque of the finger's muscles and tendons",
-            {},
+            "exponential passive joint torque of the finger's muscles and tendons (MCP joint)",
+            {"sma_exoskeleton": _SMA_JOINT, "tcp_finger": _TCP_JOINT},
         ),
         Effect(
             "sma_hysteresis", SmaHysteresis,
             (EffectParam("width_c", 0.0, 40.0, 5.0),),
             "seed 000 eq 14-17, Table 2 (A_s, A_f, M_s, M_f)",
             "transformation hysteresis: heating and cooling see temperatures width_c apart",
-            {},
+            {"sma_exoskeleton": _SMA_HYST},
         ),
         Effect(
             "nonlinear_convection", NonlinearConvection,
-            (EffectParam("coefficient_w_per_k3", 0.0, 1e-4, 1e-6),),
+            (EffectParam("coefficient_w_per_k3", 0.0, 1e-3, 1e-5),),
             "seed 000 eq 13 (h = h1 + h2 T^2); seed 001 sec 4 (error grows with power)",
             "heat loss growing with the cube of the temperature rise",
-            {},
+            {"tcp_finger": _TCP_CONVECTION},
         ),
     ]
 }
@@ -251,14 +282,14 @@ def attach(plant: str, cfg: Any, parts: list[Part], effects: Sequence[tuple[str,
         own_out = f"{pname}_{eff.part.outputs[0]}"
         connect = dict(att.connect)
         if att.insert is not None:
-            target, port, inport = att.insert
-            tp = _find(by_name, target, name)
+            target, port, inport = _pick(by_name, att.insert, name)
+            tp = by_name[target]
             connect[inport] = list(tp.connections[port])
             tp.connections[port] = [(own_out, 1.0)]
         rename = {eff.part.outputs[0]: att.output_to or own_out}
         if att.sum_into is not None:
-            target, port = att.sum_into
-            _find(by_name, target, name).connections[port].append((own_out, 1.0))
+            target, port = _pick(by_name, att.sum_into, name)
+            by_name[target].connections[port].append((own_out, 1.0))
         xd0 = att.xd0(cfg) if att.xd0 else None
         part = eff.part(pname, connect=connect, rename=rename, xd0=xd0, **att.fixed(cfg), **values)
         parts.append(part)
@@ -266,7 +297,11 @@ def attach(plant: str, cfg: Any, parts: list[Part], effects: Sequence[tuple[str,
     return parts
 
 
-def _find(by_name: Mapping[str, Part], target: str, effect: str) -> Part:
-    if target not in by_name:
-        raise DiagramError(f"effect {effect!r} attaches to part {target!r}, which the plant does not have")
-    return by_name[target]
+def _pick(by_name: Mapping[str, Part], where: tuple[Any, ...], effect: str) -> tuple[str, ...]:
+    """The first alternative whose part exists: ``where`` is (part, port, ...) or a tuple of them
+    (a plant whose parts depend on its config, e.g. the TCP finger's thermal model)."""
+    options = where if isinstance(where[0], tuple) else (where,)
+    for opt in options:
+        if opt[0] in by_name:
+            return opt
+    raise DiagramError(f"effect {effect!r} attaches to part {options[0][0]!r}, which the plant does not have")

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from rehab_hil.discrepancy.effects import Effect
+from rehab_hil.discrepancy.effects import Effect, EffectParam
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.selection import effective_fraction
 
@@ -27,6 +27,7 @@ __all__ = ["Fit", "fit_effect"]
 # Finite-difference step on parameters scaled by their typical value: large enough to see through
 # encoder quantisation and stick-slip switching, which make the simulated error piecewise flat.
 DIFF_STEP = 0.05
+BLOWUP = 1e3  # scaled residual that stands for a diverged simulation
 MAX_NFEV = 8  # per fitted parameter beyond the first, 6 more (shape parameters start far off)
 
 
@@ -53,15 +54,18 @@ def fit_effect(replay: Replay, base: np.ndarray, effect: Effect, n_train: int,
         if tick:
             tick()
         P = replay.with_effects(base, {effect.name: values})
-        return replay.residual(replay.simulate(P, n_train), slice(0, n_train)).ravel()
+        r = replay.residual(replay.simulate(P, n_train), slice(0, n_train)).ravel()
+        # a candidate that makes the model diverge is a bad fit, not a crash
+        return np.clip(np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP), -BLOWUP, BLOWUP)
 
     r0 = replay.residual(replay.simulate(base, n_train), slice(0, n_train)).ravel()
     count[0] += 1
-    start = _regression_start(effect, residual, r0)
-    names = [p.name for p in effect.params]
-    typ = np.array([p.typical for p in effect.params])
-    lo = np.array([p.lower for p in effect.params]) / typ
-    hi = np.array([p.upper for p in effect.params]) / typ
+    params = effect.params_for(replay.spec.name)
+    start = _regression_start(effect, params, residual, r0)
+    names = [p.name for p in params]
+    typ = np.array([p.typical for p in params])
+    lo = np.array([p.lower for p in params]) / typ
+    hi = np.array([p.upper for p in params]) / typ
     z0 = np.clip(np.array([start[n] for n in names]) / typ, lo, hi)
 
     def fun(z: np.ndarray) -> np.ndarray:
@@ -77,11 +81,11 @@ def fit_effect(replay: Replay, base: np.ndarray, effect: Effect, n_train: int,
                replay.with_effects(base, {effect.name: values}))
 
 
-def _regression_start(effect: Effect, residual: Callable[[dict[str, float]], np.ndarray],
-                      r0: np.ndarray) -> dict[str, float]:
+def _regression_start(effect: Effect, params: tuple[EffectParam, ...],
+                      residual: Callable[[dict[str, float]], np.ndarray], r0: np.ndarray) -> dict[str, float]:
     """Best start over the grid of shape parameters; linear ones by regression on the residual."""
-    lin = [p for p in effect.params if p.linear]
-    shape = [p for p in effect.params if not p.linear]
+    lin = [p for p in params if p.linear]
+    shape = [p for p in params if not p.linear]
     off = effect.disabled()
     best: tuple[float, dict[str, float]] | None = None
     for combo in itertools.product(*[p.grid or (p.typical,) for p in shape]):

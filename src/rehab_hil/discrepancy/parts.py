@@ -127,15 +127,25 @@ class SmaHysteresis(Part):
 
 
 class NonlinearConvection(Part):
-    """Extra heat loss growing with the square of the temperature rise (seed 000 eq 13,
-    h = h1 + h2 T^2; seed 001 blames nonlinear heat transfer for error growing with power)."""
+    """Extra heat loss growing with the cube of the temperature rise (seed 000 eq 13,
+    h = h1 + h2 T^2; seed 001 blames nonlinear heat transfer for error growing with power).
+
+    It reads the temperature sampled at the previous step (a 1 ms hold against thermal time
+    constants of seconds), so summing its output into a feedthrough thermal model makes no loop."""
 
     inputs = ("temperature_c",)
+    discrete_states = ("held_temperature_c",)
     outputs = ("heat_w",)
     params = ("coefficient_w_per_k3", "ambient_c")
+    feedthrough = False
 
     @staticmethod
     @njit
     def output(t, x, xd, u, p, y):
-        rise = u[0] - p[1]
+        rise = xd[0] - p[1]
         y[0] = -p[0] * rise * rise * abs(rise)
+
+    @staticmethod
+    @njit
+    def update(t, x, xd, u, p, xd_next):
+        xd_next[0] = u[0]

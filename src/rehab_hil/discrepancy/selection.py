@@ -52,6 +52,7 @@ class Score:
 def bic(residual: np.ndarray, n_params: int, fraction: float) -> Score:
     """BIC of a held-out scaled residual (channels x samples) with ``n_params`` fitted parameters."""
     r = np.atleast_2d(residual)
+    r = np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)  # diverged: very bad
     n = r.size
     rss = float(np.sum(r**2))
     n_eff = max(n * fraction, n_params + 2.0)

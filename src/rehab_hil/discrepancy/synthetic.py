@@ -40,7 +40,34 @@ class Plan:
     noise: Mapping[str, float]  # channel -> standard deviation (its unit)
 
 
+def _levels(t: np.ndarray, rng: np.random.Generator, levels: tuple[float, ...], hold_s: tuple[float, float],
+            off_share: float) -> np.ndarray:
+    """Piecewise-constant random levels (heating pulses and cooling rests of random length)."""
+    out = np.zeros_like(t)
+    start = 0.0
+    while start < t[-1]:
+        hold = rng.uniform(*hold_s)
+        level = 0.0 if rng.random() < off_share else float(rng.choice(levels))
+        out[(t >= start) & (t < start + hold)] = level
+        start += hold
+    return out
+
+
 EXCITATION: dict[str, Plan] = {
+    "sma_exoskeleton": Plan(
+        inputs=lambda t, rng: {"pwm_duty": _levels(t, rng, (0.4, 0.6, 0.8, 1.0), (1.5, 4.0), 0.4),
+                               "supply_voltage_v": np.full_like(t, 32.0)},
+        mismatch=("damping_dip.damping_nm_s_per_rad", 1.1),
+        noise={"theta_mcp_deg": 0.1, "theta_pip_deg": 0.1, "theta_dip_deg": 0.1, "contact_force_n": 0.02,
+               "sma_tension_n": 0.05, "sma_temperature_c": 0.3},
+    ),
+    "tcp_finger": Plan(
+        inputs=lambda t, rng: {"power_w": _levels(t, rng, (34.0, 40.0, 47.0), (1.0, 4.0), 0.5),
+                               "measured_force_n": np.zeros_like(t)},
+        mismatch=("damping_dip.damping_nm_s_per_rad", 1.1),
+        noise={"tcp_temperature_c": 0.2, "tcp_force_n": 0.01, "theta_mcp_deg": 0.1, "theta_pip_deg": 0.1,
+               "theta_dip_deg": 0.1},
+    ),
     "finger_extensor": Plan(
         inputs=lambda t, rng: {"motor_voltage_v": _multisine(t, rng, 2.5, (0.35, 0.8, 1.7), 0.2),
                                "patient_torque_nm": np.zeros_like(t)},
