@@ -12,6 +12,7 @@ from itertools import pairwise
 import pytest
 from cobs import cobs
 
+from rehab_hil.devices.avr_device import adc_counts_to_mv
 from rehab_hil.hardware import HardwareError, SerialHardware
 from rehab_hil.protocol import (
     DUTY_FULL,
@@ -32,9 +33,8 @@ pytestmark = [pytest.mark.firmware, pytest.mark.timeout(60)]
 
 # The PWM resolution: Timer1 fast PWM with TOP = 799 has 800 steps of 12.5 duty units.
 PWM_STEP = DUTY_FULL / 800
-# ADC: simavr converts mV * 1023 / 5000; the mid-band voltage of count c reads back as c.
-def mv(counts: int) -> int:
-    return round((counts + 0.5) * 5000 / 1023)
+# ADC input voltages: the avr driver's conversion, checked through simavr's real ADC below.
+mv = adc_counts_to_mv
 
 
 def _next(hw: SerialHardware, timeout: float = 2.0) -> Sample:
@@ -149,10 +149,14 @@ def test_force_limit_trips_and_clear_waits_for_the_force_to_drop(rig: tuple[Harn
     assert _next(hw).faults == 0
 
 
-def test_adc1_is_read_too(rig: tuple[Harness, SerialHardware]) -> None:
+@pytest.mark.parametrize("counts", [0, 1, 2, 511, 512, 777, 1022, 1023])
+def test_adc_counts_through_simavr_match_the_driver_conversion(rig: tuple[Harness, SerialHardware],
+                                                                counts: int) -> None:
     harness, hw = rig
-    harness.send(f"A 1 {mv(777)}")
-    assert _until(hw, lambda s: s.adc1 != 0).adc1 == 777
+    harness.send(f"A 0 {mv(counts)}")
+    harness.send(f"A 1 {mv(1023 - counts)}")
+    s = _until(hw, lambda s: (s.adc0, s.adc1) == (counts, 1023 - counts), max_samples=50)
+    assert s.faults == 0
 
 
 def test_range_of_motion_from_encoder_edges(rig: tuple[Harness, SerialHardware]) -> None:
