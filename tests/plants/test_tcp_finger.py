@@ -128,3 +128,11 @@ def test_a_damping_that_makes_the_integrator_unstable_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"(?i)rk4 unstable") as e:
         load_config(bad)
     assert "simulation.substeps" in str(e.value)
+
+
+def test_a_muscle_transfer_function_too_fast_for_the_step_is_refused(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(CFG_PATH.read_text().replace("den = [1.0, 0.2947]", "den = [1.0, 5000.0]"))
+    with pytest.raises(ConfigError, match=r"(?i)table1\.FT1") as e:
+        load_config(bad)
+    assert "substeps" in str(e.value)

@@ -160,8 +160,14 @@ class TcpFingerConfig(Section):
             name = getattr(self.muscle, key)
             if name not in self.table1:
                 raise ValueError(f"muscle.{key} = {name!r} is not a [table1] entry ({sorted(self.table1)})")
-        fastest = fastest_finger_pole(self)
         h = self.simulation.step_s / self.simulation.substeps
+        for key in ("thermal_tf", "force_tf"):
+            name = getattr(self.muscle, key)
+            pole = float(np.max(np.abs(np.roots(self.table1[name].den))))
+            if pole * h > RK4_LIMIT:
+                raise ValueError(f"table1.{name} (muscle.{key}) has a pole at {pole:.4g} 1/s: RK4 is unstable at "
+                                 f"h = {h:g} s; raise simulation.substeps")
+        fastest = fastest_finger_pole(self)
         if fastest * h > RK4_LIMIT:
             raise ValueError(f"finger: the stiffest joint mode ({fastest:.4g} 1/s) makes RK4 unstable at "
                              f"h = {h:g} s ({fastest * h:.3g} > {RK4_LIMIT}); raise simulation.substeps "
