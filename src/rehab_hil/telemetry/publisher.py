@@ -65,11 +65,17 @@ class TelemetryPublisher:
         self.commands_rejected = 0
         self._closed = False
         self._stop = threading.Event()
-        self._pub = session.declare_publisher(self.keys.state, congestion_control=zenoh.CongestionControl.BLOCK)
-        self._token = session.liveliness().declare_token(self.keys.alive)
-        self._queryable = session.declare_queryable(self.keys.info, self._answer_info)
-        self._cmd_sub = (session.declare_subscriber(self.keys.command, self._command)
-                         if commands_enabled else None)
+        self._pub = self._token = self._queryable = self._cmd_sub = None
+        try:
+            self._pub = session.declare_publisher(self.keys.state,
+                                                  congestion_control=zenoh.CongestionControl.BLOCK)
+            self._token = session.liveliness().declare_token(self.keys.alive)
+            self._queryable = session.declare_queryable(self.keys.info, self._answer_info)
+            if commands_enabled:
+                self._cmd_sub = session.declare_subscriber(self.keys.command, self._command)
+        except zenoh.ZError:
+            self._undeclare()
+            raise
         self._thread = threading.Thread(target=self._run, name=f"telemetry-{rig_id}", daemon=True)
         self._thread.start()
 
@@ -107,7 +113,10 @@ class TelemetryPublisher:
         self._closed = True
         self._stop.set()
         self._thread.join(timeout_s)
-        for entity in (self._cmd_sub, self._queryable, self._pub, self._token):
+        self._undeclare()
+
+    def _undeclare(self) -> None:
+        for entity in (self._cmd_sub, self._queryable, self._pub, self._token):  # the token last
             if entity is not None:
                 with contextlib.suppress(zenoh.ZError):
                     entity.undeclare()
@@ -208,4 +217,7 @@ class TelemetryPublisher:
             return
         self.commands_accepted += 1
         assert self._on_command is not None
-        self._on_command(msg)
+        try:
+            self._on_command(msg)
+        except Exception:  # the rig's handler failed: count it, keep zenoh's thread alive
+            self.commands_rejected += 1
