@@ -110,3 +110,20 @@ def test_simulate_command_writes_the_canonical_signals(tmp_path, system):
         header = next(csv.reader(fh))
     for name in (*sx.INPUTS, *sx.OUTPUTS):
         assert name in header
+
+
+@pytest.mark.slow
+def test_simulated_rig_reads_the_bent_mcp_angle_through_the_encoder(cfg, system):
+    """Full PWM on channel 0 for 1.5 s through the device-side plant I/O: the encoder count is
+    the model's MCP angle in counts, and the Flexiforce ADC stays within 0..1023."""
+    from rehab_hil.devices.plant_io import PlantIO
+    from rehab_hil.protocol import DUTY_FULL
+
+    io = PlantIO(sx.device_binding(cfg))
+    for _ in range(1500):
+        enc, adc0, _ = io.tick((DUTY_FULL, 0), 0)
+    res = system.simulate(1500, {"pwm_duty": 1.0, "supply_voltage_v": 32.0}, outputs=["theta_mcp_rad"])
+    expect = res["theta_mcp_rad"][-1] * cfg.encoder.counts_per_rev / (2 * np.pi)
+    assert abs(enc - expect) <= 2
+    assert enc > 20.0 / 360.0 * cfg.encoder.counts_per_rev  # bent by more than 20 deg
+    assert 0 <= adc0 <= 1023
