@@ -30,6 +30,7 @@ __all__ = [
     "CoupledFingerChain",
     "FingerChain",
     "chain_param_vector",
+    "coriolis_entries",
     "coriolis_vector",
     "coupled_dynamics",
     "energy",
@@ -91,6 +92,7 @@ def mass_entries(q2, q3, p):
 
 @njit
 def _mass_cos(c2, c3, c23, p):
+    """``mass_entries`` from cos q2, cos q3, cos(q2 + q3)."""
     L1, L2 = p[0], p[1]
     m1, m2, m3 = p[3], p[4], p[5]
     a1, a2, a3 = p[6], p[7], p[8]
@@ -128,6 +130,7 @@ def mass_derivative_entries(q2, q3, p):
 
 @njit
 def _dmass_sin(s2, s3, s23, p):
+    """``mass_derivative_entries`` from sin q2, sin q3, sin(q2 + q3)."""
     L1, L2 = p[0], p[1]
     m2, m3 = p[4], p[5]
     a2, a3 = p[7], p[8]
@@ -167,34 +170,25 @@ def mass_matrix_derivatives(q, p, dM2, dM3):
 
 
 @njit
-def _christoffel_product(q, qa, qb, p, out):
-    """out_i = sum_jk Gamma_ijk qa_j qb_k with Gamma_ijk = dM_ij/dq_k - 1/2 dM_jk/dq_i;
-    with qa = qb = q' this is C(q, q') q' (seed 000 eq 29, Coriolis and centripetal)."""
-    dM2 = np.empty((3, 3))
-    dM3 = np.empty((3, 3))
-    mass_matrix_derivatives(q, p, dM2, dM3)
-    for i in range(3):
-        acc = 0.0
-        for j in range(3):
-            # k = 1 (q2) and k = 2 (q3); dM/dq1 = 0
-            acc += dM2[i, j] * qa[j] * qb[1] + dM3[i, j] * qa[j] * qb[2]
-        quad = 0.0
-        if i == 1:
-            for j in range(3):
-                for k in range(3):
-                    quad += dM2[j, k] * qa[j] * qb[k]
-        elif i == 2:
-            for j in range(3):
-                for k in range(3):
-                    quad += dM3[j, k] * qa[j] * qb[k]
-        out[i] = acc - 0.5 * quad
+def coriolis_entries(q2, q3, v1, v2, v3, p):
+    """C(q, q') q' of seed 000 eq 29 (Coriolis and centripetal torques) from the Christoffel
+    symbols of M: h_i = sum_jk (dM_ij/dq_k - 1/2 dM_jk/dq_i) v_j v_k, with dM/dq1 = 0."""
+    d11, d12, d13, e11, e12, e13, e22, e23 = mass_derivative_entries(q2, q3, p)
+    a1 = d11 * v1 + d12 * v2 + d13 * v3  # dM/dq2 . v
+    a2 = d12 * v1
+    a3 = d13 * v1
+    b1 = e11 * v1 + e12 * v2 + e13 * v3  # dM/dq3 . v
+    b2 = e12 * v1 + e22 * v2 + e23 * v3
+    b3 = e13 * v1 + e23 * v2
+    va = v1 * a1 + v2 * a2 + v3 * a3
+    vb = v1 * b1 + v2 * b2 + v3 * b3
+    return a1 * v2 + b1 * v3, a2 * v2 + b2 * v3 - 0.5 * va, a3 * v2 + b3 * v3 - 0.5 * vb
 
 
 @njit
 def coriolis_vector(q, qd, p, out):
-    """C(q, q') q' of seed 000 eq 29 (Coriolis and centripetal torques), from the Christoffel
-    symbols of ``mass_matrix``."""
-    _christoffel_product(q, qd, qd, p, out)
+    """``coriolis_entries`` written into ``out``."""
+    out[0], out[1], out[2] = coriolis_entries(q[1], q[2], qd[0], qd[1], qd[2], p)
 
 
 @njit
@@ -227,48 +221,42 @@ def gravity_vector(q, p, out):
 
 
 @njit
-def _solve3(M, b, out):
-    """Solve the symmetric positive definite 3x3 system M out = b by Cholesky."""
-    l11 = math.sqrt(M[0, 0])
-    l21 = M[1, 0] / l11
-    l31 = M[2, 0] / l11
-    l22 = math.sqrt(M[1, 1] - l21 * l21)
-    l32 = (M[2, 1] - l31 * l21) / l22
-    l33 = math.sqrt(M[2, 2] - l31 * l31 - l32 * l32)
-    y1 = b[0] / l11
-    y2 = (b[1] - l21 * y1) / l22
-    y3 = (b[2] - l31 * y1 - l32 * y2) / l33
-    out[2] = y3 / l33
-    out[1] = (y2 - l32 * out[2]) / l22
-    out[0] = (y1 - l21 * out[1] - l31 * out[2]) / l11
+def _solve3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
+    """Solve the symmetric positive definite 3x3 system M x = b by Cholesky (scalars in and out)."""
+    l11 = math.sqrt(m11)
+    l21 = m12 / l11
+    l31 = m13 / l11
+    l22 = math.sqrt(m22 - l21 * l21)
+    l32 = (m23 - l31 * l21) / l22
+    l33 = math.sqrt(m33 - l31 * l31 - l32 * l32)
+    y1 = b1 / l11
+    y2 = (b2 - l21 * y1) / l22
+    y3 = (b3 - l31 * y1 - l32 * y2) / l33
+    x3 = y3 / l33
+    x2 = (y2 - l32 * x3) / l22
+    x1 = (y1 - l21 * x2 - l31 * x3) / l11
+    return x1, x2, x3
 
 
 @njit
 def forward_dynamics(q, qd, tau, p, qdd):
     """q'' = M(q)^-1 (tau - C(q, q') q' - G(q)) (seed 000 eq 29 solved for the acceleration)."""
-    M = np.empty((3, 3))
-    h = np.empty(3)
-    g = np.empty(3)
-    mass_matrix(q, p, M)
-    coriolis_vector(q, qd, p, h)
-    gravity_vector(q, p, g)
-    rhs = np.empty(3)
-    for i in range(3):
-        rhs[i] = tau[i] - h[i] - g[i]
-    _solve3(M, rhs, qdd)
+    m11, m12, m13, m22, m23, m33 = mass_entries(q[1], q[2], p)
+    h1, h2, h3 = coriolis_entries(q[1], q[2], qd[0], qd[1], qd[2], p)
+    g1, g2, g3 = gravity_entries(q[0], q[1], q[2], p)
+    qdd[0], qdd[1], qdd[2] = _solve3(m11, m12, m13, m22, m23, m33,
+                                     tau[0] - h1 - g1, tau[1] - h2 - g2, tau[2] - h3 - g3)
 
 
 @njit
 def inverse_dynamics(q, qd, qdd, p, tau):
     """tau = M(q) q'' + C(q, q') q' + G(q) (seed 000 eq 29, left-hand side)."""
-    M = np.empty((3, 3))
-    h = np.empty(3)
-    g = np.empty(3)
-    mass_matrix(q, p, M)
-    coriolis_vector(q, qd, p, h)
-    gravity_vector(q, p, g)
-    for i in range(3):
-        tau[i] = M[i, 0] * qdd[0] + M[i, 1] * qdd[1] + M[i, 2] * qdd[2] + h[i] + g[i]
+    m11, m12, m13, m22, m23, m33 = mass_entries(q[1], q[2], p)
+    h1, h2, h3 = coriolis_entries(q[1], q[2], qd[0], qd[1], qd[2], p)
+    g1, g2, g3 = gravity_entries(q[0], q[1], q[2], p)
+    tau[0] = m11 * qdd[0] + m12 * qdd[1] + m13 * qdd[2] + h1 + g1
+    tau[1] = m12 * qdd[0] + m22 * qdd[1] + m23 * qdd[2] + h2 + g2
+    tau[2] = m13 * qdd[0] + m23 * qdd[1] + m33 * qdd[2] + h3 + g3
 
 
 @njit
@@ -337,11 +325,16 @@ class FingerChain(Part):
     @staticmethod
     @njit
     def derivatives(t, x, xd, u, p, dx):
-        qdd = np.empty(3)
-        forward_dynamics(x[0:3], x[3:6], u, p, qdd)
-        for i in range(3):
-            dx[i] = x[3 + i]
-            dx[3 + i] = qdd[i]
+        m11, m12, m13, m22, m23, m33 = mass_entries(x[1], x[2], p)
+        h1, h2, h3 = coriolis_entries(x[1], x[2], x[3], x[4], x[5], p)
+        g1, g2, g3 = gravity_entries(x[0], x[1], x[2], p)
+        a1, a2, a3 = _solve3(m11, m12, m13, m22, m23, m33, u[0] - h1 - g1, u[1] - h2 - g2, u[2] - h3 - g3)
+        dx[0] = x[3]
+        dx[1] = x[4]
+        dx[2] = x[5]
+        dx[3] = a1
+        dx[4] = a2
+        dx[5] = a3
 
 
 class CoupledFingerChain(Part):
