@@ -20,11 +20,13 @@ from rehab_hil.interchange import CsvError, Recording
 from rehab_hil.models.system import CompiledSystem, Diagram
 from rehab_hil.plants.base import PLANTS, PlantSpec
 
-__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "Replay", "check_recording"]
+__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "OPTIONAL_INPUTS", "Replay", "check_recording"]
 
 CANDIDATE_PREFIX = "candidate"
 MIN_DURATION_S = 2.0  # shorter records cannot be split into a fit part and a held-out part
 MIN_SAMPLES = 100
+# inputs a recording may lack (taken as zero): the TCP finger's force input is used only in FIS runs
+OPTIONAL_INPUTS = {"tcp_finger": ("measured_force_n",)}
 
 
 def check_recording(spec: PlantSpec, rec: Recording, path: str | Path) -> list[str]:
@@ -32,7 +34,7 @@ def check_recording(spec: PlantSpec, rec: Recording, path: str | Path) -> list[s
 
     Errors name the file: missing input columns (and which plant the file looks like), no output
     column, too short, inputs that never change."""
-    missing = [n for n in spec.inputs if n not in rec.signals]
+    missing = [n for n in spec.inputs if n not in rec.signals and n not in OPTIONAL_INPUTS.get(spec.name, ())]
     if missing:
         looks = [p.name for p in PLANTS.values() if p.name != spec.name and all(i in rec.signals for i in p.inputs)]
         hint = f"; the columns look like a {looks[0]!r} recording, the config is {spec.name!r}" if looks else ""
@@ -46,7 +48,7 @@ def check_recording(spec: PlantSpec, rec: Recording, path: str | Path) -> list[s
     if rec.t.size < MIN_SAMPLES or duration < MIN_DURATION_S:
         raise CsvError(path, None, f"too short: {rec.t.size} rows over {duration:.3f} s; the workflow needs at "
                                    f"least {MIN_SAMPLES} rows and {MIN_DURATION_S} s (a fit part and a held-out part)")
-    if all(np.ptp(rec.signals[n]) == 0.0 for n in spec.inputs):
+    if all(np.ptp(rec.signals[n]) == 0.0 for n in spec.inputs if n in rec.signals):
         raise CsvError(path, None, f"the input columns {list(spec.inputs)} are constant: the recording does not "
                                    "excite the plant, so no effect can be identified")
     return channels
@@ -79,7 +81,8 @@ class Replay:
         t = rec.t - rec.t[0]
         n = int(np.floor(t[-1] / step_s + 1e-9)) + 2
         grid = np.arange(n) * step_s
-        inputs = {k: np.interp(grid, t, rec.signals[k]) for k in spec.inputs if k in system.input_names}
+        inputs = {k: np.interp(grid, t, rec.signals[k]) for k in spec.inputs
+                  if k in system.input_names and k in rec.signals}
         pos = t / step_s
         idx = np.minimum(np.floor(pos).astype(np.int64), n - 2)
         measured = {c: np.asarray(rec.signals[c], float) for c in channels}

@@ -1,0 +1,32 @@
+"""The workflow on the TCP finger and the SMA exoskeleton, with the effects that apply to them."""
+
+from __future__ import annotations
+
+import pytest
+
+from rehab_hil.config import load_config
+from rehab_hil.discrepancy.effects import applicable
+from rehab_hil.discrepancy.synthetic import hidden_effect_recording
+from rehab_hil.discrepancy.workflow import Options, find_missing_effects
+from rehab_hil.plants import get_plant
+
+from .conftest import ROOT
+
+
+def test_thermal_and_finger_effects_apply_to_the_other_plants():
+    assert {"nonlinear_convection", "time_delay", "passive_muscle"} <= {e.name for e in applicable("tcp_finger")}
+    assert {"sma_hysteresis", "contact_spring_damper", "passive_muscle", "time_delay"} <= {
+        e.name for e in applicable("sma_exoskeleton")}
+
+
+@pytest.mark.slow
+def test_tcp_finger_hidden_nonlinear_convection_is_found():
+    spec, cfg = get_plant("tcp_finger"), load_config(ROOT / "configs" / "tcp_finger.toml")
+    true = 2e-5
+    rec = hidden_effect_recording(spec, cfg, {"nonlinear_convection": {"coefficient_w_per_k3": true}},
+                                  duration_s=20.0, seed=1)
+    res = find_missing_effects(cfg, rec, "tcp.csv", options=Options(max_effects=1))
+    assert res.named == ["nonlinear_convection"]
+    assert res.chosen[0].params["coefficient_w_per_k3"] == pytest.approx(true, rel=0.15)
+    before, after = res.metrics("nominal", "holdout"), res.metrics("augmented", "holdout")
+    assert after["tcp_temperature_c"]["rmse"] <= 0.5 * before["tcp_temperature_c"]["rmse"]
