@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import platform
 import resource
 import socket
@@ -35,7 +36,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watchdog_ms: int | None) -> dict:
+def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watchdog_ms: int | None,
+            link_loss_periods: int | None) -> dict:
     cfg = load_config(config)
     binding = get_plant(cfg.plant).device(cfg)
     conf = assembly.firmware_configure(cfg, binding)
@@ -49,9 +51,12 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
             info = rig_info(cfg.plant, config, binding, assembly.period_s(cfg), hw.info)
             tel = RigTelemetry("bench", info, NetworkConfig(port=free_port()), queue_size=20_000)
         sink = tel.sink if tel is not None else None
+        sup = assembly.build_supervisor(cfg, binding)
+        if link_loss_periods is not None:
+            sup.limits = dataclasses.replace(sup.limits, link_loss_periods=link_loss_periods)
         svc = LoopService(hw, conf,
                           assembly.build_controller(cfg, binding, "session"), assembly.build_estimator(cfg, binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), telemetry=sink)
+                          sup, assembly.period_s(cfg), telemetry=sink)
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         res = svc.run(duration_s, pacing=pacing, realtime=True)
         r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
@@ -61,6 +66,7 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
     cpu = (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (t1 - t0)
     return {
         "pacing": pacing, "telemetry": telemetry, "duration_s": duration_s, "watchdog_ms": conf.watchdog_ms,
+        "link_loss_periods": sup.limits.link_loss_periods, "load_avg_1min_after": os.getloadavg()[0],
         "scheduler": res.realtime.scheduler if res.realtime else "", "stop_reason": res.stop_reason,
         "cycles": res.cycles, "samples": res.samples, "sample_gaps": res.sample_gaps,
         "timing": res.timing, "reaction": res.reaction, "host_cpu_pct": 100.0 * cpu,
@@ -76,13 +82,15 @@ def main() -> int:
     ap.add_argument("--pacing", choices=("device", "host", "both"), default="both")
     ap.add_argument("--watchdog-ms", type=int, default=None,
                     help="override the firmware watchdog (a loaded VM stalls the sim device past 50 ms)")
+    ap.add_argument("--link-loss-periods", type=int, default=None,
+                    help="override the host link-loss budget (same reason)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "loop_timing.json")
     args = ap.parse_args()
     pacings = ("device", "host") if args.pacing == "both" else (args.pacing,)
     runs = []
     for pacing in pacings:
         for telemetry in (False, True):
-            r = one_run(args.config, args.duration, pacing, telemetry, args.watchdog_ms)
+            r = one_run(args.config, args.duration, pacing, telemetry, args.watchdog_ms, args.link_loss_periods)
             t = r["timing"]
             print(f"{pacing:6s} telemetry={telemetry!s:5s}: lateness p50/p99/p99.9/max "
                   f"{t['lateness_p50_us']:.1f}/{t['lateness_p99_us']:.1f}/{t['lateness_p99_9_us']:.1f}/"

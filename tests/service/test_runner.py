@@ -95,14 +95,21 @@ def test_device_reboot_is_detected_and_puts_the_rig_in_the_safe_state(cfg, bindi
     assert res.final_sample is not None
 
 
-def test_recording_holds_every_sample_sent_with_gaps_counted(cfg, binding, fresh_hw, shared_device, tmp_path):
+def test_recording_holds_every_sample_sent_with_gaps_and_corrupt_frames_counted(
+        cfg, binding, fresh_hw, shared_device, tmp_path):
     rec = Recorder(tmp_path, binding)
-    threading.Timer(0.1, shared_device.control, args=("drop 0.01",)).start()  # after CONFIGURE's ACK
+
+    def faults_on() -> None:  # after CONFIGURE's ACK: lose 1 % of frames and corrupt another 1 %
+        shared_device.control("drop 0.01")
+        shared_device.control("corrupt 0.01")
+
+    threading.Timer(0.1, faults_on).start()
     try:
         res = service(cfg, binding, fresh_hw, "session", recorder=rec).run(2.0, realtime=False,
                                                                            sample_timeout_s=0.02)
     finally:
         shared_device.control("drop 0")
+        shared_device.control("corrupt 0")
         rec.close()
     csv = read_csv(rec.csv_path)
     idx = csv["sample_index"].astype(int)
@@ -110,6 +117,7 @@ def test_recording_holds_every_sample_sent_with_gaps_counted(cfg, binding, fresh
     assert (steps >= 1).all()
     assert int((steps - 1).sum()) == res.sample_gaps  # every gap counted
     assert res.sample_gaps > 0  # frames were dropped on purpose
+    assert sum(res.link["bad_frames"].values()) > 0  # corrupt frames were counted and dropped, the loop went on
     assert len(idx) == res.samples  # every sample that arrived is in the file
     mcap_samples = [m for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/sample"]
     assert [int(m["sample_index"]) for m in mcap_samples] == list(idx)
