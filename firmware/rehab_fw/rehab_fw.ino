@@ -324,6 +324,9 @@ void setup() {
     faults = F_HW_WATCHDOG_RESET;  // PWM is already off (io::begin); reported once the host asks
     faults_unreported = F_HW_WATCHDOG_RESET;
   }
+  // A lone delimiter first: a reset can cut a frame short, and without it the host's decoder
+  // would merge that partial frame with this HELLO and drop both.
+  Serial.write((uint8_t)0);
   send_hello();  // unsolicited, once per boot: reset_cause tells the host why we booted
   wdt_enable(WDTO_60MS);
 }

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.protocol import DUTY_FULL, Configure
+from rehab_hil.protocol import DUTY_FULL, Configure, Message
 
 ROOT = Path(__file__).resolve().parents[2]
 HARNESS = ROOT / "sim_devices" / "build" / "avr_harness"
@@ -30,6 +30,14 @@ def config(**kw: int) -> Configure:
                 force_limit_counts=1023, enc_min=-WIDE, enc_max=WIDE, flags=0)
     base.update(kw)
     return Configure(**base)
+
+
+class Hardware(SerialHardware):
+    """SerialHardware with request timeouts of at least 5 s: on a loaded CI machine the simulated
+    AVR can run at a fraction of real time (device-time assertions are unaffected)."""
+
+    def _request(self, msg: Message, timeout: float) -> int:
+        return super()._request(msg, max(timeout, 5.0))
 
 
 class Harness:
@@ -113,9 +121,9 @@ def harness() -> Iterator[Harness]:
 @pytest.fixture
 def rig(harness: Harness) -> Iterator[tuple[Harness, SerialHardware]]:
     """The harness plus a connected host link, configured wide open."""
-    hw = SerialHardware(harness.port)
+    hw = Hardware(harness.port)
     try:
-        hw.connect(timeout=5.0)
+        hw.connect(timeout=10.0)
         hw.configure(config())
         yield harness, hw
     finally:

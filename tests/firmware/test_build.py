@@ -12,10 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.hardware import SerialHardware
 from rehab_hil.protocol import Fault, FrameDecoder, Hello, ResetCause
 
-from .conftest import ROOT, Harness, _missing, config
+from .conftest import ROOT, Hardware, Harness, _missing, config
 
 pytestmark = [pytest.mark.firmware, pytest.mark.slow, pytest.mark.timeout(120)]
 
@@ -26,7 +25,7 @@ UNO_RAM = 2048
 def _make(build_dir: Path, *extra: str) -> str:
     if shutil.which("avr-gcc") is None:
         pytest.skip("avr-gcc not installed: run scripts/install_toolchain.sh")
-    r = subprocess.run(["make", "-C", str(ROOT / "firmware"), f"BUILD={build_dir}", *extra],
+    r = subprocess.run(["make", "-j2", "-C", str(ROOT / "firmware"), f"BUILD={build_dir}", *extra],
                        capture_output=True, text=True, timeout=110)
     assert r.returncode == 0, r.stdout + r.stderr
     return r.stdout
@@ -65,9 +64,9 @@ def hang_harness(hang_elf: Path) -> Iterator[Harness]:
 
 
 def test_hardware_watchdog_resets_a_hung_firmware(hang_harness: Harness) -> None:
-    hw = SerialHardware(hang_harness.port)
+    hw = Hardware(hang_harness.port)
     try:
-        hw.connect(timeout=5.0)
+        hw.connect(timeout=10.0)
         hw.configure(config(sample_rate_hz=100))
         assert hw.read_sample(2.0) is not None
         # Test build only: the e-stop pin low while its input is disabled makes loop() spin forever.

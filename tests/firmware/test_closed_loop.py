@@ -11,11 +11,10 @@ import pytest
 
 from rehab_hil.config import load_config
 from rehab_hil.devices.plant_io import PlantIO
-from rehab_hil.hardware import SerialHardware
 from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Command, Sample
 
-from .conftest import ROOT, _missing, config
+from .conftest import ROOT, Hardware, _missing, config
 
 pytestmark = [pytest.mark.firmware, pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -30,7 +29,7 @@ def test_encoder_count_follows_the_plant() -> None:
 
     samples: list[Sample] = []
     with spawn_avr_device(CONFIG) as dev:
-        hw = SerialHardware(dev.port)
+        hw = Hardware(dev.port)
         try:
             hw.connect(timeout=10.0)
             hw.configure(config(watchdog_ms=300))

@@ -27,7 +27,7 @@ from rehab_hil.protocol import (
     encode_frame,
 )
 
-from .conftest import Harness, config
+from .conftest import Hardware, Harness, config
 
 pytestmark = [pytest.mark.firmware, pytest.mark.timeout(60)]
 
@@ -94,9 +94,9 @@ def test_command_drives_the_timer1_registers_clamped_with_direction_pins(rig: tu
 
 
 def test_commands_before_configure_are_ignored(harness: Harness) -> None:
-    hw = SerialHardware(harness.port)
+    hw = Hardware(harness.port)
     try:
-        hw.connect(timeout=5.0)
+        hw.connect(timeout=10.0)
         hw.send_command(Command(5000, 5000, 0, 1))
         hw.heartbeat()  # a round trip: the COMMAND before it has been handled
         assert (harness.state()["duty0"], harness.state()["duty1"]) == (0, 0)
@@ -256,7 +256,7 @@ def test_external_reset_reboots_unconfigured_with_a_hello(rig: tuple[Harness, Se
     _applied(hw, Command(3000, 0, 0, 1))
     harness.send("R")
     # the reboot shows as an unsolicited HELLO with seq 0; SerialHardware counts it
-    hello = hw.connect(timeout=5.0)
+    hello = hw.connect(timeout=10.0)
     assert hw.stats.reboots == 1 and hello.reset_cause == ResetCause.EXTERNAL
     assert (harness.state()["duty0"], harness.state()["resets"]) == (0, 1)
     hw.send_command(Command(3000, 0, 0, 1))  # unconfigured: ignored
