@@ -52,11 +52,17 @@ def backend(request: pytest.FixtureRequest) -> str:
 
 
 def _reset(hw: SerialHardware) -> SerialHardware:
-    """Configure wide open and clear whatever an earlier test left latched."""
-    hw.configure(_config())
-    assert hw.clear(), "faults left over from another test would not clear"
+    """Drop the backlog, configure wide open and clear whatever an earlier test left latched."""
+    hw.flush_input()
+    hw.configure(_config(), timeout=15.0)
+    assert hw.clear(timeout=15.0), "faults left over from another test would not clear"
     hw.discard_pending()
     return hw
+
+
+def _quiet(hw: SerialHardware) -> None:
+    """Stop streaming between tests so no backlog piles up in the pty."""
+    hw.configure(_config(sample_rate_hz=0), timeout=15.0)
 
 
 @pytest.fixture
@@ -64,6 +70,7 @@ def rig(backend: str, device_pool: Callable[..., Any]) -> Iterator[tuple[Any, Se
     """A real-time device, connected, configured wide open, faults cleared."""
     device, hw = device_pool(backend, "realtime")
     yield device, _reset(hw)
+    _quiet(hw)
 
 
 @pytest.fixture
@@ -74,6 +81,7 @@ def lockstep_rig(backend: str, device_pool: Callable[..., Any]) -> Iterator[tupl
     except ValueError as e:  # a backend without a lockstep clock
         pytest.skip(str(e))
     yield device, _reset(hw)
+    _quiet(hw)
 
 
 def _next(hw: SerialHardware, timeout: float = 2.0) -> Sample:
@@ -269,6 +277,7 @@ def test_bad_frames_are_ignored_and_counted(lockstep_rig: tuple[Any, SerialHardw
         cobs.encode(_packet(1, 0x42, b"")) + b"\x00",  # unknown type
         cobs.encode(_packet(1, 0x03, bytes(4))) + b"\x00",  # length
         b"\x07" * 80 + b"\x00",  # overflow
+        encode_frame(Sample(*([0] * 12)), 5),  # a valid device->host type is unknown to the device
     ]
     hw.send_raw(b"".join(bad))
     hw.send_raw(good)

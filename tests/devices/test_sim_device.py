@@ -30,15 +30,28 @@ OPEN = Configure(1000, 500, 10000, 60_000, 1023, -WIDE, WIDE, 0)
 def rig(device_pool: Callable[..., Any]) -> Iterator[tuple[Any, SerialHardware]]:
     """The shared real-time Python device, streaming at 1 kHz; knobs reset afterwards."""
     device, hw = device_pool("python", "realtime")
-    hw.configure(OPEN)
-    hw.clear()
+    hw.flush_input()
+    hw.configure(OPEN, timeout=15.0)
+    hw.clear(timeout=15.0)
     hw.discard_pending()
     try:
         yield device, hw
     finally:
-        if device.alive():
+        try:
             for knob in ("drop 0", "corrupt 0", "delay 0", "stall 0"):
                 device.control(knob)
+            hw.configure(Configure(0, 500, 10000, 60_000, 1023, -WIDE, WIDE, 0), timeout=15.0)  # quiet
+        except (DeviceProcessError, HardwareError) as e:
+            try:
+                device.proc.wait(timeout=30)  # disconnected on purpose: the process is ending
+            except subprocess.TimeoutExpired:
+                raise AssertionError(f"device alive but not answering: {e}\n{device.stderr_text()[-2000:]}") from e
+
+
+def _read_fresh(hw: SerialHardware, n: int) -> list[Sample]:
+    """Read ``n`` samples, none of them queued before this call."""
+    hw.discard_pending()
+    return _read(hw, n)
 
 
 def _read(hw: SerialHardware, n: int) -> list[Sample]:
@@ -57,7 +70,7 @@ class TestFaultKnobs:
         device, hw = rig
         before = hw.stats.dropped_samples
         device.control("drop 0.2")
-        _read(hw, 200)
+        _read_fresh(hw, 200)
         assert hw.stats.dropped_samples - before > 10
 
     def test_corrupted_frames_are_counted_by_the_host_and_the_stream_goes_on(
@@ -65,21 +78,26 @@ class TestFaultKnobs:
         device, hw = rig
         before = hw.stats.bad_frames.total()
         device.control("corrupt 0.2")
-        _read(hw, 200)
+        _read_fresh(hw, 200)
         assert hw.stats.bad_frames.total() - before > 10
 
     def test_garbage_burst_is_survived(self, rig: tuple[Any, SerialHardware]) -> None:
         device, hw = rig
         device.control("garbage 2000")
-        first, *_ = _read(hw, 50)
+        first, *_ = _read_fresh(hw, 50)
         assert _read(hw, 1)[0].sample_index > first.sample_index
 
     def test_truncated_frame_costs_exactly_one_bad_frame(self, rig: tuple[Any, SerialHardware]) -> None:
         device, hw = rig
-        _read(hw, 5)
+        _read_fresh(hw, 5)
         before, dropped = hw.stats.bad_frames.total(), hw.stats.dropped_samples
         device.control("truncate")
-        _read(hw, 20)
+        hw.discard_pending()
+        for _ in range(2000):
+            _read(hw, 1)
+            if hw.stats.bad_frames.total() > before:
+                break
+        _read_fresh(hw, 20)
         assert hw.stats.bad_frames.total() - before == 1
         assert hw.stats.dropped_samples - dropped == 1
 
@@ -87,16 +105,19 @@ class TestFaultKnobs:
         device, hw = rig
         dropped = hw.stats.dropped_samples
         device.control("stall 100")
-        _read(hw, 20)
+        _read_fresh(hw, 150)
         assert hw.stats.dropped_samples - dropped >= 50
 
     def test_delay_holds_every_frame(self, rig: tuple[Any, SerialHardware]) -> None:
         device, hw = rig
         device.control("delay 30")
+        hw.discard_pending()
         seq = hw.write_command(0.0)
-        for _ in range(500):
+        for _ in range(5000):
             if hw.read_sample(2.0).cmd_seq_echo == seq:
                 break
+        else:
+            raise AssertionError("the command was never echoed")
         assert hw.stats.latencies_s[-1] >= 0.030
 
     def test_reboot_resets_the_device_and_the_host_notices(self, rig: tuple[Any, SerialHardware]) -> None:
@@ -124,7 +145,7 @@ class TestFaultKnobs:
         with pytest.raises(HardwareError):
             for _ in range(100):
                 hw.read_sample(0.1)
-        device.proc.wait(timeout=5)
+        device.proc.wait(timeout=60)
         assert not device.alive()
 
 

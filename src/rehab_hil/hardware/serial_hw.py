@@ -112,6 +112,18 @@ class SerialHardware(HardwareInterface):
         self._samples.clear()
         return n
 
+    def flush_input(self) -> None:
+        """Forget everything received and not yet read: the OS buffer, a partial frame, queued
+        samples (after a pause in reading, to start again from fresh data)."""
+        ser = self._require()
+        try:
+            ser.reset_input_buffer()
+        except (serial.SerialException, OSError) as e:
+            raise HardwareError(f"link to {self.port} lost: {e}") from e
+        self._decoder.reset()
+        self._samples.clear()
+        self._last_index = None
+
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
         return self.send_command(Command(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF,
                                          1 if enable else 0))
