@@ -205,3 +205,13 @@ def test_lockstep_advances_no_time_without_commands(binding: Any) -> None:
 def test_unknown_clock_is_refused(binding: Any) -> None:
     with pytest.raises(ValueError, match="clock"):
         SimDevice(PlantIO(binding), 2000, clock="sundial")
+
+
+@pytest.mark.slow
+def test_spawning_on_a_bad_config_raises_with_the_device_message(tmp_path: Path) -> None:
+    from rehab_hil.devices.spawn import spawn_sim_device
+
+    bad = tmp_path / "broken.toml"
+    bad.write_text("plant = [\n")
+    with pytest.raises(DeviceProcessError, match=r"exited \(2\).*broken.toml.*not valid TOML"):
+        spawn_sim_device(bad)
