@@ -24,6 +24,7 @@ test: $(STAMP) toolchain firmware harness
 
 bench: $(STAMP)
 	$(BIN)/python bench/finger_extensor_rtf.py
+	$(BIN)/python bench/serial_roundtrip.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
