@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -11,6 +12,10 @@ from rehab_hil.config import load_config
 from rehab_hil.devices.spawn import spawn_sim_device
 from rehab_hil.hardware import SerialHardware
 from rehab_hil.plants import get_plant
+from rehab_hil.service import assembly
+from rehab_hil.service.controllers import Actuator, PIDPosition, constant_reference
+from rehab_hil.service.runner import LoopService
+from rehab_hil.service.supervisor import Supervisor
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
 
@@ -37,7 +42,7 @@ def device() -> Iterator:
 
 @pytest.fixture
 def hw(device) -> Iterator[SerialHardware]:
-    h = SerialHardware(device.port)
+    h = SerialHardware(device.port, write_timeout_s=2.0)  # a starved device process on a busy machine
     h.connect()
     try:
         yield h
@@ -55,14 +60,32 @@ def shared_device() -> Iterator:
         dev.close()
 
 
+HOME_DEG = 30.0
+
+
+def home(h: SerialHardware, cfg, binding) -> None:
+    """Bring the shared plant to ``HOME_DEG`` (wide limits: it may start outside the range of
+    motion after an earlier test), so each test starts from the same place."""
+    conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), enc_min=-10**6, enc_max=10**6)
+    base = assembly.build_supervisor(cfg, binding)
+    wide = dataclasses.replace(base.limits, min_angle_deg=-1e6, max_angle_deg=1e6)
+    kp, ki, kd, tf = assembly._pid_gains(cfg)
+    ctl = PIDPosition(Actuator(binding), constant_reference(HOME_DEG), kp, ki, kd, tf, assembly.period_s(cfg))
+    svc = LoopService(h, conf, ctl, assembly.build_estimator(cfg, binding), Supervisor(wide, base.dt_s),
+                      assembly.period_s(cfg))
+    res = svc.run(1.0, realtime=False, sample_timeout_s=0.5)
+    assert not res.events, res.events
+
+
 @pytest.fixture
-def fresh_hw(shared_device) -> Iterator[SerialHardware]:
-    """The shared device rebooted (fresh firmware state, no latched faults; the plant keeps its
-    angle, as a real finger would) and a new host connection to it."""
+def fresh_hw(shared_device, cfg, binding) -> Iterator[SerialHardware]:
+    """The shared device rebooted (fresh firmware state, no latched faults), its plant homed to
+    ``HOME_DEG``, and a new host connection to it."""
     shared_device.control("reboot")
-    h = SerialHardware(shared_device.port)
+    h = SerialHardware(shared_device.port, write_timeout_s=2.0)
     h.connect()
     try:
+        home(h, cfg, binding)
         yield h
     finally:
         h.close()

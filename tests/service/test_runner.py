@@ -55,16 +55,17 @@ def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, f
 
 
 @pytest.mark.parametrize(("reason", "kwargs"), [
-    ("range_of_motion", {"max_angle_deg": 20.0}),
+    ("range_of_motion", {"max_angle_deg": 45.0}),  # from HOME_DEG = 30 towards 59.58
     ("contact_force", {"max_force_n": 0.05, "force_signals": ("drive_torque_nm",)}),  # the torque channel
     ("heating_time", {"max_heating_s": 0.2}),
     ("temperature", {"max_temperature_c": 26.0, "thermal": FirstOrderThermal(23.0, 100.0, 0.5)}),
 ])
 def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, binding, fresh_hw, reason, kwargs):
     sup = supervisor_with(cfg, binding, **kwargs)
-    # a steady push (duty 0.2, towards opening) whatever angle the shared plant starts from
+    # the PID towards 59.58 deg for the range of motion; a steady push (duty 0.2) for the others
     push = OpenLoopPWM(Actuator(binding), 0.2, on_s=100.0, off_s=0.0)
-    res = service(cfg, binding, fresh_hw, push, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)
+    ctl = "pid" if reason == "range_of_motion" else push
+    res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)
     assert [e.reason for e in res.events][:1] == [reason]
     assert res.cycles < 3000  # the session stopped early
     assert_safe_end(res)
@@ -72,7 +73,7 @@ def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, bindin
 
 def test_a_firmware_fault_trips_the_host(cfg, binding, fresh_hw):
     conf = assembly.firmware_configure(cfg, binding)
-    conf = dataclasses.replace(conf, enc_max=int(10 * binding.encoder_counts_per_rev / 360))  # 10 deg
+    conf = dataclasses.replace(conf, enc_max=int(45 * binding.encoder_counts_per_rev / 360))  # 45 deg
     res = service(cfg, binding, fresh_hw, "pid", configure=conf).run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
     assert res.events[0].reason == "device_fault" and "RANGE_OF_MOTION" in res.events[0].detail
     assert_safe_end(res)
