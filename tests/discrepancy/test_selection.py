@@ -31,7 +31,7 @@ def test_significance_needs_both_a_bic_drop_and_a_real_channel_cut():
     assert not is_significant(tiny, base_many)
 
 
-def test_a_channel_already_at_data_resolution_does_not_count_as_improved():
+def test_a_cut_below_the_data_resolution_does_not_count_as_improvement():
     base = bic(np.vstack([np.full(1000, 1e-3), np.ones(1000)]), 0, 0.5)
     cand = bic(np.vstack([np.full(1000, 1e-5), np.ones(1000)]), 1, 0.5)
     assert improvement(cand, base) == 0.0

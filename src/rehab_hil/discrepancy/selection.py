@@ -6,8 +6,9 @@ copies of each other, and n_eff = n (1 - rho) / (1 + rho) from the lag-1 autocor
 the current model's held-out residual (AR(1) variance inflation). A candidate is chosen only if
 its BIC is lower than the current model's by more than ``MIN_DELTA_BIC`` (very strong evidence on
 the Kass-Raftery scale) AND it cuts the held-out RMS error of some channel by at least
-``MIN_IMPROVEMENT`` (per channel, so that sensor noise on another channel cannot hide a real gain,
-and a statistically detectable but practically negligible gain is not reported).
+``MIN_IMPROVEMENT`` and by more than ``RESOLUTION_FLOOR`` (per channel, so that sensor noise on
+another channel cannot hide a real gain, and a statistically detectable but practically
+negligible gain is not reported). Candidates are ranked significant first, then by BIC.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ __all__ = ["MIN_DELTA_BIC", "MIN_IMPROVEMENT", "RESOLUTION_FLOOR", "Score", "bic
 
 MIN_DELTA_BIC = 10.0
 MIN_IMPROVEMENT = 0.15  # relative cut of a channel's held-out RMS error
-# A channel whose residual is already below 0.5 % of its spread (its std) is at the resolution of
-# the data (an encoder count is ~0.5 % of a typical motion): cutting it further is no evidence.
+# A cut of a channel's RMS error smaller than 0.5 % of its spread (its std) is below the resolution
+# of the data (an encoder count is ~0.5 % of a typical motion): no evidence of a missing effect.
 RESOLUTION_FLOOR = 0.005
 
 
@@ -62,10 +63,10 @@ def bic(residual: np.ndarray, n_params: int, fraction: float) -> Score:
 
 
 def improvement(candidate: Score, current: Score) -> float:
-    """Largest relative cut of a channel's held-out RMS error (negative: every channel worse);
-    channels already at the resolution floor do not count."""
+    """Largest relative cut of a channel's held-out RMS error; a channel counts only if the cut
+    itself exceeds the resolution floor (0 when none does)."""
     cuts = [1.0 - c / b for c, b in zip(candidate.channel_rms, current.channel_rms, strict=True)
-            if b > RESOLUTION_FLOOR]
+            if b - c > RESOLUTION_FLOOR]
     return max(cuts, default=0.0)
 
 

@@ -115,7 +115,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             sim = replay.simulate(fit.P)
             sc = bic(replay.residual(sim, hold), n_params + len(eff.params), frac)
             cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), is_significant(sc, base), sim))
-        cands.sort(key=lambda c: c.score.bic)
+        cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
         pick = cands[0] if cands and cands[0].significant else None
         rounds.append(Round(base, cands, pick.fit.effect if pick else None))
         if pick is None:
