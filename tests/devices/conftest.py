@@ -40,7 +40,7 @@ def device_pool() -> Iterator[Callable[..., Any]]:
             if key in running:
                 running.pop(key)[1].close()
             dev = spawn_device(kind, CONFIG, clock=clock)
-            hw = SerialHardware(dev.port)
+            hw = SerialHardware(dev.port, write_timeout_s=2.0)  # a loaded CI machine can pause a device
             running[key] = (dev, hw)
             hw.connect(timeout=10.0)
         return running[key]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import pytest
@@ -110,6 +111,35 @@ def _step(hw: SerialHardware, command: Command) -> tuple[int, Sample]:
     return seq, _next(hw)
 
 
+@dataclass
+class Stepped:
+    """A device driven command by command, whatever its clock."""
+
+    device: Any
+    hw: SerialHardware
+    lockstep: bool
+
+    def step(self, command: Command) -> tuple[int, Sample]:
+        """Send a COMMAND; return its seq and the first SAMPLE taken after the device handled it
+        (lockstep: the COMMAND's own sample; real time: the first sample after a HEARTBEAT round
+        trip, since the device handles frames in order)."""
+        seq = self.hw.send_command(command)
+        if self.lockstep:
+            return seq, _next(self.hw)
+        self.hw.heartbeat(timeout=5.0)
+        self.hw.discard_pending()
+        return seq, _next(self.hw)
+
+
+@pytest.fixture
+def stepped(backend: str, device_pool: Callable[..., Any]) -> Iterator[Stepped]:
+    """The deterministic clock where the backend has one (Python: lockstep), else real time."""
+    lockstep = backend == "python"
+    device, hw = device_pool(backend, "lockstep" if lockstep else "realtime")
+    yield Stepped(device, _reset(hw), lockstep)
+    _quiet(hw)
+
+
 def test_handshake_reports_capabilities(rig: tuple[Any, SerialHardware]) -> None:
     _, hw = rig
     info = hw.connect()
@@ -146,15 +176,15 @@ def test_lockstep_sends_one_sample_per_command_one_period_apart(lockstep_rig: tu
     assert hw.read_sample(0.1) is None
 
 
-def test_command_is_applied_clamped_and_echoed(lockstep_rig: tuple[Any, SerialHardware]) -> None:
-    _, hw = lockstep_rig
+def test_command_is_applied_clamped_and_echoed(stepped: Stepped) -> None:
+    hw = stepped.hw
     hw.configure(_config(max_duty=6000))
-    seq, s = _step(hw, Command(2500, 7000, 0b10, 1))
+    seq, s = stepped.step(Command(2500, 7000, 0b10, 1))
     assert (s.duty0, s.duty1, s.direction, s.cmd_seq_echo) == (2500, 6000, 0b10, seq)
     assert s.status & Status.DUTY_CLAMPED and s.status & Status.PWM_ENABLED and s.status & Status.WATCHDOG_ARMED
-    seq, s = _step(hw, Command(1000, 0, 0, 1))
+    seq, s = stepped.step(Command(1000, 0, 0, 1))
     assert (s.duty0, s.duty1, s.cmd_seq_echo) == (1000, 0, seq) and not s.status & Status.DUTY_CLAMPED
-    seq, s = _step(hw, Command(1000, 1000, 0, 0))
+    seq, s = stepped.step(Command(1000, 1000, 0, 0))
     assert (s.duty0, s.duty1, s.cmd_seq_echo) == (0, 0, seq) and not s.status & Status.PWM_ENABLED
 
 
@@ -183,26 +213,26 @@ def test_heating_time_trips_after_max_heating_ms_of_continuous_drive(rig: tuple[
     assert hw.clear()
 
 
-def test_driving_into_the_force_limit_trips_and_cuts_pwm(lockstep_rig: tuple[Any, SerialHardware]) -> None:
-    _, hw = lockstep_rig
-    _, rest = _step(hw, Command(0, 0, 0, 1))
+def test_driving_into_the_force_limit_trips_and_cuts_pwm(stepped: Stepped) -> None:
+    hw = stepped.hw
+    _, rest = stepped.step(Command(0, 0, 0, 1))
     hw.configure(_config(force_limit_counts=rest.adc0 + 40))
     for _ in range(200):
-        _, s = _step(hw, Command(5000, 0, 0, 1))
+        _, s = stepped.step(Command(5000, 0, 0, 1))
         if s.faults:
             break
     assert s.faults == Fault.FORCE_LIMIT and s.duty0 == 0 and not s.status & Status.PWM_ENABLED
     echo = s.cmd_seq_echo
-    _, s = _step(hw, Command(5000, 0, 0, 1))
+    _, s = stepped.step(Command(5000, 0, 0, 1))
     assert s.duty0 == 0 and s.cmd_seq_echo == echo  # ignored while latched
 
 
-def test_driving_out_of_the_range_of_motion_trips(lockstep_rig: tuple[Any, SerialHardware]) -> None:
-    _, hw = lockstep_rig
-    _, rest = _step(hw, Command(0, 0, 0, 1))
+def test_driving_out_of_the_range_of_motion_trips(stepped: Stepped) -> None:
+    hw = stepped.hw
+    _, rest = stepped.step(Command(0, 0, 0, 1))
     hw.configure(_config(enc_min=rest.encoder_count - 20, enc_max=rest.encoder_count + 20))
     for _ in range(500):
-        _, s = _step(hw, Command(4000, 0, 0, 1))
+        _, s = stepped.step(Command(4000, 0, 0, 1))
         if s.faults:
             break
     assert s.faults == Fault.RANGE_OF_MOTION and s.duty0 == 0
@@ -243,15 +273,15 @@ def test_estop_input_pin_trips_and_holds_until_released(rig: tuple[Any, SerialHa
     assert hw.clear()
 
 
-def test_estop_command_latches_ignores_commands_until_clear(lockstep_rig: tuple[Any, SerialHardware]) -> None:
-    _, hw = lockstep_rig
-    seq, s = _step(hw, Command(1000, 0, 0, 1))
+def test_estop_command_latches_ignores_commands_until_clear(stepped: Stepped) -> None:
+    hw = stepped.hw
+    seq, s = stepped.step(Command(1000, 0, 0, 1))
     assert s.duty0 == 1000
     hw.estop()
-    _, s = _step(hw, Command(1000, 0, 0, 1))
+    _, s = stepped.step(Command(1000, 0, 0, 1))
     assert s.faults == Fault.ESTOP_COMMAND and s.duty0 == 0 and s.cmd_seq_echo == seq
     assert hw.clear()
-    seq, s = _step(hw, Command(1000, 0, 0, 1))
+    seq, s = stepped.step(Command(1000, 0, 0, 1))
     assert s.faults == 0 and s.duty0 == 1000 and s.cmd_seq_echo == seq
 
 
@@ -261,17 +291,14 @@ def _packet(version: int, mtype: int, payload: bytes, seq: int = 1) -> bytes:
     return body + bytes([crc & 0xFF, crc >> 8])
 
 
-def test_bad_frames_are_ignored_and_counted(lockstep_rig: tuple[Any, SerialHardware]) -> None:
+def test_bad_frames_are_ignored_and_counted(stepped: Stepped) -> None:
     from cobs import cobs
 
-    _, hw = lockstep_rig
-    _, before = _step(hw, Command(0, 0, 0, 1))
-    seq = (hw.send_command(Command(0, 0, 0, 1)) + 1) & 0xFFFF
-    _next(hw)
-    good = encode_frame(Command(3000, 0, 0, 1), seq)
+    hw = stepped.hw
+    _, before = stepped.step(Command(0, 0, 0, 1))
     bad = [
         b"\x01\x02\x03\x00",  # short
-        good[:6] + b"\x00",  # truncated
+        encode_frame(Command(3000, 0, 0, 1), 9)[:6] + b"\x00",  # truncated
         cobs.encode(_packet(1, 0x03, bytes(6))[:-1] + b"\x01") + b"\x00",  # crc
         cobs.encode(_packet(9, 0x03, bytes(6))) + b"\x00",  # version
         cobs.encode(_packet(1, 0x42, b"")) + b"\x00",  # unknown type
@@ -280,8 +307,7 @@ def test_bad_frames_are_ignored_and_counted(lockstep_rig: tuple[Any, SerialHardw
         encode_frame(Sample(*([0] * 12)), 5),  # a valid device->host type is unknown to the device
     ]
     hw.send_raw(b"".join(bad))
-    hw.send_raw(good)
-    s = _next(hw)
+    seq, s = stepped.step(Command(3000, 0, 0, 1))
     assert s.rx_bad_frames - before.rx_bad_frames == len(bad)
     assert (s.duty0, s.cmd_seq_echo) == (3000, seq)
     assert hw.clear()
