@@ -8,6 +8,7 @@ import threading
 import numpy as np
 import pytest
 
+from rehab_hil import metrics
 from rehab_hil.interchange import read_csv
 from rehab_hil.protocol import Status
 from rehab_hil.service import assembly
@@ -44,13 +45,23 @@ def assert_safe_end(res):
     assert not s.status & Status.PWM_ENABLED
 
 
-def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, fresh_hw):
-    res = service(cfg, binding, fresh_hw, "pid").run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
+def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, fresh_hw, tmp_path):
+    rec = Recorder(tmp_path, binding)
+    try:
+        res = service(cfg, binding, fresh_hw, "pid", recorder=rec).run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
+    finally:
+        rec.close()
     assert res.events == []
     assert res.cycles == 2000 and res.sample_gaps == 0
-    angle_end = res.final_sample.encoder_count * 360.0 / binding.encoder_counts_per_rev
-    assert abs(angle_end - cfg.rig.session.step_deg) < 1.5  # settled on the target
-    assert res.tracking["mae"] < 10.0  # mostly the initial 59.58 deg step error
+    target = cfg.rig.session.step_deg
+    run = read_csv(rec.csv_path)
+    angle = run["iris_angle_deg"][: res.cycles]
+    m = metrics.step_metrics(run.t[: res.cycles], angle, angle[0], target)
+    print("pid step metrics:", m, "mae", res.tracking["mae"])
+    # seed 002 Fig. 11: 59.58 deg in ~0.3 s with 2.86 deg overshoot; here the step starts at HOME_DEG
+    assert m["time_to_90pct_s"] < 0.5
+    assert m["overshoot"] < 5.0
+    assert abs(m["final_error"]) < 1.0
     assert_safe_end(res)
 
 
