@@ -223,6 +223,9 @@ static int handle_line(char *line) {
             if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a == 4) { estop_level = b ? 1 : 0; drive_inputs(); }
             return 0;
         case 'S': report_state(); return 0;
+        case 'U':  /* UART diagnostics: bytes waiting for the UART, XOFF, UCSR0A, UCSR0B */
+            reply("U %zu %d 0x%02x 0x%02x\n", rx_len, xoff, avr->data[R_UCSR0B - 1], avr->data[R_UCSR0B]);
+            return 0;
         case 'R':  /* external reset (the RESET pin); never from a cycle timer: it crashed simavr */
             avr_reset(avr);
             avr->data[R_MCUSR] |= 0x02;  /* EXTRF */
