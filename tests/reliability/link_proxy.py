@@ -3,7 +3,8 @@
 Why: the simulated devices can drop, corrupt, delay or truncate whole frames they send, but a real
 cable also loses single bytes, flips single bits in both directions and gets unplugged while the
 device keeps running. ``LinkProxy`` opens the device's pty like a host would, offers the host a new
-pty of its own, and moves bytes between the two on a thread, injecting those faults on the way.
+pty of its own, and moves bytes between the two in a process of its own, injecting those faults on
+the way.
 
 It also *taps* the device's output before any fault is injected (``DeviceTap``): every SAMPLE the
 device sent, in device time, whether the host got it or not. That is how the tests see the
@@ -14,14 +15,17 @@ more than ``watchdog_ms`` of device time after the last COMMAND the device appli
 from __future__ import annotations
 
 import errno
+import multiprocessing
 import os
 import random
 import select
 import threading
 import time
 import tty
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
 
 from rehab_hil.protocol import Command, FaultReport, FrameDecoder, Hello, Sample
 
@@ -48,6 +52,8 @@ class DeviceTap:
         self.violations = 0  # samples with PWM on while a fault is latched
         self.worst_on_since_command_us = 0  # longest device time PWM stayed on after the last applied COMMAND
         self.pwm_off_after_command_us: list[int] = []  # per PWM-on -> off transition without a fresh command
+        self.recent: deque[tuple[int, int, bool]] = deque(maxlen=20_000)  # (boot, device_time_us, pwm on)
+        self.boots = 0
         self._echo: int | None = None
         self._t_echo = 0
         self._was_on = False
@@ -60,11 +66,23 @@ class DeviceTap:
                 self._sample(msg)
             elif isinstance(msg, Hello):
                 self.hellos += 1
+                self.boots += 1
                 self._echo, self._was_on = None, False  # a reboot restarts device time
             elif isinstance(msg, FaultReport):
                 self.fault_reports.append(msg)
             elif isinstance(msg, Command):
                 self.commands += 1
+
+    def pwm_off_after(self, device_time_us: int) -> int | None:
+        """Device time from ``device_time_us`` (same boot) to the first tapped SAMPLE with PWM off
+        (None if none was seen yet): how long PWM stayed on after, e.g., the host lost the link."""
+        if not self.recent:
+            return None
+        boot = self.recent[-1][0]
+        for b, t, on in self.recent:
+            if b == boot and t >= device_time_us and not on:
+                return t - device_time_us
+        return None
 
     def _sample(self, s: Sample) -> None:
         self.n_samples += 1
@@ -75,6 +93,7 @@ class DeviceTap:
             # a new COMMAND was applied at or before this sample: the watchdog was fed no later than now
             self._echo, self._t_echo = s.cmd_seq_echo, s.device_time_us
         on = bool(s.duty0 or s.duty1)
+        self.recent.append((self.boots, s.device_time_us, on))
         since = (s.device_time_us - self._t_echo) & 0xFFFFFFFF
         if on:
             self.worst_on_since_command_us = max(self.worst_on_since_command_us, since)
@@ -99,14 +118,8 @@ class Direction:
     _cutting: bool = False
 
 
-class LinkProxy:
-    """Forward bytes between a device pty and a new host-facing pty, with faults; a context manager.
-
-    ``port`` is the path the host opens. ``down`` (device -> host) and ``up`` (host -> device) hold
-    the knobs; ``device_tap`` sees the device's output before faults, ``host_tap`` the host's
-    output after them (what the device really received). ``unplug()`` closes the host's side (the
-    host reads EIO, like a pulled USB cable) and stops forwarding; the device keeps running and
-    stays tapped."""
+class _Engine:
+    """The proxy itself, run in the proxy's own process (``LinkProxy`` is its remote control)."""
 
     def __init__(self, device_port: str, seed: int = 0, keep_samples: bool = True) -> None:
         self.rng = random.Random(seed)
@@ -125,49 +138,74 @@ class LinkProxy:
         self.unplugged = False
         self._held: list[tuple[float, bool, bytes]] = []  # delayed chunks: (due, downward, data)
         self._out: dict[bool, bytearray] = {True: bytearray(), False: bytearray()}  # queued for the host / device
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="link-proxy", daemon=True)
-        self._thread.start()
+        self._stop = False
 
     # ---- knobs --------------------------------------------------------------------------------
 
-    def stall(self, direction: Direction, seconds: float) -> None:
-        direction.stall_until = time.perf_counter() + seconds
-
     def unplug(self) -> None:
-        with self._lock:
-            if not self.unplugged:
-                self.unplugged = True
-                os.close(self.master)
+        if not self.unplugged:
+            self.unplugged = True
+            os.close(self.master)
 
     # ---- thread -------------------------------------------------------------------------------
 
-    def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
-                fds = [self.dev] + ([] if self.unplugged else [self.master])
+    def serve(self, conn: Connection) -> None:
+        """Forward until told to close; control requests arrive on ``conn`` (see ``LinkProxy``)."""
+        ctl = conn.fileno()
+        while not self._stop:
+            fds = [self.dev, ctl] + ([] if self.unplugged else [self.master])
+            readable, _, _ = select.select(fds, [], [], 0.001)
+            if self.dev in readable:
+                data = self._read(self.dev)
+                if data:
+                    self.device_tap.feed(data)
+                    self.bytes_down += len(data)
+                    self._pass(data, self.down, downward=True)
+            if not self.unplugged and self.master in readable:
+                data = self._read(self.master)
+                if data:
+                    self.bytes_up += len(data)
+                    self._pass(data, self.up, downward=False)
+            if ctl in readable:
                 try:
-                    readable, _, _ = select.select(fds, [], [], 0.001)
-                except (OSError, ValueError):  # the master was closed under us by unplug()
-                    continue
-                if self.dev in readable:
-                    data = self._read(self.dev)
-                    if data:
-                        self.device_tap.feed(data)
-                        self.bytes_down += len(data)
-                        self._pass(data, self.down, downward=True)
-                if not self.unplugged and self.master in readable:
-                    data = self._read(self.master)
-                    if data:
-                        self.bytes_up += len(data)
-                        self._pass(data, self.up, downward=False)
-                self._release()
-                self._flush(True)
-                self._flush(False)
-        except BaseException as e:  # reported by close(): the tests must not hide a broken proxy
-            self.error = e
+                    request = conn.recv()
+                except EOFError:  # the parent is gone
+                    break
+                try:
+                    conn.send(("ok", self._control(*request)))
+                except Exception as e:  # a bad request: reported to the caller, the link keeps going
+                    conn.send(("error", repr(e)))
+            self._release()
+            self._flush(True)
+            self._flush(False)
+        self.unplug()
+        os.close(self.dev)
+
+    def _control(self, op: str, *args: Any) -> Any:
+        if op == "set":
+            name, key, value = args
+            if key not in _KNOBS:
+                raise AttributeError(f"no knob {key!r}")
+            setattr(getattr(self, name), key, value)
+            return None
+        if op == "get":
+            name, key = args
+            return getattr(getattr(self, name), key)
+        if op == "stall":
+            name, seconds = args
+            getattr(self, name).stall_until = time.perf_counter() + seconds
+            return None
+        if op == "unplug":
+            self.unplug()
+            return None
+        if op == "tap":
+            return getattr(self, args[0])
+        if op == "describe":
+            return self.describe()
+        if op == "close":
+            self._stop = True
+            return None
+        raise ValueError(f"unknown request {op!r}")
 
     @staticmethod
     def _read(fd: int) -> bytes:
@@ -246,20 +284,19 @@ class LinkProxy:
         out = self._out[downward]
         if not out:
             return
-        with self._lock:
-            if downward and self.unplugged:
+        if downward and self.unplugged:
+            out.clear()
+            return
+        try:
+            n = os.write(self.master if downward else self.dev, out)
+        except BlockingIOError:
+            return
+        except OSError as e:
+            if e.errno in (errno.EIO, errno.EBADF):  # nobody on the other side: the bytes are lost
                 out.clear()
                 return
-            try:
-                n = os.write(self.master if downward else self.dev, out)
-            except BlockingIOError:
-                return
-            except OSError as e:
-                if e.errno in (errno.EIO, errno.EBADF):  # nobody on the other side: the bytes are lost
-                    out.clear()
-                    return
-                raise
-            del out[:n]
+            raise
+        del out[:n]
 
     def describe(self) -> str:
         """One line of counters (for assertion messages)."""
@@ -267,21 +304,117 @@ class LinkProxy:
                 f"up {self.bytes_up} B {dict(self.up.injected)} queued {len(self._out[False])} B, "
                 f"device frames {self.device_tap.decoder.frames} bad {dict(self.device_tap.decoder.bad)}, "
                 f"host frames {self.host_tap.decoder.frames} bad {dict(self.host_tap.decoder.bad)}, "
-                f"unplugged {self.unplugged}, error {self.error!r}")
+                f"unplugged {self.unplugged}")
 
-    # ---- lifetime -----------------------------------------------------------------------------
+
+
+_KNOBS = ("drop_p", "flip_p", "delay_s", "garbage", "truncate")
+
+
+def _serve(device_port: str, seed: int, keep_samples: bool, conn: Connection) -> None:
+    """Body of the proxy process: open both ptys, report the host's path, forward until closed."""
+    try:
+        engine = _Engine(device_port, seed, keep_samples)
+    except BaseException as e:
+        conn.send(("error", repr(e)))
+        return
+    conn.send(("ok", engine.port))
+    engine.serve(conn)
+
+
+class _Knobs:
+    """One direction's knobs in the proxy process: attribute writes and reads go over the pipe."""
+
+    def __init__(self, proxy: LinkProxy, name: str) -> None:
+        object.__setattr__(self, "_proxy", proxy)
+        object.__setattr__(self, "name", name)
+
+    def __setattr__(self, key: str, value: Any) -> None:
+        self._proxy._call("set", self.name, key, value)
+
+    def __getattr__(self, key: str) -> Any:
+        return self._proxy._call("get", self.name, key)
+
+
+class LinkProxy:
+    """Forward bytes between a device pty and a new host-facing pty, with faults; a context manager.
+
+    The forwarding runs in a process of its own (forked), like the kernel and the USB adapter of a
+    real link: in the host's process it would compete for the GIL with the loop under test and
+    stall the link whenever the host stalls. ``port`` is the path the host opens. ``down``
+    (device -> host) and ``up`` (host -> device) hold the knobs (``drop_p``, ``flip_p``,
+    ``delay_s``, ``garbage``, ``truncate``; ``injected`` counts what was done); ``device_tap`` is a
+    snapshot of the device's output before faults, ``host_tap`` of the host's output after them
+    (what the device really received). ``unplug()`` closes the host's side (the host reads EIO, like
+    a pulled USB cable) and stops forwarding; the device keeps running and stays tapped."""
+
+    def __init__(self, device_port: str, seed: int = 0, keep_samples: bool = True) -> None:
+        ctx = multiprocessing.get_context("fork")  # no re-import: the proxy starts in milliseconds
+        self._conn, child = ctx.Pipe()
+        self._lock = threading.Lock()
+        self._proc = ctx.Process(target=_serve, args=(device_port, seed, keep_samples, child),
+                                 name="link-proxy", daemon=True)
+        self._proc.start()
+        child.close()
+        self._closed = False
+        if not self._conn.poll(30):
+            self.close()
+            raise RuntimeError("link proxy did not start within 30 s")
+        status, value = self._conn.recv()
+        if status != "ok":
+            self.close()
+            raise RuntimeError(f"link proxy failed to start: {value}")
+        self.port: str = value
+        self.down = _Knobs(self, "down")
+        self.up = _Knobs(self, "up")
+
+    def _call(self, *request: Any) -> Any:
+        with self._lock:
+            self._conn.send(request)
+            if not self._conn.poll(10):
+                raise RuntimeError(f"link proxy did not answer {request[0]!r}")
+            status, value = self._conn.recv()
+        if status != "ok":
+            raise RuntimeError(f"link proxy: {request!r}: {value}")
+        return value
+
+    def stall(self, direction: _Knobs, seconds: float) -> None:
+        """Swallow everything in ``direction`` for ``seconds`` from now."""
+        self._call("stall", direction.name, seconds)
+
+    def unplug(self) -> None:
+        self._call("unplug")
+
+    @property
+    def device_tap(self) -> DeviceTap:
+        return self._call("tap", "device_tap")
+
+    @property
+    def host_tap(self) -> DeviceTap:
+        return self._call("tap", "host_tap")
+
+    def describe(self) -> str:
+        return self._call("describe")
 
     def close(self) -> None:
-        """Stop the thread and close every descriptor; re-raises an error the thread hit."""
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self.unplug()
+        """Stop the proxy process (asked, then terminated, then killed); idempotent."""
+        if self._closed:
+            return
+        self._closed = True
         try:
-            os.close(self.dev)
-        except OSError:
+            with self._lock:
+                self._conn.send(("close",))
+                self._conn.poll(5) and self._conn.recv()
+        except (OSError, EOFError, BrokenPipeError):
             pass
-        if self.error is not None:
-            raise RuntimeError(f"link proxy failed: {self.error!r}") from self.error
+        self._proc.join(timeout=5)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=5)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join()
+        self._conn.close()
 
     def __enter__(self) -> LinkProxy:
         return self

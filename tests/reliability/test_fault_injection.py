@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -43,7 +44,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 
 FAULT_AT_S = 0.3  # session time of the injection
 DURATION_S = 1.0
-SAMPLE_TIMEOUT_S = 0.025  # x link_loss_periods (20) = 0.5 s without a sample is a lost link
+SAMPLE_TIMEOUT_S = 0.05  # x link_loss_periods (20) = 1 s without a sample is a lost link (loaded CI box)
 # The rig's watchdog is 50 ms (configs/finger_extensor.toml). On this loaded 2-core CI box (8
 # agents) the host loop itself was measured pausing 90-250 ms, which trips any watchdog that short:
 # sessions that must survive their fault run with 1 s (the watchdog is not what they test), and the
@@ -85,7 +86,6 @@ class Ctx:
     hw: Any
 
     knobs: threading.Thread | None = None
-    rx_bad_at_start: int = 0
 
     def knob(self, *lines: str) -> None:
         """Device control commands, in order, off the loop thread (each reply takes a pipe round trip);
@@ -113,6 +113,7 @@ class Scenario:
     trip: str | None  # the supervisor's first reason, None: the session must run to its end
     watchdog_ms: int = WATCHDOG_TOLERANT_MS
     check: Callable[[RunResult, Ctx], None] = lambda res, ctx: None
+    avr: bool = True  # the fault can be injected on the firmware in simavr too (no Python-device knob needed)
 
 
 def _host_bad_frames(res: RunResult, ctx: Ctx) -> None:
@@ -126,14 +127,14 @@ def _gaps_and_bad(res: RunResult, ctx: Ctx) -> None:
 
 def _both_directions(res: RunResult, ctx: Ctx) -> None:
     _gaps_and_bad(res, ctx)
-    if ctx.proxy.up.injected["flipped_bits"]:  # the device counted the commands it dropped
-        assert device_rx_bad(ctx) > ctx.rx_bad_at_start
+    if ctx.proxy.up.injected["flipped_bits"]:  # the device counted the commands it dropped (tapped SAMPLEs)
+        wait_for(lambda: device_rx_bad(ctx) > ctx.proxy.device_tap.samples[0].rx_bad_frames)
 
 
 def device_rx_bad(ctx: Ctx) -> int:
-    """The device's own count of bad frames received (its control channel, not the link)."""
-    status = dict(kv.split("=") for kv in ctx.device.control("status").split()[1:])
-    return int(status["rx_bad"])
+    """The device's own count of bad frames received, from the last SAMPLE it sent."""
+    last = ctx.proxy.device_tap.last
+    return last.rx_bad_frames if last is not None else 0
 
 
 def _delayed(res: RunResult, ctx: Ctx) -> None:
@@ -174,18 +175,19 @@ SCENARIOS = [
     Scenario("truncated_frames", lambda c: setattr(c.proxy.down, "truncate", 5), None, check=_gaps_and_bad),
     Scenario("delayed_frames", lambda c: (setattr(c.proxy.down, "delay_s", 0.005),
                                           setattr(c.proxy.up, "delay_s", 0.005)), None, check=_delayed),
-    Scenario("device_drops_frames", lambda c: c.knob("drop 0.02"), None, check=_device_dropped),
-    Scenario("device_corrupts_frames", lambda c: c.knob("corrupt 0.02"), None, check=_gaps_and_bad),
+    Scenario("device_drops_frames", lambda c: c.knob("drop 0.02"), None, check=_device_dropped, avr=False),
+    Scenario("device_corrupts_frames", lambda c: c.knob("corrupt 0.02"), None, check=_gaps_and_bad, avr=False),
     Scenario("device_garbage_and_truncation", lambda c: c.knob("garbage 500", "truncate"), None,
-             check=_host_bad_frames),
+             check=_host_bad_frames, avr=False),
     Scenario("stalled_device_link", lambda c: c.proxy.stall(c.proxy.down, 3.0), "link_loss"),
-    Scenario("stalled_device_knob", lambda c: c.knob("stall 3000"), "link_loss"),
+    Scenario("stalled_device_knob", lambda c: c.knob("stall 3000"), "link_loss", avr=False),
     Scenario("unplug", lambda c: c.proxy.unplug(), "link_loss", watchdog_ms=HOST_STALL_WATCHDOG_MS,
              check=_pwm_off_on_device_after_unplug),
     Scenario("device_reboot", lambda c: c.knob("reboot"), "device_reboot", check=_rebooted),
     Scenario("host_stall", lambda c: time.sleep(HOST_STALL_S), "device_fault", watchdog_ms=HOST_STALL_WATCHDOG_MS,
              check=_watchdog_latched),
-    Scenario("device_exits", lambda c: c.knob("disconnect"), "link_loss"),  # last: the device is respawned after
+    # last: the device is respawned after it
+    Scenario("device_exits", lambda c: c.knob("disconnect"), "link_loss", avr=False),
 ]
 
 
@@ -196,9 +198,19 @@ def wait_for(pred: Callable[[], Any], timeout: float = 3.0) -> None:
         time.sleep(0.01)
 
 
-@pytest.mark.parametrize("scenario", SCENARIOS, ids=[s.name for s in SCENARIOS])
+# The firmware in simavr (harness throttled to real time + plant driver + proxy + host) needs about
+# two free cores: on the shared CI box (load 10+ on 2 vCPUs) its host writes time out and links
+# starve. Opt in with RELIABILITY_AVR=1 (passed 9/9 run on its own, docs/safety.md).
+AVR_OPT_IN = pytest.mark.skipif(os.environ.get("RELIABILITY_AVR") != "1",
+                                reason="firmware-in-simavr fault cases are opt-in: RELIABILITY_AVR=1")
+CASES = [pytest.param("python", s, id=f"python-{s.name}") for s in SCENARIOS] + [
+    pytest.param("avr", s, id=f"avr-{s.name}", marks=[pytest.mark.firmware, AVR_OPT_IN])
+    for s in SCENARIOS if s.avr]
+
+
+@pytest.mark.parametrize(("backend", "scenario"), CASES)
 def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sample(
-        scenario: Scenario, link: tuple[Any, LinkProxy, Any], cfg: Any, binding: Any, tmp_path: Any,
+        backend: str, scenario: Scenario, link: tuple[Any, LinkProxy, Any], cfg: Any, binding: Any, tmp_path: Any,
         caplog: pytest.LogCaptureFixture) -> None:
     global _cfg_binding
     _cfg_binding = (cfg, binding)
@@ -244,7 +256,6 @@ def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenar
     if ctx.device.kind == "python":  # the shared device: knobs of earlier tests off
         for line in ("drop 0", "corrupt 0", "delay 0"):
             ctx.device.control(line)
-        ctx.rx_bad_at_start = device_rx_bad(ctx)
     rec = Recorder(out_dir, binding, flush_s=0.05)
     svc = LoopService(ctx.hw, conf, controller, assembly.build_estimator(cfg, binding),
                       assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=rec)
