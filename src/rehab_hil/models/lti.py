@@ -8,12 +8,14 @@ diagram can be re-run with another transfer function of the same order through `
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import control
 import numpy as np
 
 from rehab_hil.models.system import Part, njit
+
+if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
+    import control
 
 __all__ = ["MAX_ORDER", "StateSpace1", "StateSpace2", "StateSpace3", "lti_part", "state_space_params"]
 
@@ -91,6 +93,8 @@ _CLASSES = {1: StateSpace1, 2: StateSpace2, 3: StateSpace3}
 def state_space_params(tf: control.TransferFunction, u0: float = 0.0, y0: float = 0.0) -> dict[str, float]:
     """Parameters of the ``StateSpace<n>`` part realising the proper SISO ``tf`` (n = its order),
     in controllable canonical form (python-control's ``tf2ss``)."""
+    import control
+
     ss = control.tf2ss(tf)
     n = ss.nstates
     if ss.ninputs != 1 or ss.noutputs != 1:
@@ -106,6 +110,7 @@ def lti_part(name: str, tf: control.TransferFunction, *, u0: float = 0.0, y0: fl
              **kwargs: Any) -> Part:
     """A ``StateSpace<n>`` part for ``tf`` with operating point (u0, y0); ``kwargs`` go to ``Part``
     (``connect``, ``rename``)."""
+
     params = state_space_params(tf, u0, y0)
     n = sum(1 for k in params if k.startswith("b"))
     return _CLASSES[n](name, **kwargs, **params)

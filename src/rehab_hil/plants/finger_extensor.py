@@ -24,7 +24,8 @@ not given there: configs/finger_extensor.toml documents the physically plausible
 
 from __future__ import annotations
 
-import control
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from rehab_hil import metrics
@@ -36,6 +37,9 @@ from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSp
 from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
 from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
+
+if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
+    import control
 
 __all__ = ["SPEC", "FingerExtensorConfig", "build", "iris_inertia_kg_m2", "linear_model"]
 
@@ -175,6 +179,8 @@ def linear_model(cfg: FingerExtensorConfig) -> control.StateSpace:
     """The linear part (no Coulomb friction, no quantisation) as a python-control system.
 
     States [theta (rad), theta' (rad/s), i (A)]; inputs [V (V), T_e (N m)]; outputs [theta, i]."""
+    import control
+
     m, iris = cfg.motor, cfg.iris
     J = total_inertia_kg_m2(cfg)
     b = iris.viscous_nm_s_per_rad + m.gear_ratio**2 * m.rotor_viscous_nm_s_per_rad

@@ -18,9 +18,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import control
 import numpy as np
 
 from rehab_hil.config import Field, RigSection, Section, SimulationSection, model_validator, register_plant
@@ -32,6 +31,9 @@ from rehab_hil.models.system import Diagram, Part, SimulationResult
 from rehab_hil.models.tcp_tendon import TendonTorqueSplit
 from rehab_hil.models.tcp_thermal import LumpedThermal
 from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
+
+if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
+    import control
 
 __all__ = [
     "JOINTS",
@@ -191,11 +193,14 @@ def fastest_finger_pole(cfg: TcpFingerConfig) -> float:
 
 def table1(cfg: TcpFingerConfig) -> dict[str, control.TransferFunction]:
     """Every transfer function of seed 001 Table 1 as a python-control object."""
+    import control
+
     return {name: control.tf(e.num, e.den, name=name) for name, e in cfg.table1.items()}
 
 
 def muscle_tf(cfg: TcpFingerConfig) -> control.TransferFunction:
     """TF1 * TF2: power [W] -> force [N], the electro-thermo-mechanical muscle (seed 001 Fig. 5(iii))."""
+
     tfs = table1(cfg)
     return tfs[cfg.muscle.thermal_tf] * tfs[cfg.muscle.force_tf]
 
