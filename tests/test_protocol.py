@@ -29,6 +29,21 @@ def test_crc_matches_the_ccitt_false_check_value() -> None:
     assert p.crc16_ccitt_false(b"123456789") == 0x29B1
 
 
+def _crc_bitwise(data: bytes) -> int:
+    """The CRC from its definition (poly 0x1021, init 0xFFFF, MSB first): an independent oracle."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+@given(st.binary(max_size=64))
+def test_crc_equals_the_bitwise_definition(data: bytes) -> None:
+    assert p.crc16_ccitt_false(data) == _crc_bitwise(data)
+
+
 def test_frame_sizes_fit_1khz_at_1mbaud() -> None:
     sample = p.encode_frame(p.Sample(*([0] * 12)), 0)
     command = p.encode_frame(p.Command(0, 0, 0, 0), 0)

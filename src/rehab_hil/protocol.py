@@ -8,6 +8,7 @@ interface and the tests all build on it.
 
 from __future__ import annotations
 
+import binascii
 import struct
 from collections import Counter
 from dataclasses import astuple, dataclass
@@ -121,12 +122,11 @@ class ProtocolError(ValueError):
 
 
 def crc16_ccitt_false(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, xorout 0); b"123456789" -> 0x29B1."""
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, xorout 0); b"123456789" -> 0x29B1.
+
+    The standard library's ``binascii.crc_hqx`` is this CRC when seeded with 0xFFFF (in C: ~0.3 us
+    for a frame, against ~70 us for a bitwise loop in Python, which mattered at 1 kHz)."""
+    return binascii.crc_hqx(data, crc)
 
 
 @dataclass(frozen=True)
