@@ -86,6 +86,7 @@ class Ctx:
     hw: Any
 
     knobs: threading.Thread | None = None
+    conf: Any = None  # the session's CONFIGURE
 
     def knob(self, *lines: str) -> None:
         """Device control commands, in order, off the loop thread (each reply takes a pipe round trip);
@@ -159,13 +160,11 @@ def _pwm_off_on_device_after_unplug(res: RunResult, ctx: Ctx) -> None:
 def _rebooted(res: RunResult, ctx: Ctx) -> None:
     assert res.reboots >= 1 and ctx.hw.stats.reboots >= 1
     # the rebooted device is unconfigured (PWM off by construction) and the host latched an ESTOP on it
-    ctx.hw.configure(assembly.firmware_configure(*_cfg_binding))
+    ctx.hw.configure(ctx.conf)
     ctx.hw.discard_pending()
     s = ctx.hw.read_sample(timeout=2.0)
     assert s is not None and (s.duty0, s.duty1) == (0, 0) and s.faults & Fault.ESTOP_COMMAND
 
-
-_cfg_binding: tuple[Any, Any] = (None, None)
 
 SCENARIOS = [
     Scenario("byte_drop", lambda c: setattr(c.proxy.down, "drop_p", 5e-4), None, check=_gaps_and_bad),
@@ -212,8 +211,6 @@ CASES = [pytest.param("python", s, id=f"python-{s.name}") for s in SCENARIOS] + 
 def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sample(
         backend: str, scenario: Scenario, link: tuple[Any, LinkProxy, Any], cfg: Any, binding: Any, tmp_path: Any,
         caplog: pytest.LogCaptureFixture) -> None:
-    global _cfg_binding
-    _cfg_binding = (cfg, binding)
     device, proxy, hw = link
     ctx = Ctx(device, proxy, hw)
     res, rec, conf = run_session(ctx, cfg, binding, tmp_path, scenario, caplog)
@@ -251,6 +248,7 @@ def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sam
 def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenario,
                 caplog: pytest.LogCaptureFixture) -> tuple[RunResult, Recorder, Any]:
     conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), watchdog_ms=scenario.watchdog_ms)
+    ctx.conf = conf
     controller = Hooked(gentle_pid(binding, assembly.period_s(cfg)), FAULT_AT_S, lambda: scenario.inject(ctx))
     controller.inner(0.0, State(0.0, 0.0, 0.0, {}))  # compile before the device streams
     if ctx.device.kind == "python":  # the shared device: knobs of earlier tests off
