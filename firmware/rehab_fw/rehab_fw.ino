@@ -120,6 +120,7 @@ void io::on_tick() {
   } else {
     heating_ms = 0;
   }
+  trip &= (uint16_t)~faults;  // a latched cause is not re-latched every tick (keeps this ISR short)
   if (trip) latch(trip);
 
   ++tick_count;

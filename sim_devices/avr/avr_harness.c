@@ -8,8 +8,8 @@
  * Usage: avr_harness [-f] [-l LOCKSTEP_US] [-e EDGE_US] [-v] firmware.elf
  *   -f  free-running: do not throttle simulated time to the wall clock
  *   -l  lockstep: stop every LOCKSTEP_US of simulated time, print a T line, wait for G
- *   -e  simulated time between two generated encoder edges (default 20 us; at 10 us the
- *       firmware crashed in simavr 1.6 with a stack overflow, see README.md)
+ *   -e  simulated time between two generated encoder edges (default 50 us = 20,000 counts/s;
+ *       closer edges can fall within one interrupt latency and be lost, see README.md)
  *   -v  pass simavr's warnings to stderr
  */
 #define _GNU_SOURCE
@@ -38,7 +38,7 @@
 
 #define F_CPU 16000000UL
 #define CYC_PER_US (F_CPU / 1000000UL)
-#define SLICE_US 50          /* simulated time run between two I/O polls */
+#define SLICE_US 200         /* simulated time run between two I/O polls (50 us cost ~35 % more CPU) */
 #define MAX_LAG_US 20000     /* throttled: never let the simulation fall further behind */
 
 /* ATmega328P data-space addresses of the registers the harness reads. */
@@ -58,7 +58,7 @@
 static avr_t *avr;
 static int reply_fd = -1, pty_master = -1, pty_slave = -1;
 static int verbose = 0, free_running = 0;
-static uint32_t lockstep_us = 0, edge_us = 20;
+static uint32_t lockstep_us = 0, edge_us = 50;
 static avr_irq_t *uart_in_irq, *pin_irq[8], *adc_irq;
 static volatile int xoff = 0;
 static volatile sig_atomic_t stop = 0;
@@ -116,11 +116,16 @@ static void drive_inputs(void) {
 /* One quadrature edge per edge_us towards the target count (x4: every edge is one count). */
 static avr_cycle_count_t encoder_timer(avr_t *a, avr_cycle_count_t when, void *param) {
     (void)a; (void)param;
-    if (enc_pos != enc_target) {
-        enc_pos += enc_target > enc_pos ? 1 : -1;
-        drive_inputs();
-    }
-    return when + (avr_cycle_count_t)edge_us * CYC_PER_US;
+    if (enc_pos == enc_target) return 0;  /* idle: stop until the next target (encoder_kick) */
+    enc_pos += enc_target > enc_pos ? 1 : -1;
+    drive_inputs();
+    return enc_pos == enc_target ? 0 : when + (avr_cycle_count_t)edge_us * CYC_PER_US;
+}
+
+/* Starts the edge timer when the target moved (it does not run while the encoder is idle). */
+static void encoder_kick(void) {
+    if (enc_pos != enc_target && !avr_cycle_timer_status(avr, encoder_timer, NULL))
+        avr_cycle_timer_register(avr, (avr_cycle_count_t)edge_us * CYC_PER_US, encoder_timer, NULL);
 }
 
 /* The three simavr 1.6 workarounds; re-applied after every reset (a reset restores the
@@ -138,7 +143,7 @@ static void apply_workarounds(void) {
     drive_inputs();
     /* A reset also cancels every cycle timer and empties the UART fifo. */
     avr_cycle_timer_cancel(avr, encoder_timer, NULL);
-    avr_cycle_timer_register(avr, (avr_cycle_count_t)edge_us * CYC_PER_US, encoder_timer, NULL);
+    encoder_kick();
     xoff = 0;
 }
 
@@ -212,7 +217,7 @@ static void pump_pty(void) {
 static int handle_line(char *line) {
     long a = 0, b = 0, c = 0, d = 0;
     switch (line[0]) {
-        case 'E': if (sscanf(line + 1, "%ld", &a) == 1) enc_target = (int32_t)a; return 0;
+        case 'E': if (sscanf(line + 1, "%ld", &a) == 1) { enc_target = (int32_t)a; encoder_kick(); } return 0;
         case 'J': /* jump: set the count without edges (test setup only) */
             if (sscanf(line + 1, "%ld", &a) == 1) { enc_pos = enc_target = (int32_t)a; drive_inputs(); }
             return 0;
@@ -235,7 +240,7 @@ static int handle_line(char *line) {
         case 'Q': stop = 1; return 1;
         case 'G': {
             int n = sscanf(line + 1, "%ld %ld %ld %ld", &a, &b, &c, &d);
-            if (n >= 1) enc_target = (int32_t)a;
+            if (n >= 1) { enc_target = (int32_t)a; encoder_kick(); }
             if (n >= 2) avr_raise_irq(adc_irq + 0, (uint32_t)b);
             if (n >= 3) avr_raise_irq(adc_irq + 1, (uint32_t)c);
             if (n >= 4 && (d ? 1 : 0) != estop_level) { estop_level = d ? 1 : 0; drive_inputs(); }

@@ -198,7 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elf", type=Path, default=None, help="firmware ELF")
     p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--edge-us", type=int, default=20, help="simulated time between two encoder edges [us]")
+    p.add_argument("--edge-us", type=int, default=50, help="simulated time between two encoder edges [us]")
     return p
 
 
