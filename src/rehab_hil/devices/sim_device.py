@@ -261,6 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--drop", type=float, default=0.0, help="probability of dropping an outgoing frame")
     p.add_argument("--corrupt", type=float, default=0.0, help="probability of corrupting an outgoing frame")
     p.add_argument("--delay-ms", type=float, default=0.0, help="delay of every outgoing frame [ms]")
+    p.add_argument("--fifo-priority", type=int, default=10,
+                   help="SCHED_FIFO priority in realtime mode (0: none); a microcontroller is never "
+                        "descheduled, and a starved device would trip its own watchdog")
     return p
 
 
@@ -287,6 +290,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, ValueError, KeyError) as e:
         print(f"sim device: error: {e}", file=sys.stderr)
         return 2
+    if args.clock == "realtime" and args.fifo_priority > 0:
+        from rehab_hil.service.loop import realtime_setup
+
+        report = realtime_setup(args.fifo_priority)
+        print(f"sim device: scheduler {report.scheduler}", file=sys.stderr, flush=True)
     print(device.path, flush=True)
     try:
         device.run(stdin_fd=sys.stdin.fileno())
