@@ -5,6 +5,7 @@ and the host connected through it. Every process and descriptor is closed, also 
 from __future__ import annotations
 
 import os
+import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -67,13 +68,14 @@ def device_pool() -> Iterator[Callable[[str], Any]]:
 def link(device_pool: Callable[[str], Any], request: pytest.FixtureRequest) -> Iterator[tuple[Any, LinkProxy,
                                                                                                 SerialHardware]]:
     """(device, proxy, host) for the backend named by the test's ``backend`` parameter (default
-    python): a fresh proxy on the shared device, the host connected through it, faults cleared."""
-    kind = getattr(request, "param", None) or request.node.callspec.params.get("backend", "python") \
-        if hasattr(request.node, "callspec") else "python"
+    python): a fresh proxy on the shared device (seeded from the test's name: reproducible), the
+    host connected through it."""
+    callspec = getattr(request.node, "callspec", None)
+    kind = callspec.params.get("backend", "python") if callspec is not None else "python"
     if kind == "avr" and (reason := avr_skip_reason()):
         pytest.skip(reason)
     dev = device_pool(kind)
-    proxy = LinkProxy(dev.port, seed=hash(request.node.name) & 0xFFFF)
+    proxy = LinkProxy(dev.port, seed=zlib.crc32(request.node.name.encode()))
     hw = SerialHardware(proxy.port)
     try:
         hw.connect(timeout=10.0)
