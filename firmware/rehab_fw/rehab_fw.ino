@@ -215,11 +215,13 @@ static void handle_command(uint16_t seq, const uint8_t *p) {
       if (d[k] > cfg.max_duty) { d[k] = cfg.max_duty; clamped = true; }
       if (!enable) d[k] = 0;
     }
-    io::direction_set(dir);
+    if (enable) {  // a disabling COMMAND leaves the direction pins as they were
+      io::direction_set(dir);
+      direction = dir;
+    }
     io::pwm_set(0, d[0]);
     io::pwm_set(1, d[1]);
     duty[0] = d[0]; duty[1] = d[1];
-    direction = dir;
     pwm_enabled = enable;
     duty_clamped = clamped;
     cmd_seq_echo = seq;

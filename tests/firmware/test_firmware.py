@@ -88,8 +88,8 @@ def test_command_drives_the_timer1_registers_clamped_with_direction_pins(rig: tu
     _applied(hw, Command(DUTY_FULL, 1, 0b01, 1))
     st = harness.state()
     assert (st["duty0"], st["duty1"], st["dir"]) == (DUTY_FULL, 0, 0b01)  # 100 %: pin high; 1 unit rounds to off
-    s = _applied(hw, Command(5000, 5000, 0, 0))
-    assert (s.duty0, s.duty1) == (0, 0) and not s.status & Status.PWM_ENABLED
+    s = _applied(hw, Command(5000, 5000, 0b10, 0))
+    assert (s.duty0, s.duty1, s.direction) == (0, 0, 0b01) and not s.status & Status.PWM_ENABLED
     assert (harness.state()["duty0"], harness.state()["duty1"]) == (0, 0)
 
 
