@@ -102,28 +102,17 @@ class PassiveMuscle(Part):
         y[0] = -(p[0] * (math.exp(p[1] * a) - 1.0) + p[2] * u[1])
 
 
-class SmaHysteresis(Part):
+class SmaHysteresis(Backlash):
     """Transformation hysteresis of an SMA wire (seed 000 eq 14-17: austenite start/finish on
     heating lie above martensite start/finish on cooling): a play operator of width ``width_c``
     on the wire temperature the constitutive model sees, so heating sees T - width/2 and
-    cooling T + width/2 once the direction has reversed."""
+    cooling T + width/2 once the direction has reversed. The same operator as ``Backlash``,
+    on a temperature instead of an angle: only the port and parameter names differ."""
 
     inputs = ("temperature_c",)
     discrete_states = ("held_temperature_c",)
     outputs = ("temperature_c",)
     params = ("width_c",)
-
-    @staticmethod
-    @njit
-    def output(t, x, xd, u, p, y):
-        h = 0.5 * p[0]
-        y[0] = min(max(xd[0], u[0] - h), u[0] + h)
-
-    @staticmethod
-    @njit
-    def update(t, x, xd, u, p, xd_next):
-        h = 0.5 * p[0]
-        xd_next[0] = min(max(xd[0], u[0] - h), u[0] + h)
 
 
 class NonlinearConvection(Part):
