@@ -89,19 +89,29 @@ PLANTS: dict[str, PlantSpec] = {}
 
 
 def register(spec: PlantSpec) -> PlantSpec:
-    """Register a plant; its ``build`` also appends the config's ``effects`` (docs/discrepancy.md)."""
-    build = spec.build
+    """Register a plant; its ``build`` and its rig ``device`` binding both append the config's
+    ``effects`` (docs/discrepancy.md), so a fitted model drives the simulated rig too."""
+    build, device = spec.build, spec.device
+
+    def with_effects(cfg: Any, parts: list[Part]) -> list[Part]:
+        effects = getattr(cfg, "effects", None)
+        if not effects:
+            return parts
+        from rehab_hil.discrepancy.effects import attach
+
+        return attach(spec.name, cfg, parts, [(e.name, e.params) for e in effects])
 
     def build_with_effects(cfg: Any) -> list[Part]:
-        parts = build(cfg)
-        effects = getattr(cfg, "effects", None)
-        if effects:
-            from rehab_hil.discrepancy.effects import attach
-
-            parts = attach(spec.name, cfg, parts, [(e.name, e.params) for e in effects])
-        return parts
+        return with_effects(cfg, build(cfg))
 
     spec.build = build_with_effects
+    if device is not None:
+        def device_with_effects(cfg: Any) -> DeviceBinding:
+            binding = device(cfg)
+            binding.parts = with_effects(cfg, binding.parts)
+            return binding
+
+        spec.device = device_with_effects
     PLANTS[spec.name] = spec
     return spec
 
