@@ -66,6 +66,11 @@ class RigLimitsSection(Section):
     max_heating_s: float = Field(gt=0.0, le=600.0, description="longest continuous PWM-on time [s]")
     max_temperature_c: float = Field(gt=-50.0, le=300.0, description="estimated actuator temperature trip [C]")
     link_loss_periods: int = Field(ge=1, le=10000, description="missing samples before link loss")
+    stuck_sensor_s: float = Field(ge=0.0, le=60.0, description="driving hard, far from the reference, and "
+                                  "the encoder has not moved for this long: a stuck sensor [s] (0 = off)")
+    stuck_min_duty: float = Field(ge=0.0, le=1.0, description="duty at or above which the rig counts as driving")
+    stuck_min_error_deg: float = Field(gt=0.0, le=360.0, description="tracking error that counts as far")
+    stuck_min_motion_deg: float = Field(gt=0.0, le=360.0, description="encoder motion that counts as moving")
 
     @model_validator(mode="after")
     def _range(self) -> RigLimitsSection:

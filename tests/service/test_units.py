@@ -166,3 +166,47 @@ def test_telemetry_sinks_never_block_and_count_drops():
     assert sink.dropped == 50 - accepted and sink.dropped > 0
     sink.close()
     assert sink.delivered == accepted
+
+
+def _drive(sup: Supervisor, duty: float, reference_deg: float, angle_deg: float, seconds: float,
+           t: float = 0.0) -> float:
+    """Send ``duty`` towards ``reference_deg`` for ``seconds`` from ``t`` while the encoder reads
+    ``angle_deg``; returns the time reached."""
+    from rehab_hil.service.controllers import Command
+
+    for _ in range(round(seconds / 0.001)):
+        sup.filter(t, Command((duty, 0.0), 0, True, reference_deg))
+        sup.observe(t, state(angle_deg), 0)
+        t += 0.001
+    return t
+
+
+def test_a_frozen_encoder_while_driving_hard_far_from_the_reference_trips_stuck_sensor():
+    sup = Supervisor(limits(max_heating_s=100.0, stuck_sensor_s=0.5, stuck_min_duty=0.3, stuck_min_error_deg=10.0,
+                            stuck_min_motion_deg=1.0), 0.001)
+    t = _drive(sup, 0.8, 60.0, 5.0, 0.45)
+    assert not sup.tripped
+    _drive(sup, 0.8, 60.0, 5.0, 0.1, t)
+    assert [e.reason for e in sup.events] == ["stuck_sensor"]
+
+
+def test_holding_at_the_reference_or_at_low_duty_never_trips_stuck_sensor():
+    lim = limits(max_heating_s=100.0, stuck_sensor_s=0.5, stuck_min_duty=0.3, stuck_min_error_deg=10.0,
+                 stuck_min_motion_deg=1.0)
+    hold = Supervisor(lim, 0.001)
+    _drive(hold, 0.9, 37.5, 36.0, 2.0)  # steady duty, steady angle, close to the reference: a hold
+    gentle = Supervisor(lim, 0.001)
+    _drive(gentle, 0.1, 60.0, 5.0, 2.0)  # far away but barely driving
+    assert not hold.tripped and not gentle.tripped
+
+
+def test_a_moving_encoder_keeps_resetting_the_stuck_timer():
+    from rehab_hil.service.controllers import Command
+
+    sup = Supervisor(limits(max_heating_s=100.0, stuck_sensor_s=0.5, stuck_min_duty=0.3, stuck_min_error_deg=10.0,
+                            stuck_min_motion_deg=1.0), 0.001)
+    for k in range(2000):  # 2 s rising at 5 deg/s, always > 10 deg from the reference
+        t = k * 0.001
+        sup.filter(t, Command((0.8, 0.0), 0, True, 60.0))
+        sup.observe(t, state(5.0 + 5.0 * t), 0)
+    assert not sup.tripped

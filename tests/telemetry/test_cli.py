@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -51,8 +52,8 @@ def test_monitor_shows_the_rig_values_safety_and_rates(client: Callable[..., zen
         pub.update_stats({"lateness_p99_us": 12.5})
         stop = threading.Event()
 
-        def feed() -> None:
-            for r in records(300):
+        def feed() -> None:  # until the monitor is done: it must not miss the stream while it starts
+            for r in itertools.cycle(records(300)):
                 if stop.wait(0.002):
                     return
                 pub.offer(r)

@@ -101,6 +101,8 @@ def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
         min_angle_deg=lim.min_angle_deg + am, max_angle_deg=lim.max_angle_deg - am,
         max_force_n=max(lim.max_force_n - fm, 0.0), max_heating_s=max(lim.max_heating_s - hm, period_s(cfg)),
         max_temperature_c=lim.max_temperature_c, link_loss_periods=lim.link_loss_periods, max_duty=lim.max_duty,
+        stuck_sensor_s=lim.stuck_sensor_s, stuck_min_duty=lim.stuck_min_duty,
+        stuck_min_error_deg=lim.stuck_min_error_deg, stuck_min_motion_deg=lim.stuck_min_motion_deg,
     )
     thermal = FirstOrderThermal(th.ambient_c, th.rise_at_full_duty_c, th.time_constant_s) if th else None
     return Supervisor(limits, period_s(cfg), force_channels(binding), thermal)

@@ -2,7 +2,9 @@
 firmware cannot know (estimated actuator temperature), and watches the device and the link.
 
 Checks each cycle: range of motion, contact force, estimated temperature, continuous heating
-time, device fault bits, link loss (N cycles in a row without a sample) and device reboot. Any trip
+time, device fault bits, link loss (N cycles in a row without a sample), device reboot, and a
+stuck sensor (driving hard, far from the reference, and the encoder does not move: a frozen
+encoder would otherwise defeat the range-of-motion limits). Any trip
 latches the safe state: every later command is PWM 0 / disabled, and the reason is logged.
 """
 
@@ -42,6 +44,10 @@ class SupervisorLimits:
     max_temperature_c: float
     link_loss_periods: int
     max_duty: float
+    stuck_sensor_s: float = 0.0  # 0 = off
+    stuck_min_duty: float = 1.0
+    stuck_min_error_deg: float = 10.0
+    stuck_min_motion_deg: float = 1.0
 
 
 class Supervisor:
@@ -54,6 +60,9 @@ class Supervisor:
         self.heating_s = 0.0
         self.missing = 0
         self.max_temperature_c = thermal.temperature_c if thermal else math.nan
+        self._sent_duty = 0.0
+        self._sent_reference_deg = math.nan
+        self._still_since: tuple[float, float] | None = None  # (t_s, angle_deg) when driving began
 
     @property
     def tripped(self) -> bool:
@@ -83,6 +92,22 @@ class Supervisor:
                 self.trip(t_s, "contact_force", f"{name} {f:.2f} N > {lim.max_force_n} N")
         if faults:
             self.trip(t_s, "device_fault", "+".join(Fault.names(faults)) or f"bits 0x{faults:04x}")
+        self._check_stuck(t_s, a)
+
+    def _check_stuck(self, t_s: float, angle_deg: float) -> None:
+        """'Is it changing' (as opensourceleg's SafetyManager): only while the last command drove at
+        ``stuck_min_duty`` or more and the angle is far from its reference, so holds never trip."""
+        lim = self.limits
+        error = abs(self._sent_reference_deg - angle_deg)  # nan (no reference) compares False
+        driving = self._sent_duty >= lim.stuck_min_duty and error > lim.stuck_min_error_deg
+        if lim.stuck_sensor_s <= 0.0 or not driving:
+            self._still_since = None
+            return
+        if self._still_since is None or abs(angle_deg - self._still_since[1]) >= lim.stuck_min_motion_deg:
+            self._still_since = (t_s, angle_deg)
+        elif t_s - self._still_since[0] >= lim.stuck_sensor_s:
+            self.trip(t_s, "stuck_sensor", f"duty {self._sent_duty:.2f}, {error:.1f} deg from the reference, "
+                      f"angle within {lim.stuck_min_motion_deg} deg for {t_s - self._still_since[0]:.2f} s")
 
     def no_sample(self, t_s: float) -> None:
         """A cycle passed without a sample; ``link_loss_periods`` in a row is a lost link."""
@@ -103,6 +128,7 @@ class Supervisor:
                 cmd = Command((d0, d1), cmd.direction, cmd.enable, cmd.reference_deg)
         out = SAFE_COMMAND if self.tripped else cmd
         duty = max(out.duty) if out.enable else 0.0
+        self._sent_duty, self._sent_reference_deg = duty, out.reference_deg
         self.heating_s = self.heating_s + self.dt_s if duty > 0.0 else 0.0
         if self.thermal is not None:
             temp = self.thermal.step(duty, self.dt_s)
