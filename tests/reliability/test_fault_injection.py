@@ -198,12 +198,14 @@ def wait_for(pred: Callable[[], Any], timeout: float = 3.0) -> None:
 
 
 # The firmware in simavr (harness throttled to real time + plant driver + proxy + host) needs about
-# two free cores: on the shared CI box (load 10+ on 2 vCPUs) its host writes time out and links
-# starve. Opt in with RELIABILITY_AVR=1 (passed 9/9 run on its own, docs/safety.md).
-AVR_OPT_IN = pytest.mark.skipif(os.environ.get("RELIABILITY_AVR") != "1",
-                                reason="firmware-in-simavr fault cases are opt-in: RELIABILITY_AVR=1")
+# two free cores: on a heavily shared box (load 10+ on 2 vCPUs) its host writes time out and links
+# starve, so these cases run one at a time (one xdist group) and can be switched off there with
+# RELIABILITY_AVR=0. On a quiet machine they passed 9/9 twice under -n 2 (docs/safety.md).
+AVR_OPT_OUT = pytest.mark.skipif(os.environ.get("RELIABILITY_AVR") == "0",
+                                 reason="firmware-in-simavr fault cases switched off: RELIABILITY_AVR=0")
 CASES = [pytest.param("python", s, id=f"python-{s.name}") for s in SCENARIOS] + [
-    pytest.param("avr", s, id=f"avr-{s.name}", marks=[pytest.mark.firmware, AVR_OPT_IN])
+    pytest.param("avr", s, id=f"avr-{s.name}",
+                 marks=[pytest.mark.firmware, AVR_OPT_OUT, pytest.mark.xdist_group("avr_faults")])
     for s in SCENARIOS if s.avr]
 
 
