@@ -108,18 +108,21 @@ def _mass_cos(c2, c3, c23, p):
 
 
 @njit
+def _fill_symmetric(A, a11, a12, a13, a22, a23, a33):
+    """Write the symmetric 3x3 matrix with these upper-triangle entries into ``A``."""
+    A[0, 0] = a11
+    A[0, 1] = A[1, 0] = a12
+    A[0, 2] = A[2, 0] = a13
+    A[1, 1] = a22
+    A[1, 2] = A[2, 1] = a23
+    A[2, 2] = a33
+
+
+@njit
 def mass_matrix(q, p, M):
     """M(q) of ``mass_entries`` written into the 3x3 array ``M``."""
     m11, m12, m13, m22, m23, m33 = mass_entries(q[1], q[2], p)
-    M[0, 0] = m11
-    M[0, 1] = m12
-    M[1, 0] = m12
-    M[0, 2] = m13
-    M[2, 0] = m13
-    M[1, 1] = m22
-    M[1, 2] = m23
-    M[2, 1] = m23
-    M[2, 2] = m33
+    _fill_symmetric(M, m11, m12, m13, m22, m23, m33)
 
 
 @njit
@@ -149,24 +152,8 @@ def _dmass_sin(s2, s3, s23, p):
 def mass_matrix_derivatives(q, p, dM2, dM3):
     """dM/dq2 and dM/dq3 of ``mass_matrix`` as 3x3 arrays (dM/dq1 = 0), for the Christoffel symbols."""
     d11, d12, d13, e11, e12, e13, e22, e23 = mass_derivative_entries(q[1], q[2], p)
-    dM2[0, 0] = d11
-    dM2[0, 1] = d12
-    dM2[1, 0] = d12
-    dM2[0, 2] = d13
-    dM2[2, 0] = d13
-    dM2[1, 1] = 0.0
-    dM2[1, 2] = 0.0
-    dM2[2, 1] = 0.0
-    dM2[2, 2] = 0.0
-    dM3[0, 0] = e11
-    dM3[0, 1] = e12
-    dM3[1, 0] = e12
-    dM3[0, 2] = e13
-    dM3[2, 0] = e13
-    dM3[1, 1] = e22
-    dM3[1, 2] = e23
-    dM3[2, 1] = e23
-    dM3[2, 2] = 0.0
+    _fill_symmetric(dM2, d11, d12, d13, 0.0, 0.0, 0.0)
+    _fill_symmetric(dM3, e11, e12, e13, e22, e23, 0.0)
 
 
 @njit
