@@ -27,6 +27,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
 from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess
 
@@ -82,7 +83,7 @@ def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_
     return AvrDeviceProcess(argv, ready_timeout_s)
 
 
-class _Driver:
+class _Driver(ControlChannel):
     """Closes the loop between the harness (lockstep lines on a pipe) and the plant."""
 
     def __init__(self, plant: PlantIO, harness_argv: list[str]) -> None:
@@ -124,28 +125,18 @@ class _Driver:
         estop_level = 0 if self.estop_pin else 1  # active low
         self._send(f"G {enc} {adc_counts_to_mv(a0)} {adc_counts_to_mv(a1)} {estop_level}")
 
-    def control(self, line: str) -> str:
-        parts = line.split()
-        if not parts:
-            return "error empty command"
-        cmd, args = parts[0], parts[1:]
-        try:
-            if cmd == "estop" and len(args) == 1 and args[0] in ("0", "1"):
-                self.estop_pin = args[0] == "1"
-            elif cmd == "input" and len(args) == 2:
-                self.plant.set_input(args[0], float(args[1]))
-            elif cmd == "reboot" and args in ([], ["external"]):
-                self._send("R")
-            elif cmd == "status" and not args:
-                f = self.last_t.split()
-                fields = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped")
-                kv = " ".join(f"{k}={v}" for k, v in zip(fields, f[1:], strict=False))
-                return f"ok ticks={self.ticks} {kv}"
-            else:
-                return f"error unknown or unsupported command {line.strip()!r} (avr device)"
-        except (ValueError, KeyError) as e:
-            return f"error {e}"
-        return "ok " + line.strip()
+    def _control(self, cmd: str, args: list[str]) -> str | object | None:
+        """This device's knobs; ``estop`` and ``input`` are shared (devices/control.py)."""
+        if cmd == "reboot" and args in ([], ["external"]):
+            self._send("R")
+        elif cmd == "status" and not args:
+            f = self.last_t.split()
+            fields = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped")
+            kv = " ".join(f"{k}={v}" for k, v in zip(fields, f[1:], strict=False))
+            return f"ok ticks={self.ticks} {kv}"
+        else:
+            return UNKNOWN
+        return None
 
     def run(self, stdin_fd: int) -> None:
         assert self.proc.stdout is not None

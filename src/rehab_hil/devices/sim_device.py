@@ -39,6 +39,7 @@ import tty
 from collections.abc import Sequence
 from typing import TextIO
 
+from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.protocol import BASE_RATE_HZ, Command, FrameDecoder, Message, ResetCause, encode_frame
@@ -50,7 +51,7 @@ MAX_CATCH_UP_S = 1.0  # further behind than this, the device is suspended: resyn
 MAX_TICKS_PER_WAKE = 20  # catch-up ticks between two looks at the pty and the control channel
 
 
-class SimDevice:
+class SimDevice(ControlChannel):
     """One simulated device: the firmware core, the plant, a pty master and the fault knobs."""
 
     def __init__(self, plant: PlantIO, counts_per_rev: int, clock: str = "realtime", seed: int = 0) -> None:
@@ -149,47 +150,36 @@ class SimDevice:
 
     # ---- control channel ----------------------------------------------------------------------
 
-    def control(self, line: str) -> str:
-        """Apply one control command (see the module docstring); returns the reply line."""
-        parts = line.split()
-        if not parts:
-            return "error empty command"
-        cmd, args = parts[0], parts[1:]
-        try:
-            if cmd == "estop" and len(args) == 1 and args[0] in ("0", "1"):
-                self.estop_pin = args[0] == "1"
-            elif cmd == "input" and len(args) == 2:
-                self.plant.set_input(args[0], float(args[1]))
-            elif cmd in ("drop", "corrupt") and len(args) == 1:
-                p = float(args[0])
-                if not 0.0 <= p <= 1.0:
-                    return f"error {cmd} probability must be in 0..1"
-                setattr(self, cmd, p)
-            elif cmd == "delay" and len(args) == 1:
-                self.delay_s = _non_negative(args[0]) / 1000.0
-            elif cmd == "garbage" and len(args) == 1:
-                self._write(self.rng.randbytes(int(_non_negative(args[0]))))
-            elif cmd == "truncate" and not args:
-                self.truncate_next = True
-            elif cmd == "stall" and len(args) == 1:
-                self.stall_until = time.perf_counter() + _non_negative(args[0]) / 1000.0
-            elif cmd == "disconnect" and not args:
-                self.running = False
-            elif cmd == "reboot" and len(args) <= 1:
-                causes = {"external": ResetCause.EXTERNAL, "watchdog": ResetCause.HW_WATCHDOG}
-                cause = causes.get(args[0] if args else "external")
-                if cause is None:
-                    return f"error reboot cause must be one of {sorted(causes)}"
-                self._boot(cause)
-            elif cmd == "status" and not args:
-                c = self.core
-                return (f"ok ticks={c.ticks} samples={c.sample_index} faults={c.faults} rx_bad={c.rx_bad_frames} "
-                        f"tx_frames={self.tx_frames} tx_dropped={self.tx_dropped} tx_overrun={self.tx_overrun}")
-            else:
-                return f"error unknown or malformed command {line.strip()!r}"
-        except (ValueError, KeyError) as e:
-            return f"error {e}"
-        return "ok " + line.strip()
+    def _control(self, cmd: str, args: list[str]) -> str | object | None:
+        """This device's knobs (see the module docstring); ``estop`` and ``input`` are shared."""
+        if cmd in ("drop", "corrupt") and len(args) == 1:
+            p = float(args[0])
+            if not 0.0 <= p <= 1.0:
+                return f"error {cmd} probability must be in 0..1"
+            setattr(self, cmd, p)
+        elif cmd == "delay" and len(args) == 1:
+            self.delay_s = _non_negative(args[0]) / 1000.0
+        elif cmd == "garbage" and len(args) == 1:
+            self._write(self.rng.randbytes(int(_non_negative(args[0]))))
+        elif cmd == "truncate" and not args:
+            self.truncate_next = True
+        elif cmd == "stall" and len(args) == 1:
+            self.stall_until = time.perf_counter() + _non_negative(args[0]) / 1000.0
+        elif cmd == "disconnect" and not args:
+            self.running = False
+        elif cmd == "reboot" and len(args) <= 1:
+            causes = {"external": ResetCause.EXTERNAL, "watchdog": ResetCause.HW_WATCHDOG}
+            cause = causes.get(args[0] if args else "external")
+            if cause is None:
+                return f"error reboot cause must be one of {sorted(causes)}"
+            self._boot(cause)
+        elif cmd == "status" and not args:
+            c = self.core
+            return (f"ok ticks={c.ticks} samples={c.sample_index} faults={c.faults} rx_bad={c.rx_bad_frames} "
+                    f"tx_frames={self.tx_frames} tx_dropped={self.tx_dropped} tx_overrun={self.tx_overrun}")
+        else:
+            return UNKNOWN
+        return None
 
     # ---- main loop ----------------------------------------------------------------------------
 
