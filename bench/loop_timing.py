@@ -14,26 +14,18 @@ import json
 import os
 import platform
 import resource
-import socket
 import time
 from pathlib import Path
 
-from rehab_hil.config import load_config
-from rehab_hil.devices.spawn import spawn_sim_device
-from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant
+from rehab_hil.hardware import on_configure, open_rig
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
 from rehab_hil.telemetry import NetworkConfig
 from rehab_hil.telemetry.rig import RigTelemetry, rig_info
+from rehab_hil.testing import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watchdog_ms: int | None,
@@ -43,9 +35,9 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
     conf = assembly.firmware_configure(cfg, binding)
     if watchdog_ms is not None:
         conf = dataclasses.replace(conf, watchdog_ms=watchdog_ms)
-    with spawn_sim_device(config, clock="realtime") as dev:
-        hw = SerialHardware(dev.port, cfg.rig.baud)
-        hw.connect()
+    controller = assembly.build_controller(cfg, binding, "session")
+    with open_rig("sim", config) as hw:
+        on_configure(binding, hw.info, controller.claims)
         tel = None
         if telemetry:  # the real zenoh publisher, hub on a free loopback port
             info = rig_info(cfg.plant, config, binding, assembly.period_s(cfg), hw.info)
@@ -54,15 +46,13 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
         sup = assembly.build_supervisor(cfg, binding)
         if link_loss_periods is not None:
             sup.limits = dataclasses.replace(sup.limits, link_loss_periods=link_loss_periods)
-        svc = LoopService(hw, conf,
-                          assembly.build_controller(cfg, binding, "session"), assembly.build_estimator(cfg, binding),
-                          sup, assembly.period_s(cfg), telemetry=sink)
+        svc = LoopService(hw, conf, controller, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg),
+                          telemetry=sink)
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         res = svc.run(duration_s, pacing=pacing, realtime=True)
         r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         if tel is not None:
             tel.close()
-        hw.close()
     cpu = (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (t1 - t0)
     return {
         "pacing": pacing, "telemetry": telemetry, "duration_s": duration_s, "watchdog_ms": conf.watchdog_ms,

@@ -2,11 +2,12 @@
 lateness with telemetry on and off in the same run. Prints the figures, writes
 bench/results/telemetry.json.
 
-The rig side is this process: the real ``LoopService`` (host pacing, real-time setup) driving an
-in-process lockstep device, handing its records to a ``TelemetryPublisher`` on a loopback hub it
-hosts (as ``rehab-hil run --telemetry`` does). The viewer is a separate process (client session)
-that timestamps every record on arrival; both use ``time.perf_counter`` (CLOCK_MONOTONIC, shared
-by processes on one machine). Off and on segments alternate so that machine load hits both alike.
+The rig side is this process: the real ``LoopService`` (host pacing, real-time setup) driving the
+in-process lockstep rig (``rehab_hil.testing``: the firmware's logic and the config's plant), handing
+its records to a ``TelemetryPublisher`` on a loopback hub it hosts (as ``rehab-hil run --telemetry``
+does). The viewer is a separate process (client session) that timestamps every record on arrival;
+both use ``time.perf_counter`` (CLOCK_MONOTONIC, shared by processes on one machine). Off and on
+segments alternate so that machine load hits both alike.
 
 Target (issue 7): p99 lateness with telemetry on at most 20 % worse than off.
 Usage: python bench/telemetry.py [--segment 5] [--pairs 3] [--config configs/finger_extensor.toml]
@@ -20,11 +21,9 @@ import math
 import os
 import platform
 import resource
-import socket
 import subprocess
 import sys
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -71,57 +70,14 @@ def viewer(port: int, rig: str) -> None:
 
 
 # -- rig side ---------------------------------------------------------------------------------------
-class LockstepRig:
-    """In-process device: each COMMAND produces the next SAMPLE at once (no serial link, no plant)."""
+class Hold:
+    """Controller: a fixed reference and a duty around 0.3 on the Finger Extensor's motor (no trip
+    within a segment)."""
 
     def __init__(self) -> None:
-        from rehab_hil.hardware.interface import LinkStats
+        from rehab_hil.hardware import Claims
 
-        self.info = None
-        self.stats = LinkStats()
-        self._pending: deque[Any] = deque()
-        self._i = 0
-        self._seq = 0
-        self._count = 0.0
-
-    def connect(self, timeout: float = 2.0) -> Any:
-        from rehab_hil.protocol import Hello
-
-        self.info = Hello(1, 1, 0, 0, 2, 2, 2000, 5000, 10, 1000, 0)
-        return self.info
-
-    def configure(self, config: Any, timeout: float = 1.0) -> None:
-        pass
-
-    def read_sample(self, timeout: float | None = None) -> Any:
-        return self._pending.popleft() if self._pending else None
-
-    def pending_samples(self) -> int:
-        return len(self._pending)
-
-    def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
-        from rehab_hil.protocol import Sample, Status
-
-        self._seq = (self._seq + 1) & 0xFFFF
-        d0 = round(min(max(duty0, 0.0), 1.0) * 10_000) if enable else 0
-        self._count += (-1 if direction & 1 else 1) * (d0 - 3000) / 40_000.0
-        self._pending.append(Sample(self._i * 1000, self._i, int(self._count), 512 + int(50 * math.sin(self._i / 40)),
-                                    0, d0, 0, direction, Status.STREAMING, 0, self._seq, 0))
-        self._i += 1
-        return self._seq
-
-    def estop(self, timeout: float = 1.0) -> None:
-        pass
-
-    def clear(self, timeout: float = 1.0) -> bool:
-        return True
-
-    def close(self) -> None:
-        pass
-
-
-class Hold:
-    """Controller: a fixed reference and a duty around 0.3 (keeps the fake angle in range)."""
+        self.claims = Claims(command=("motor_voltage_v",), state=("iris_angle_rad",))
 
     def reset(self) -> None:
         pass
@@ -133,25 +89,22 @@ class Hold:
         return Command((min(max(0.3 + 0.01 * err, 0.0), 0.6), 0.0), 0, True, 20.0)
 
 
-def segment(cfg: Any, binding: Any, seconds: float, sink: Any) -> dict[str, float]:
+def segment(config: Path, cfg: Any, binding: Any, seconds: float, sink: Any) -> dict[str, float]:
+    from rehab_hil.hardware import on_configure
     from rehab_hil.service import assembly
     from rehab_hil.service.estimation import Estimator
     from rehab_hil.service.runner import LoopService
+    from rehab_hil.testing import inprocess_rig
 
-    hw = LockstepRig()
-    hw.connect()
-    svc = LoopService(hw, assembly.firmware_configure(cfg, binding), Hold(), Estimator(binding),
+    hw = inprocess_rig(config, configured=False)
+    controller = Hold()
+    on_configure(binding, hw.info, controller.claims)
+    svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller, Estimator(binding),
                       assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), telemetry=sink)
     res = svc.run(seconds, pacing="host", realtime=True)
     out = dict(res.timing)
     out["events"] = [f"{e.reason}: {e.detail}" for e in res.events]
     return out
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def pct(a: list[float] | np.ndarray, q: float) -> float:
@@ -173,11 +126,11 @@ def main() -> None:
 
     import zenoh
 
-    from rehab_hil.config import load_config
-    from rehab_hil.plants import get_plant
+    from rehab_hil.plants import get_plant, load_config
     from rehab_hil.service.telemetry import NullSink
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
     from rehab_hil.telemetry.session import NetworkConfig
+    from rehab_hil.testing import free_port
 
     zenoh.init_log_from_env_or("error")
     cfg = load_config(args.config)
@@ -201,7 +154,8 @@ def main() -> None:
     for i in range(args.pairs):
         for mode in ("off", "on") if i % 2 == 0 else ("on", "off"):
             t0 = time.perf_counter()
-            segments[mode].append(segment(cfg, binding, args.segment, rig.sink if mode == "on" else NullSink()))
+            sink = rig.sink if mode == "on" else NullSink()
+            segments[mode].append(segment(args.config, cfg, binding, args.segment, sink))
             if mode == "on":
                 on_time += time.perf_counter() - t0
             time.sleep(0.2)
@@ -247,7 +201,7 @@ def main() -> None:
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
                     "load_avg_1min": os.getloadavg()[0]},
         "setup": {"segment_s": args.segment, "pairs": args.pairs, "batch": 10, "config": str(args.config),
-                  "rig": "LoopService, host pacing, realtime_setup, in-process lockstep device",
+                  "rig": "LoopService, host pacing, realtime_setup, in-process lockstep rig (rehab_hil.testing)",
                   "viewer": "separate process, client of the rig's loopback hub"},
         "publish": {"published_samples_during_on_segments": published, "on_seconds": on_time,
                     "published_rate_hz": published / on_time if on_time else math.nan,

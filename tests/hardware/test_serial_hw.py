@@ -11,8 +11,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from rehab_hil.config import load_config
 from rehab_hil.hardware import HardwareError, SerialHardware, configure_from_config, duty_units
+from rehab_hil.plants import load_config
 from rehab_hil.protocol import (
     Ack,
     AckResult,
@@ -135,6 +135,8 @@ def test_garbage_and_corrupt_frames_are_counted_and_skipped(peer: PtyPeer) -> No
 
 def test_command_echo_gives_a_latency(peer: PtyPeer) -> None:
     hw = _connected(peer)
+    _answer(peer, lambda f: Ack(Configure.TYPE, f.seq, AckResult.OK))
+    hw.configure(Configure(1000, 50, 10000, 1000, 1023, -1, 1, 0))  # write_command needs ACTIVE
     seq = hw.write_command(0.25, direction=1)
     (frame,) = [f for f in peer.receive() if isinstance(f.msg, Command)]
     assert frame.seq == seq and frame.msg == Command(2500, 0, 1, 1)

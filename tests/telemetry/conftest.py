@@ -5,7 +5,6 @@ Multicast scouting and gossip are off in every session (``build_zenoh_config``);
 
 from __future__ import annotations
 
-import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -15,14 +14,9 @@ import pytest
 import zenoh
 
 from rehab_hil.telemetry.session import NetworkConfig, TelemetryConfigError, open_session
+from rehab_hil.testing import free_port
 
 zenoh.init_log_from_env_or("off")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def open_hub(**kw: Any) -> tuple[zenoh.Session, int]:

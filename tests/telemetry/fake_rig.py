@@ -1,68 +1,40 @@
-"""An in-process lockstep rig for telemetry tests: every COMMAND produces the next SAMPLE at once.
+"""The telemetry tests' rig: the shared in-process hardware (``rehab_hil.testing``) on the Finger
+Extensor, every COMMAND producing the next SAMPLE at once, and a controller that keeps it moving.
 
-Deterministic and CPU-cheap (no subprocess, no plant model), so the loop service can run with a
-recorder and a zenoh publisher inside a unit test.
+Deterministic and without a subprocess or a pty, so the loop service can run with a recorder and a
+zenoh publisher inside a unit test.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections import deque
+from pathlib import Path
 
-from rehab_hil.hardware.interface import HardwareInterface, LinkStats, duty_units
-from rehab_hil.protocol import Configure, Hello, Sample, Status
+from rehab_hil.hardware import Claims, InProcessHardware
+from rehab_hil.plants import get_plant, load_config
+from rehab_hil.service import assembly
+from rehab_hil.testing import inprocess_rig
+
+CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
+FIRMWARE = {"fw_major": 1, "fw_minor": 2, "fw_patch": 3}  # what the monitor test expects to see
 
 
-class LockstepRig(HardwareInterface):
-    def __init__(self) -> None:
-        self.info: Hello | None = None
-        self.stats = LinkStats()
-        self._pending: deque[Sample] = deque()
-        self._i = 0
-        self._seq = 0
-        self._count = 0.0
-
-    def connect(self, timeout: float = 2.0) -> Hello:
-        self.info = Hello(1, 1, 2, 3, 2, 2, 2000, 5000, 10, 1000, 0)
-        return self.info
-
-    def configure(self, config: Configure, timeout: float = 1.0) -> None:
-        pass
-
-    def read_sample(self, timeout: float | None = None) -> Sample | None:
-        s = self._pending.popleft() if self._pending else None
-        if s is not None:
-            self.stats.samples += 1
-        return s
-
-    def pending_samples(self) -> int:
-        return len(self._pending)
-
-    def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
-        self._seq = (self._seq + 1) & 0xFFFF
-        d0 = duty_units(duty0) if enable else 0
-        self._count += (-1 if direction & 1 else 1) * d0 / 20_000.0
-        self._pending.append(Sample(
-            device_time_us=self._i * 1000, sample_index=self._i, encoder_count=int(self._count),
-            adc0=512 + int(100 * math.sin(self._i / 50)), adc1=0, duty0=d0, duty1=0, direction=direction,
-            status=Status.STREAMING | (Status.PWM_ENABLED if d0 else 0), faults=0, cmd_seq_echo=self._seq,
-            rx_bad_frames=0))
-        self._i += 1
-        self.stats.frames_tx += 1
-        return self._seq
-
-    def estop(self, timeout: float = 1.0) -> None:
-        pass
-
-    def clear(self, timeout: float = 1.0) -> bool:
-        return True
-
-    def close(self) -> None:
-        pass
+def LockstepRig() -> InProcessHardware:  # the tests' name for it
+    """The in-process Finger Extensor rig, connected and configured with its firmware limits
+    widened (tests drive it open loop; the loop service reconfigures it with the real ones)."""
+    hw = inprocess_rig(CONFIG, configured=False, hello=FIRMWARE)
+    cfg = load_config(CONFIG)
+    conf = assembly.firmware_configure(cfg, get_plant(cfg.plant).device(cfg))
+    hw.configure(dataclasses.replace(conf, enc_min=-10**6, enc_max=10**6))
+    return hw
 
 
 class RampController:
-    """Duty follows a slow sine towards a 30 deg reference: enough variety for every column."""
+    """The angle follows a sine between 20 and 50 deg through a proportional law on the signed
+    motor input: enough variety for every column, inside the range of motion."""
+
+    claims = Claims(command=("motor_voltage_v",), state=("iris_angle_rad",))
 
     def reset(self) -> None:
         pass
@@ -70,4 +42,6 @@ class RampController:
     def __call__(self, t_s: float, state: object) -> object:
         from rehab_hil.service.controllers import Command
 
-        return Command((0.3 + 0.2 * math.sin(8 * t_s), 0.0), 0, True, 30.0 + t_s)
+        ref = 35.0 + 15.0 * math.sin(8 * t_s)
+        effort = 0.02 * (ref - state.angle_deg)  # type: ignore[attr-defined]
+        return Command((min(abs(effort), 0.6), 0.0), 1 if effort < 0 else 0, True, ref)

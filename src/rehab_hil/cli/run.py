@@ -1,7 +1,10 @@
 """``rehab-hil run``: a session on a rig (simulated or real) with a live display and a summary.
 
-``--device sim`` spawns the Python simulated device, ``avr`` the firmware in simavr, anything else
-is a serial path. Ctrl-C and SIGTERM trip the supervisor: PWM 0 and ESTOP before the exit.
+``--device sim`` spawns the Python simulated device, ``avr`` the firmware in simavr, ``inprocess``
+runs the device logic and the plant in this process (lockstep), anything else is a serial path
+(``rehab_hil.hardware.open_rig``). The device's HELLO and the controller's claims are checked
+against the plant's binding before anything moves. Ctrl-C and SIGTERM trip the supervisor: PWM 0
+and ESTOP before the exit.
 """
 
 from __future__ import annotations
@@ -19,18 +22,18 @@ from rich.live import Live
 from rich.table import Table
 
 from rehab_hil.cli import UserError
-from rehab_hil.config import load_config
-from rehab_hil.hardware import HardwareError, SerialHardware
-from rehab_hil.plants import get_plant
+from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.runner import LoopService, Progress, RunResult
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser("run", help="run a session on the rig (sim, avr or a serial port) and summarise it")
+    p = sub.add_parser("run", help="run a session on the rig (sim, avr, inprocess or a serial port) and summarise it")
     p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--device", default=None, help='"sim", "avr" or a serial path (default: [rig].port)')
+    p.add_argument("--device", default=None,
+                   help=f"{', '.join(repr(k) for k in RIG_KINDS)} or a serial path (default: [rig].port)")
     p.add_argument("--duration", type=float, default=30.0, help="session length [s]")
     p.add_argument("--record", type=Path, default=None, help="directory for run.csv and run.mcap")
     p.add_argument("--controller", choices=assembly.CONTROLLERS, default="session")
@@ -44,28 +47,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def _spawn(kind: str, config: Path, lockstep: bool) -> Any:
-    clock = "lockstep" if lockstep else "realtime"
-    if kind == "sim":
-        from rehab_hil.devices.spawn import spawn_sim_device
-
-        return spawn_sim_device(config, clock=clock)
-    if lockstep:
-        raise UserError("--lockstep is a mode of the Python sim device; the avr device runs in real time")
-    from rehab_hil.devices import avr_device
-
-    reason = avr_device.unavailable_reason()
-    if reason:
-        raise UserError(f"--device avr: {reason}")
-    return avr_device.spawn_avr_device(config, clock="realtime")
-
-
-def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: Any) -> Any:
+def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: HardwareInterface) -> Any:
     """The zenoh publisher for ``--telemetry RIG`` (rehab_hil.telemetry.rig)."""
     from rehab_hil.telemetry import NetworkConfig, RigIdError, TelemetryConfigError
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
 
-    info = rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), getattr(hw, "info", None))
+    info = rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), hw.info)
     try:
         return RigTelemetry(args.telemetry, info, NetworkConfig(port=args.telemetry_port), queue_size=20_000)
     except (RigIdError, TelemetryConfigError, ValueError) as e:
@@ -117,29 +104,22 @@ def summary_table(r: RunResult) -> Table:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
-    spec = get_plant(cfg.plant)
-    if spec.device is None:
-        raise UserError(f"plant {spec.name!r} has no device binding: it cannot run on a rig")
     if not 0 < args.duration <= 24 * 3600:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
-    binding = spec.device(cfg)
+    binding = get_plant(cfg.plant).device(cfg)
     try:
         controller = assembly.build_controller(cfg, binding, args.controller)
     except assembly.ServiceSetupError as e:
         raise UserError(f"{args.config}: {e}") from None
     device = args.device or cfg.rig.port
     console = Console()
+    lockstep = args.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
     with ExitStack() as stack:
-        port = device
-        if device in ("sim", "avr"):
-            proc = stack.enter_context(_spawn(device, args.config, args.lockstep))
-            port = proc.port
-        hw = SerialHardware(port, cfg.rig.baud)
-        stack.callback(hw.close)
         try:
-            hw.connect()
+            hw = stack.enter_context(open_rig(device, args.config, lockstep=args.lockstep, baud=cfg.rig.baud))
+            on_configure(binding, hw.info, controller.claims)  # refuse a mismatch before anything moves
         except HardwareError as e:
-            raise UserError(str(e)) from None
+            raise UserError(f"--device {device}: {e}") from None
         recorder = Recorder(args.record, binding) if args.record else None
         if recorder is not None:
             stack.callback(recorder.close)
@@ -159,8 +139,8 @@ def run(args: argparse.Namespace) -> int:
 
         def work() -> None:
             try:
-                result.append(svc.run(args.duration, pacing=args.pacing, realtime=not args.lockstep,
-                                      sample_timeout_s=0.5 if args.lockstep else None,
+                result.append(svc.run(args.duration, pacing=args.pacing, realtime=not lockstep,
+                                      sample_timeout_s=0.5 if lockstep else None,
                                       on_trip=telemetry.on_trip if telemetry else None))
             except BaseException as e:  # reported on the main thread
                 errors.append(e)

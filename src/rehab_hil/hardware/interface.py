@@ -1,13 +1,16 @@
 """The host's view of a rig, in the spirit of ros2_control's hardware components.
 
-Lifecycle: ``connect()`` (open the link, handshake: HELLO) -> ``configure()`` (rate, watchdog,
-limits: ACK) -> each cycle ``read_sample()`` / ``write_command()`` -> ``estop()`` / ``clear()``
-on faults -> ``close()``. Implementations: ``SerialHardware`` (any serial path, incl. the ptys of
-the simulated devices).
+Lifecycle (``LifecycleState``): UNCONFIGURED --``connect()`` (open the link, HELLO)--> INACTIVE
+--``configure()`` (rate, watchdog, limits: ACK)--> ACTIVE (each cycle ``read_sample()`` /
+``write_command()``; ``estop()`` / ``clear()`` on faults) --``close()``--> FINALIZED. A call made
+in the wrong state raises ``HardwareError`` naming the state and the missing step.
+Implementations: ``SerialHardware`` (any serial path, incl. the ptys of the simulated devices) and
+``InProcessHardware`` (the device's firmware logic and a plant model in this process).
 """
 
 from __future__ import annotations
 
+import enum
 import math
 from abc import ABC, abstractmethod
 from collections import Counter, deque
@@ -19,11 +22,32 @@ import numpy as np
 
 from rehab_hil.protocol import DUTY_FULL, Configure, Hello, Sample
 
-__all__ = ["HardwareError", "HardwareInterface", "LinkStats", "configure_from_config", "duty_units"]
+__all__ = ["HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "configure_from_config",
+           "duty_units"]
 
 
 class HardwareError(RuntimeError):
     """The device did not answer, refused a request, or the link broke."""
+
+
+class LifecycleState(enum.Enum):
+    """Where a ``HardwareInterface`` is in its lifecycle (ros2_control's node states)."""
+
+    UNCONFIGURED = "unconfigured"  # created; the link is not open
+    INACTIVE = "inactive"  # connected: the device's HELLO is known; no CONFIGURE acknowledged yet
+    ACTIVE = "active"  # configured: the device streams and takes commands
+    FINALIZED = "finalized"  # closed; terminal
+
+    @property
+    def connected(self) -> bool:
+        return self in (LifecycleState.INACTIVE, LifecycleState.ACTIVE)
+
+
+_NEXT_STEP = {
+    LifecycleState.UNCONFIGURED: "call connect() first",
+    LifecycleState.INACTIVE: "call configure() first",
+    LifecycleState.FINALIZED: "it was closed; open a new one",
+}
 
 
 @dataclass
@@ -84,26 +108,49 @@ def configure_from_config(cfg: Any, encoder_counts_per_rev: int, force_limit_cou
 
 
 class HardwareInterface(ABC):
-    """A rig the host drives: one device with PWM channels, an encoder and ADC inputs."""
+    """A rig the host drives: one device with PWM channels, an encoder and ADC inputs.
 
-    info: Hello | None
+    Subclasses call ``super().__init__()``, guard each call with ``_require_connected`` /
+    ``_require_active`` and move ``state`` on connect, configure and close."""
+
+    info: Hello | None  # the device's HELLO (capabilities), once connected
     stats: LinkStats
+    state: LifecycleState
+    last_sample_time: float  # perf_counter when the last sample returned by read_sample arrived
+
+    def __init__(self) -> None:
+        self.info = None
+        self.stats = LinkStats()
+        self.state = LifecycleState.UNCONFIGURED
+        self.last_sample_time = 0.0
 
     @abstractmethod
     def connect(self, timeout: float = 2.0) -> Hello:
-        """Open the link and handshake; returns the device's capabilities."""
+        """Open the link and handshake; returns the device's capabilities. UNCONFIGURED -> INACTIVE
+        (a connected interface re-handshakes and keeps its state)."""
 
     @abstractmethod
     def configure(self, config: Configure, timeout: float = 1.0) -> None:
-        """Send rate, watchdog and limits; raises ``HardwareError`` if the device refuses."""
+        """Send rate, watchdog and limits; raises ``HardwareError`` if the device refuses (the state
+        is then unchanged). INACTIVE or ACTIVE -> ACTIVE."""
 
     @abstractmethod
     def read_sample(self, timeout: float | None = None) -> Sample | None:
         """The next SAMPLE in arrival order, or None after ``timeout`` seconds (None: wait forever)."""
 
+    def pending_samples(self) -> int:
+        """Samples received and not yet returned by ``read_sample`` (without touching the link);
+        0 for an interface that queues nothing."""
+        return 0
+
+    def discard_pending(self) -> int:
+        """Drop samples received and not yet read (those of the stream before a CONFIGURE or CLEAR
+        was acknowledged); returns how many."""
+        return 0
+
     @abstractmethod
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
-        """Send duties (0..1 per channel) and direction bits now; returns the COMMAND's seq."""
+        """Send duties (0..1 per channel) and direction bits now (ACTIVE only); returns the COMMAND's seq."""
 
     @abstractmethod
     def estop(self, timeout: float = 1.0) -> None:
@@ -115,7 +162,19 @@ class HardwareInterface(ABC):
 
     @abstractmethod
     def close(self) -> None:
-        """Stop streaming if possible and release the link; idempotent."""
+        """Stop streaming if possible and release the link; idempotent. Any state -> FINALIZED."""
+
+    # ---- lifecycle guards ---------------------------------------------------------------------
+
+    def _require_connected(self, action: str) -> None:
+        """Raise ``HardwareError`` unless INACTIVE or ACTIVE."""
+        if not self.state.connected:
+            raise HardwareError(f"{action}: the hardware is {self.state.value}; {_NEXT_STEP[self.state]}")
+
+    def _require_active(self, action: str) -> None:
+        """Raise ``HardwareError`` unless ACTIVE (configured)."""
+        if self.state is not LifecycleState.ACTIVE:
+            raise HardwareError(f"{action}: the hardware is {self.state.value}; {_NEXT_STEP[self.state]}")
 
     def __enter__(self) -> HardwareInterface:
         return self

@@ -14,7 +14,7 @@ from collections import OrderedDict, deque
 
 import serial
 
-from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LinkStats, duty_units
+from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
     Ack,
     Clear,
@@ -42,9 +42,8 @@ class SerialHardware(HardwareInterface):
     """A device speaking protocol v1 on a serial path; see ``HardwareInterface`` for the lifecycle."""
 
     def __init__(self, port: str, baud: int = 1_000_000, write_timeout_s: float = 0.2) -> None:
+        super().__init__()
         self.port, self.baud, self.write_timeout_s = port, baud, write_timeout_s
-        self.info: Hello | None = None
-        self.stats = LinkStats()
         self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
         self.last_sample: Sample | None = None
         self._ser: serial.Serial | None = None
@@ -59,12 +58,13 @@ class SerialHardware(HardwareInterface):
         self._rx_seq: int | None = None
         self._tx_seq = 0
         self._wlock = threading.Lock()
-        self.last_sample_time = 0.0  # perf_counter when the last sample returned by read_sample arrived
 
     # ---- lifecycle ----------------------------------------------------------------------------
 
     def connect(self, timeout: float = 3.0) -> Hello:
         """Open the port, discard stale input, send HELLO_REQ (repeated) until a HELLO arrives."""
+        if self.state is LifecycleState.FINALIZED:
+            self._require_connected("connect")
         if self._ser is None:
             try:
                 self._ser = serial.Serial(self.port, self.baud, timeout=0, write_timeout=self.write_timeout_s)
@@ -81,16 +81,21 @@ class SerialHardware(HardwareInterface):
                 if self._hellos:
                     self.info = self._hellos[-1]
                     self._hellos.clear()
+                    if self.state is LifecycleState.UNCONFIGURED:
+                        self.state = LifecycleState.INACTIVE
                     return self.info
         raise HardwareError(f"no HELLO from {self.port} within {timeout:.2f} s")
 
     def configure(self, config: Configure, timeout: float = 1.0) -> None:
+        self._require_connected("configure")
         result = self._request(config, timeout)
         if result != 0:
             raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})")
         self._last_index = None  # the stream restarts: no gap accounting across it
+        self.state = LifecycleState.ACTIVE
 
     def read_sample(self, timeout: float | None = None) -> Sample | None:
+        self._require_connected("read_sample")
         deadline = None if timeout is None else time.perf_counter() + timeout
         while not self._samples:
             remaining = 0.5 if deadline is None else deadline - time.perf_counter()
@@ -102,12 +107,9 @@ class SerialHardware(HardwareInterface):
         return sample
 
     def pending_samples(self) -> int:
-        """Samples received and not yet returned by ``read_sample`` (without reading the port)."""
         return len(self._samples)
 
     def discard_pending(self) -> int:
-        """Drop samples received and not yet read (e.g. those sent before a CONFIGURE or CLEAR was
-        acknowledged, since the device answers in order); returns how many."""
         n = len(self._samples)
         self._samples.clear()
         return n
@@ -125,11 +127,13 @@ class SerialHardware(HardwareInterface):
         self._last_index = None
 
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
+        self._require_active("write_command")
         return self.send_command(Command(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF,
                                          1 if enable else 0))
 
     def send_command(self, command: Command) -> int:
-        """Send a COMMAND in raw duty units; returns its seq (latency is matched on the echo)."""
+        """Send a COMMAND in raw duty units, in any connected state (conformance tests send commands
+        before CONFIGURE on purpose); returns its seq (latency is matched on the echo)."""
         seq = self._send(command)
         self._sent_at[seq] = time.perf_counter()
         while len(self._sent_at) > _PENDING_COMMANDS:
@@ -137,11 +141,13 @@ class SerialHardware(HardwareInterface):
         return seq
 
     def estop(self, timeout: float = 1.0) -> None:
+        self._require_connected("estop")
         result = self._request(EStop(), timeout)
         if result != 0:
             raise HardwareError(f"ESTOP answered with result {result}")
 
     def clear(self, timeout: float = 1.0) -> bool:
+        self._require_connected("clear")
         return self._request(Clear(), timeout) == 0
 
     def heartbeat(self, timeout: float = 1.0) -> int:
@@ -160,6 +166,7 @@ class SerialHardware(HardwareInterface):
         self._write(data)
 
     def close(self) -> None:
+        self.state = LifecycleState.FINALIZED
         ser, self._ser = self._ser, None
         if ser is None:
             return

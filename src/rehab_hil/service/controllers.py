@@ -2,7 +2,8 @@
 PWM-ratio control of SMA bending (seed 000 Fig. 10) and open-close rehabilitation sessions.
 
 A controller maps (time, ``State``) to a ``Command`` of PWM duties and direction bits. It knows the
-plant's I/O binding (which PWM channel drives which plant input) but never the device backend.
+plant's I/O binding (which PWM channel drives which plant input) but never the device backend, and
+declares the interfaces it uses in ``claims`` (checked by ``rehab_hil.hardware.contract.on_configure``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Protocol
 
 from rehab_hil.control.pid import PID
 from rehab_hil.control.trajectories import open_close_reference
+from rehab_hil.hardware.contract import Claims
 from rehab_hil.plants.base import DeviceBinding, DutyInput
 from rehab_hil.service.estimation import State
 
@@ -47,6 +49,8 @@ SAFE_COMMAND = Command()
 
 
 class Controller(Protocol):
+    claims: Claims  # the command and state interfaces it uses, by name
+
     def reset(self) -> None: ...
 
     def __call__(self, t_s: float, state: State) -> Command: ...
@@ -61,6 +65,8 @@ class Actuator:
             raise ValueError("the plant's device binding has no PWM-driven input")
         self.signal = signal or next(iter(binding.duty_inputs))
         self.input: DutyInput = binding.duty_inputs[self.signal]
+        # the encoder angle a feedback controller reads ("angle" when the binding has none: refused)
+        self.angle_signal: str = binding.encoder_signal or "angle"
 
     @property
     def max_effort(self) -> float:
@@ -101,6 +107,7 @@ class OpenLoopPWM:
 
     def __init__(self, actuator: Actuator, on_duty: float, on_s: float, off_s: float) -> None:
         self.actuator, self.on_duty, self.on_s, self.period = actuator, on_duty, on_s, on_s + off_s
+        self.claims = Claims(command=(actuator.signal,))
 
     def reset(self) -> None:
         pass
@@ -118,6 +125,7 @@ class PIDPosition:
     def __init__(self, actuator: Actuator, reference: Reference, kp: float, ki: float, kd: float,
                  derivative_filter_s: float, dt_s: float) -> None:
         self.actuator, self.reference = actuator, reference
+        self.claims = Claims(command=(actuator.signal,), state=(actuator.angle_signal,))
         self.pid = PID(kp, ki, kd, derivative_filter_s, actuator.min_effort, actuator.max_effort, dt_s)
 
     def reset(self) -> None:
@@ -139,6 +147,7 @@ class PWMRatio:
         if not angle_at_duty_max_deg > angle_at_duty_min_deg:
             raise ValueError("angle_at_duty_max_deg must exceed angle_at_duty_min_deg")
         self.actuator, self.reference = actuator, reference
+        self.claims = Claims(command=(actuator.signal,))  # open loop: no state read
         self.d0, self.d1 = duty_min, duty_max
         self.a0, self.a1 = angle_at_duty_min_deg, angle_at_duty_max_deg
 

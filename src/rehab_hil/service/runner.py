@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil import metrics
-from rehab_hil.hardware.interface import HardwareError, HardwareInterface
+from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState
 from rehab_hil.protocol import Configure, Sample, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command, Controller
 from rehab_hil.service.estimation import Estimator, State
@@ -126,9 +126,7 @@ class LoopService:
             rt = realtime_setup()
         try:
             self.hw.configure(self.configure_msg)
-            discard = getattr(self.hw, "discard_pending", None)
-            if discard is not None:  # samples queued before the ACK belong to the old stream, not this session
-                discard()
+            self.hw.discard_pending()  # samples queued before the ACK belong to the old stream, not this session
             self._send(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
             timer.start()
             k = 0
@@ -165,7 +163,7 @@ class LoopService:
                 if self.supervisor.tripped:  # the filter itself tripped (heating, temperature)
                     stop_reason = f"safety trip: {self.supervisor.events[0].reason}"
                     break
-                reaction.add(time.perf_counter() - getattr(self.hw, "last_sample_time", time.perf_counter()))
+                reaction.add(time.perf_counter() - self.hw.last_sample_time)
                 self._offer(t_s, cmd)
                 if cycles < n_max:
                     refs[cycles], angles[cycles] = cmd.reference_deg, state.angle_deg
@@ -217,8 +215,7 @@ class LoopService:
                 return n
             self._take(s)
             n += 1
-            pending = getattr(self.hw, "pending_samples", None)
-            if pending is None or pending() == 0:
+            if self.hw.pending_samples() == 0:
                 return n
             timeout = 0.0
 
@@ -267,8 +264,11 @@ class LoopService:
         p.missed = self._gaps
 
     def _shutdown(self, on_trip: Callable[[SafetyEvent], None] | None) -> None:
-        """PWM 0 now; after a trip also ESTOP, then watch a few samples confirm PWM off."""
+        """PWM 0 now; after a trip also ESTOP, then watch a few samples confirm PWM off. Nothing to
+        do on a device that was never configured (its CONFIGURE failed): it is not driving."""
         self._cmd = SAFE_COMMAND
+        if self.hw.state is not LifecycleState.ACTIVE:
+            return
         self._send(SAFE_COMMAND)
         sup = self.supervisor
         if sup.tripped:

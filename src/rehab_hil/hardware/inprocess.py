@@ -1,0 +1,168 @@
+"""``InProcessHardware``: the device's firmware logic (``DeviceCore``) and a plant behind the rig's
+I/O, in this process, behind ``HardwareInterface`` (ros2_control's mock components).
+
+Lockstep: while streaming, each accepted COMMAND advances the device one sample period (its base
+ticks, each stepping the plant) and so produces the next SAMPLE at once. No pty, no subprocess,
+deterministic; the same safety rules as the firmware (watchdog counted in device ticks).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import deque
+from collections.abc import Mapping
+from typing import Protocol
+
+from rehab_hil.devices.core import DeviceCore, Readings
+from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState, duty_units
+from rehab_hil.protocol import (
+    Ack,
+    Clear,
+    Command,
+    Configure,
+    EStop,
+    FaultReport,
+    Frame,
+    Hello,
+    HelloReq,
+    Message,
+    Sample,
+)
+
+__all__ = ["InProcessHardware", "PlantPort"]
+
+
+class PlantPort(Protocol):
+    """What the device reads and drives (``rehab_hil.devices.plant_io.PlantIO``): one base tick
+    with the applied duties and direction bits -> (encoder count, adc0, adc1) at the tick instant."""
+
+    def tick(self, duty: tuple[int, int] | list[int], direction: int) -> tuple[int, int, int]: ...
+
+
+class InProcessHardware(HardwareInterface):
+    """A lockstep device in this process; ``hello`` overrides fields of the device's HELLO (e.g.
+    ``{"protocol_version": 2}`` or ``{"n_pwm": 1}``) to play a different firmware."""
+
+    def __init__(self, plant: PlantPort, encoder_counts_per_rev: int, *,
+                 hello: Mapping[str, int] | None = None) -> None:
+        super().__init__()
+        self.plant = plant
+        self.core = DeviceCore(encoder_counts_per_rev)
+        self.estop_pin = False  # the e-stop input (True = pressed)
+        self.faults_reported: deque[FaultReport] = deque(maxlen=256)
+        self.last_sample: Sample | None = None
+        self._hello_overrides = dict(hello or {})
+        unknown = set(self._hello_overrides) - {f.name for f in dataclasses.fields(Hello)}
+        if unknown:
+            raise ValueError(f"unknown HELLO fields {sorted(unknown)}")
+        self._samples: deque[tuple[float, Sample]] = deque()
+        self._acks: dict[tuple[int, int], int] = {}
+        self._tx_seq = 0
+        self._last_index: int | None = None
+        self._sent: tuple[int, float] | None = None  # the last COMMAND (seq, perf_counter) until echoed
+
+    # ---- lifecycle ----------------------------------------------------------------------------
+
+    def connect(self, timeout: float = 2.0) -> Hello:
+        if self.state is LifecycleState.FINALIZED:
+            self._require_connected("connect")
+        self._send(HelloReq())
+        if self.info is None:
+            raise HardwareError("the in-process device sent no HELLO")
+        if self.state is LifecycleState.UNCONFIGURED:
+            self.state = LifecycleState.INACTIVE
+        return self.info
+
+    def configure(self, config: Configure, timeout: float = 1.0) -> None:
+        self._require_connected("configure")
+        result = self._request(config)
+        if result != 0:
+            raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})")
+        self._last_index = None
+        self.state = LifecycleState.ACTIVE
+
+    def read_sample(self, timeout: float | None = None) -> Sample | None:
+        """The next queued SAMPLE or None at once (nothing arrives while the host waits in lockstep)."""
+        self._require_connected("read_sample")
+        if not self._samples:
+            return None
+        t, sample = self._samples.popleft()
+        self.last_sample_time = t
+        return sample
+
+    def pending_samples(self) -> int:
+        return len(self._samples)
+
+    def discard_pending(self) -> int:
+        n = len(self._samples)
+        self._samples.clear()
+        return n
+
+    def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
+        self._require_active("write_command")
+        return self._send(Command(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF, 1 if enable else 0))
+
+    def estop(self, timeout: float = 1.0) -> None:
+        self._require_connected("estop")
+        result = self._request(EStop())
+        if result != 0:
+            raise HardwareError(f"ESTOP answered with result {result}")
+
+    def clear(self, timeout: float = 1.0) -> bool:
+        self._require_connected("clear")
+        return self._request(Clear()) == 0
+
+    def close(self) -> None:
+        """PWM off (as the serial link's last COMMAND does) and FINALIZED; idempotent."""
+        if self.state.connected:
+            self.core.on_frame(Frame(self._tx_seq, Command(0, 0, 0, 0)))
+        self.state = LifecycleState.FINALIZED
+
+    # ---- the device side ----------------------------------------------------------------------
+
+    def _send(self, msg: Message) -> int:
+        """Hand one frame to the device (lockstep: a COMMAND while streaming runs one sample
+        period); the device's answers are handled before this returns."""
+        seq = self._tx_seq
+        self._tx_seq = (seq + 1) & 0xFFFF
+        self.stats.frames_tx += 1
+        core = self.core
+        if isinstance(msg, Command):
+            self._sent = (seq, time.perf_counter())
+        self._receive(core.on_frame(Frame(seq, msg)))
+        if isinstance(msg, Command) and core.streaming:
+            for _ in range(core.divider):
+                enc, a0, a1 = self.plant.tick(core.duty, core.direction)
+                self._receive(core.tick(Readings(enc, a0, a1, self.estop_pin)))
+        return seq
+
+    def _request(self, msg: Message) -> int:
+        seq = self._send(msg)
+        result = self._acks.pop((msg.TYPE, seq), None)
+        if result is None:
+            raise HardwareError(f"no ACK for {type(msg).__name__} (seq {seq})")
+        return result
+
+    def _receive(self, msgs: list[Message]) -> None:
+        """The host side of the link: what ``SerialHardware`` does with decoded frames."""
+        now = time.perf_counter()
+        st = self.stats
+        for msg in msgs:
+            st.frames_rx += 1
+            if isinstance(msg, Sample):
+                st.samples += 1
+                if self._last_index is not None:
+                    st.dropped_samples += max(0, msg.sample_index - self._last_index - 1)
+                self._last_index = msg.sample_index
+                if self._sent is not None and msg.cmd_seq_echo == self._sent[0]:
+                    st.latencies_s.append(now - self._sent[1])  # command -> echo: the device's work
+                    self._sent = None
+                self.last_sample = msg
+                self._samples.append((now, msg))
+            elif isinstance(msg, Ack):
+                self._acks[(msg.acked_type, msg.acked_seq)] = msg.result
+            elif isinstance(msg, FaultReport):
+                self.faults_reported.append(msg)
+            elif isinstance(msg, Hello):
+                self.info = dataclasses.replace(msg, **self._hello_overrides)

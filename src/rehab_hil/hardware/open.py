@@ -1,0 +1,87 @@
+"""One way to open a rig: ``open_rig(device, config)`` for every backend, connected and ready to
+configure.
+
+``device``: "sim" (the Python simulated device on a pty), "avr" (the firmware in simavr), "inprocess"
+(``InProcessHardware``: the device logic and the plant in this process, lockstep), or a serial path
+(a real board). The config's plant closes the loop of the simulated backends.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any
+
+from rehab_hil.hardware.inprocess import InProcessHardware
+from rehab_hil.hardware.interface import HardwareError, HardwareInterface
+
+__all__ = ["RIG_KINDS", "inprocess_hardware", "open_rig"]
+
+RIG_KINDS = ("sim", "avr", "inprocess")  # anything else is a serial path
+
+
+def inprocess_hardware(binding: Any, *, adc_noise_counts: float = 0.0, seed: int = 0,
+                       hello: Mapping[str, int] | None = None) -> InProcessHardware:
+    """``InProcessHardware`` on a plant's rig binding (``DeviceBinding``), not yet connected."""
+    from rehab_hil.devices.plant_io import PlantIO  # the model framework: imported only when needed
+
+    plant = PlantIO(binding, adc_noise_counts=adc_noise_counts, seed=seed)
+    return InProcessHardware(plant, binding.encoder_counts_per_rev, hello=hello)
+
+
+@contextmanager
+def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, baud: int | None = None,
+             connect_timeout_s: float = 3.0, write_timeout_s: float = 0.2,
+             spawn_args: list[str] | None = None) -> Iterator[HardwareInterface]:
+    """Open ``device`` (see the module docstring) on the plant of ``config_path`` and connect (HELLO);
+    closes the hardware and stops a spawned device process on exit. ``lockstep``: the sim device
+    advances one sample per COMMAND (deterministic; "inprocess" always does, "avr" cannot).
+    ``baud``: a serial path's rate (default ``[rig].baud``). Failures raise ``HardwareError``."""
+    with ExitStack() as stack:
+        hw: HardwareInterface
+        if device == "inprocess":
+            hw = inprocess_hardware(_binding(config_path))
+        else:
+            from rehab_hil.hardware.serial_hw import SerialHardware
+
+            port = device
+            if device in ("sim", "avr"):
+                port = stack.enter_context(_spawn(device, config_path, lockstep, spawn_args)).port
+            elif lockstep:
+                raise HardwareError(f"lockstep is a mode of the simulated devices, not of {device}")
+            hw = SerialHardware(port, baud or _config(config_path).rig.baud, write_timeout_s=write_timeout_s)
+        stack.callback(hw.close)
+        hw.connect(timeout=connect_timeout_s)
+        yield hw
+
+
+def _spawn(kind: str, config_path: str | Path, lockstep: bool, extra_args: list[str] | None) -> Any:
+    from rehab_hil.devices import spawn_device
+    from rehab_hil.devices.spawn import DeviceProcessError
+
+    if kind == "avr":
+        from rehab_hil.devices import avr_device
+
+        if lockstep:
+            raise HardwareError("lockstep is a mode of the Python sim device; the avr device runs in real time")
+        reason = avr_device.unavailable_reason()
+        if reason:
+            raise HardwareError(f"avr device: {reason}")
+    try:
+        return spawn_device(kind, config_path, clock="lockstep" if lockstep else "realtime", extra_args=extra_args)
+    except DeviceProcessError as e:
+        raise HardwareError(f"{kind} device: {e}") from e
+
+
+def _config(config_path: str | Path) -> Any:
+    from rehab_hil.plants import load_config
+
+    return load_config(config_path)
+
+
+def _binding(config_path: str | Path) -> Any:
+    from rehab_hil.plants import get_plant
+
+    cfg = _config(config_path)
+    return get_plant(cfg.plant).device(cfg)
