@@ -108,7 +108,8 @@ def test_energy_is_conserved_without_damping_or_input():
     """Free swing under gravity, RK4 at 0.1 ms: energy drifts < 1e-6 of the peak kinetic energy."""
     params = fc.rod_link_params((0.048, 0.028, 0.021), (0.125, 0.060, 0.040), (0.0, -9.81))
     x0 = [0.3, 0.5, 0.2, 1.0, -2.0, 3.0]
-    sys = Diagram([fc.FingerChain("finger", x0=x0, **params)]).compile(1e-4, 1)
+    chain = fc.FingerChain("finger", x0=x0, **params)
+    sys = Diagram([chain], inputs=("tau1_nm", "tau2_nm", "tau3_nm")).compile(1e-4, 1)
     res = sys.simulate(20000, outputs=["q1_rad", "q2_rad", "q3_rad", "qd1_rad_s", "qd2_rad_s", "qd3_rad_s"])
     p = fc.chain_param_vector(params)
     q = np.column_stack([res["q1_rad"], res["q2_rad"], res["q3_rad"]])

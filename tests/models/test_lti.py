@@ -31,7 +31,7 @@ def bank(tfs):
     """One compiled diagram with one part of each order 1..3 in parallel on input ``u``."""
     parts = [lti_part(f"ss{n}", tf, connect={"u": "u"}, rename={"y": f"y{n}"})
              for n, tf in ((1, tfs["TP01"]), (2, tfs["TP002"]), (3, tfs["TP03"]))]
-    diagram = Diagram(parts)
+    diagram = Diagram(parts, inputs=("u",))
     return diagram, diagram.compile(DT, 1)
 
 

@@ -25,7 +25,7 @@ def test_wire_geometry_follows_the_round_wire_formulas():
 @pytest.mark.parametrize("duty", [0.4, 1.0])
 def test_simulated_steady_state_satisfies_the_analytic_balance(duty):
     """After 15 s (>10 time constants) U^2 tau / R = h(T) A (T - T0) to 1e-6 of the power."""
-    sys = Diagram([SMAThermal.from_wire("w", **WIRE, **HEAT)]).compile(1e-3, 1)
+    sys = Diagram([SMAThermal.from_wire("w", **WIRE, **HEAT)], inputs=("duty", "voltage_v")).compile(1e-3, 1)
     res = sys.simulate(15000, inputs={"duty": duty, "voltage_v": 32.0}, outputs=["temperature_c"])
     t_end = res["temperature_c"][-1]
     _, r_ohm, area = wire_geometry(**WIRE)
@@ -37,7 +37,7 @@ def test_simulated_steady_state_satisfies_the_analytic_balance(duty):
 
 
 def test_zero_duty_keeps_the_wire_at_ambient_and_duty_is_clipped_to_one():
-    sys = Diagram([SMAThermal.from_wire("w", **WIRE, **HEAT)]).compile(1e-3, 1)
+    sys = Diagram([SMAThermal.from_wire("w", **WIRE, **HEAT)], inputs=("duty", "voltage_v")).compile(1e-3, 1)
     cold = sys.simulate(2000, inputs={"duty": 0.0, "voltage_v": 32.0}, outputs=["temperature_c"])
     assert cold["temperature_c"][-1] == pytest.approx(23.0, abs=1e-12)
     over = sys.simulate(2000, inputs={"duty": 3.0, "voltage_v": 32.0}, outputs=["temperature_c"])

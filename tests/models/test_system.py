@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import ast
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from rehab_hil.models.mechanics import RotaryInertia, TorsionSpring, ViscousFriction
+from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSpring, ViscousFriction
 from rehab_hil.models.sensors import Gain
 from rehab_hil.models.system import Diagram, DiagramError
 
@@ -21,14 +23,14 @@ def oscillator(k=4.0, b=0.0, j=1.0, x0=(1.0, 0.0)):
 
 
 def test_rk4_matches_the_analytic_oscillator_to_fourth_order():
-    sys = Diagram(oscillator()).compile(dt=1e-3)
+    sys = Diagram(oscillator(), inputs=()).compile(dt=1e-3)
     res = sys.simulate(5000, outputs=["angle_rad"])
     exact = np.cos(2.0 * res.t)
     assert np.max(np.abs(res["angle_rad"] - exact)) < 1e-9
 
 
 def test_substeps_refine_a_coarse_step():
-    d = Diagram(oscillator())
+    d = Diagram(oscillator(), inputs=())
     coarse = d.compile(dt=0.05).simulate(200, outputs=["angle_rad"])
     fine = d.compile(dt=0.05, substeps=8).simulate(200, outputs=["angle_rad"])
     exact = np.cos(2.0 * coarse.t)
@@ -43,7 +45,7 @@ def test_outputs_with_one_name_are_summed_and_unproduced_inputs_are_external():
         Gain("b", connect={"u": "x_in"}, rename={"y": "total"}, gain=3.0),
         Gain("c", connect={"u": [("total", 1.0), ("other_in", -1.0)]}, rename={"y": "out"}, gain=1.0),
     ]
-    d = Diagram(parts)
+    d = Diagram(parts, inputs=("x_in", "other_in"))
     assert set(d.input_names) == {"x_in", "other_in"}
     res = d.compile(0.01).simulate(3, inputs={"x_in": 1.0, "other_in": 0.5}, outputs=["total", "out"])
     assert np.allclose(res["total"], 5.0)
@@ -57,7 +59,7 @@ def test_feedthrough_parts_are_evaluated_after_their_sources():
         Gain("b", connect={"u": "sa"}, rename={"y": "sb"}, gain=10.0),
         Gain("a", connect={"u": "x_in"}, rename={"y": "sa"}, gain=10.0),
     ]
-    res = Diagram(parts).compile(0.01).simulate(2, inputs={"x_in": 1.0}, outputs=["sc"])
+    res = Diagram(parts, inputs=("x_in",)).compile(0.01).simulate(2, inputs={"x_in": 1.0}, outputs=["sc"])
     assert np.allclose(res["sc"], 1000.0)
 
 
@@ -65,7 +67,7 @@ def test_algebraic_loop_is_refused_with_the_parts_named():
     parts = [Gain("a", connect={"u": "sb"}, rename={"y": "sa"}, gain=1.0),
              Gain("b", connect={"u": "sa"}, rename={"y": "sb"}, gain=1.0)]
     with pytest.raises(DiagramError, match="algebraic loop"):
-        Diagram(parts)
+        Diagram(parts, inputs=())
 
 
 @pytest.mark.parametrize(
@@ -75,7 +77,7 @@ def test_algebraic_loop_is_refused_with_the_parts_named():
         (lambda: Gain("g"), "missing parameters"),
         (lambda: Gain("g", connect={"nope": "x"}, gain=1.0), "has no inputs"),
         (lambda: Gain("g", rename={"nope": "x"}, gain=1.0), "has no outputs"),
-        (lambda: Diagram([Gain("g", gain=1.0), Gain("g", gain=2.0)]), "duplicate part names"),
+        (lambda: Diagram([Gain("g", gain=1.0), Gain("g", gain=2.0)], inputs=("u",)), "duplicate part names"),
     ],
 )
 def test_wiring_mistakes_are_refused(make, fragment):
@@ -83,8 +85,57 @@ def test_wiring_mistakes_are_refused(make, fragment):
         make()
 
 
+def test_a_misspelled_signal_is_refused_with_the_closest_name():
+    parts = [
+        RotaryInertia("iris", connect={"torque_nm": "torque_nm"}, rename={"velocity_rad_s": "iris_velocity_rad_s"},
+                      inertia_kg_m2=1.0),
+        CoulombFriction("coulomb", connect={"velocity_rad_s": "iris_velocty_rad_s",
+                                            "other_torque_nm": "patient_torque_nm"},
+                        rename={"torque_nm": "torque_nm"}, level_nm=0.1, stick_velocity_rad_s=1e-3,
+                        stick_damping_nm_s_per_rad=1.0),
+    ]
+    with pytest.raises(DiagramError) as err:
+        Diagram(parts, inputs=("patient_torque_nm",))
+    assert str(err.value) == (
+        "part 'coulomb' input 'velocity_rad_s' reads 'iris_velocty_rad_s', which no part produces and is not "
+        "a declared input; did you mean 'iris_velocity_rad_s'?"
+    )
+
+
+def test_a_declared_input_that_no_part_produces_is_external():
+    parts = [Gain("g", connect={"u": "x_in"}, rename={"y": "out"}, gain=2.0)]
+    d = Diagram(parts, inputs=("x_in", "unused_in"))
+    assert d.input_names == ("x_in",)  # declared but unread: allowed, not an input
+    res = d.compile(0.01).simulate(2, inputs={"x_in": 1.5}, outputs=["out"])
+    assert np.allclose(res["out"], 3.0)
+
+
+def test_a_declared_input_that_a_part_produces_is_not_external():
+    # the bare plant takes "cmd" from outside; with a controller part in the diagram it is produced
+    plant = Gain("plant", connect={"u": "cmd"}, rename={"y": "out"}, gain=2.0)
+    controller = Gain("controller", connect={"u": "ref"}, rename={"y": "cmd"}, gain=3.0)
+    assert Diagram([plant], inputs=("cmd", "ref")).input_names == ("cmd",)
+    d = Diagram([plant, controller], inputs=("cmd", "ref"))
+    assert d.input_names == ("ref",)
+    res = d.compile(0.01).simulate(2, inputs={"ref": 1.0}, outputs=["out"])
+    assert np.allclose(res["out"], 6.0)
+
+
+def test_the_engine_builds_from_the_layout_alone():
+    """No import cycle: engine.py imports nothing from system.py; the layout carries what it needs."""
+    import rehab_hil.models.engine as engine
+
+    tree = ast.parse(Path(engine.__file__).read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert "rehab_hil.models.system" not in imported
+    d = Diagram(oscillator(), inputs=())
+    assert d.layout.input_names == d.input_names and d.layout.order == tuple(d.order)
+    assert "rehab_hil.models.mechanics" in d.layout.kernel_modules
+
+
 def test_params_vector_changes_behaviour_without_recompiling():
-    d = Diagram(oscillator())
+    d = Diagram(oscillator(), inputs=())
     sys = d.compile(1e-3)
     p = sys.params.copy()
     p[d.param_index("spring.stiffness_nm_per_rad")] = 16.0
@@ -93,7 +144,7 @@ def test_params_vector_changes_behaviour_without_recompiling():
 
 
 def test_stepper_reproduces_simulate():
-    d = Diagram(oscillator(b=0.3))
+    d = Diagram(oscillator(b=0.3), inputs=())
     sys = d.compile(1e-3)
     res = sys.simulate(500, outputs=["angle_rad"])
     st = sys.stepper(outputs=["angle_rad"])
@@ -103,7 +154,7 @@ def test_stepper_reproduces_simulate():
 
 def test_damped_energy_decays_and_undamped_energy_is_kept():
     for b, decays in ((0.0, False), (1.0, True)):
-        res = Diagram(oscillator(b=b)).compile(1e-3).simulate(4000, outputs=["angle_rad", "velocity_rad_s"])
+        res = Diagram(oscillator(b=b), inputs=()).compile(1e-3).simulate(4000, outputs=["angle_rad", "velocity_rad_s"])
         e = 0.5 * res["velocity_rad_s"] ** 2 + 0.5 * 4.0 * res["angle_rad"] ** 2
         if decays:
             assert e[-1] < 0.1 * e[0]

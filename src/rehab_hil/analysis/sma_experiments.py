@@ -45,7 +45,8 @@ _SIGNALS = [*sx.OUTPUTS, "theta_mcp_rad", "theta_pip_rad", "theta_dip_rad", "mar
 
 
 def compile_plant(cfg: sx.SMAExoskeletonConfig) -> CompiledSystem:
-    return Diagram(sx.build(cfg)).compile(cfg.simulation.step_s, cfg.simulation.substeps)
+    diagram = Diagram(sx.build(cfg), inputs=("pwm_duty", "supply_voltage_v"))
+    return diagram.compile(cfg.simulation.step_s, cfg.simulation.substeps)
 
 
 def _run(cfg: sx.SMAExoskeletonConfig, system: CompiledSystem, duty: np.ndarray,

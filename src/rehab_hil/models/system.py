@@ -16,12 +16,16 @@ Kernel signatures (all arrays are float64 views, SI units):
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numba
 import numpy as np
+
+from rehab_hil.models.engine import engine_for
+from rehab_hil.models.layout import Layout, PartLayout
 
 __all__ = ["Connection", "Diagram", "DiagramError", "Part", "njit"]
 
@@ -35,8 +39,6 @@ class DiagramError(ValueError):
 @njit
 def _noop(t, x, xd, u, p, out):  # pragma: no cover - compiled
     pass
-
-
 
 
 # A connection feeds one input port: a weighted sum of named signals.
@@ -103,71 +105,89 @@ class Part:
         return f"{type(self).__name__}({self.name!r})"
 
 
-@dataclass(frozen=True)
-class _Layout:
-    """Where each part's slice lives in the flat arrays of the compiled system."""
-
-    x: tuple[int, int]
-    xd: tuple[int, int]
-    u: tuple[int, int]
-    p: tuple[int, int]
-    y: tuple[int, int]
-
-
 class Diagram:
     """Parts wired by signal name; signals with one name from several parts are summed.
 
-    Inputs that no part produces become the diagram's external inputs (``input_names``).
+    ``inputs`` names the signals allowed to come from outside: a part input that no part
+    produces must be declared there, so a misspelled signal is an error, not an input of zero.
+    The declared inputs that some part reads and no part produces are the diagram's external
+    inputs (``input_names``, in order of first use). ``inputs=None`` is the transitional
+    permissive mode: every unproduced name is external.
     """
 
-    def __init__(self, parts: Sequence[Part]) -> None:
+    def __init__(self, parts: Sequence[Part], inputs: Sequence[str] | None = None) -> None:
         names = [p.name for p in parts]
         dup = {n for n in names if names.count(n) > 1}
         if dup:
             raise DiagramError(f"duplicate part names {sorted(dup)}")
+        if isinstance(inputs, str):
+            raise DiagramError(f"inputs must be a sequence of signal names, not the string {inputs!r}")
         self.parts = list(parts)
+        self.declared_inputs: tuple[str, ...] | None = None if inputs is None else tuple(inputs)
         self.producers: dict[str, list[int]] = {}  # signal -> flat output slots
-        slot = 0
-        layout = []
-        xo = xdo = uo = po = 0
+        spans = []
+        xo = xdo = uo = po = slot = 0
         for part in self.parts:
-            ny = len(part.outputs)
             for i, sname in enumerate(part.signal_names):
                 self.producers.setdefault(sname, []).append(slot + i)
-            layout.append(
-                _Layout(
-                    (xo, xo + len(part.states)),
-                    (xdo, xdo + len(part.discrete_states)),
-                    (uo, uo + len(part.inputs)),
-                    (po, po + len(part.params)),
-                    (slot, slot + ny),
-                )
-            )
-            xo += len(part.states)
-            xdo += len(part.discrete_states)
-            uo += len(part.inputs)
-            po += len(part.params)
-            slot += ny
-        self.layout = layout
+            ends = (xo + len(part.states), xdo + len(part.discrete_states), uo + len(part.inputs),
+                    po + len(part.params), slot + len(part.outputs))
+            spans.append(((xo, ends[0]), (xdo, ends[1]), (uo, ends[2]), (po, ends[3]), (slot, ends[4])))
+            xo, xdo, uo, po, slot = ends
         self.n_x, self.n_xd, self.n_w, self.n_p, self.n_sig = xo, xdo, uo, po, slot
-        external = []
-        for part in self.parts:
-            for terms in part.connections.values():
-                for sname, _ in terms:
-                    if sname not in self.producers and sname not in external:
-                        external.append(sname)
-        self.input_names: tuple[str, ...] = tuple(external)
+        self.input_names: tuple[str, ...] = self._external_inputs()
         self.signal_names: tuple[str, ...] = tuple(self.producers)
         self.state_names = tuple(f"{p.name}.{s}" for p in self.parts for s in p.states)
         self.discrete_state_names = tuple(f"{p.name}.{s}" for p in self.parts for s in p.discrete_states)
         self.param_names = tuple(f"{p.name}.{s}" for p in self.parts for s in p.params)
-        self.order = self._evaluation_order()
+        self.order = self._evaluation_order([y for *_, y in spans])
+        self.layout = self._flat_layout(spans)
 
-    def _evaluation_order(self) -> list[int]:
+    def _flat_layout(self, spans: Sequence[tuple[tuple[int, int], ...]]) -> Layout:
+        """The structure handed to the engine: slices, wiring, order and the kernels' modules."""
+        parts = tuple(
+            PartLayout(name=part.name, kernel_class=(type(part).__module__, type(part).__qualname__),
+                       x=x, xd=xd, u=u, p=p, y=y,
+                       wires=tuple(tuple(part.connections[port]) for port in part.inputs))
+            for part, (x, xd, u, p, y) in zip(self.parts, spans, strict=True)
+        )
+        # The kernels live in the part classes (and their bases); njit and _noop live here.
+        modules = {c.__module__ for part in self.parts for c in type(part).__mro__ if c is not object}
+        return Layout(
+            parts=parts,
+            producers={s: tuple(slots) for s, slots in self.producers.items()},
+            input_names=self.input_names,
+            order=tuple(self.order),
+            n_x=self.n_x, n_xd=self.n_xd, n_w=self.n_w, n_p=self.n_p, n_sig=self.n_sig,
+            kernel_modules=tuple(sorted(modules | {__name__})),
+        )
+
+    def _external_inputs(self) -> tuple[str, ...]:
+        """Unproduced signals the parts read, in order of first use; undeclared ones are refused."""
+        declared = self.declared_inputs
+        external: list[str] = []
+        for part in self.parts:
+            for port, terms in part.connections.items():
+                for sname, _ in terms:
+                    if sname in self.producers or sname in external:
+                        continue
+                    if declared is not None and sname not in declared:
+                        raise DiagramError(self._undeclared_message(part, port, sname))
+                    external.append(sname)
+        return tuple(external)
+
+    def _undeclared_message(self, part: Part, port: str, sname: str) -> str:
+        known = list(dict.fromkeys([*self.producers, *(self.declared_inputs or ())]))
+        close = difflib.get_close_matches(sname, known, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else "; if it comes from outside, declare it in inputs"
+        return (f"part {part.name!r} input {port!r} reads {sname!r}, which no part produces and is not "
+                f"a declared input{hint}")
+
+    def _evaluation_order(self, outputs: Sequence[tuple[int, int]]) -> list[int]:
         """Topological order of output evaluation; feedthrough parts after their sources."""
         slot_owner = {}
-        for k, lay in enumerate(self.layout):
-            for s in range(*lay.y):
+        for k, y in enumerate(outputs):
+            for s in range(*y):
                 slot_owner[s] = k
         deps: dict[int, set[int]] = {}
         for k, part in enumerate(self.parts):
@@ -227,8 +247,6 @@ class CompiledSystem:
     """A diagram bound to a compiled engine for a fixed sample step ``dt`` and RK4 ``substeps``."""
 
     def __init__(self, diagram: Diagram, dt: float, substeps: int = 1) -> None:
-        from rehab_hil.models.engine import engine_for
-
         if not (dt > 0 and np.isfinite(dt)):
             raise DiagramError(f"step dt must be positive and finite, got {dt}")
         if int(substeps) < 1:
@@ -236,7 +254,7 @@ class CompiledSystem:
         self.diagram = diagram
         self.dt = float(dt)
         self.substeps = int(substeps)
-        self.engine = engine_for(diagram)
+        self.engine = engine_for(diagram.layout)
         self.params = diagram.initial_params()
         self.x0, self.xd0 = diagram.initial_state()
 
