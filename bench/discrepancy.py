@@ -25,11 +25,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from rehab_hil.config import load_config
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "finger_extensor.toml"

@@ -39,10 +39,12 @@ sys.path.insert(0, str(ROOT / "tests" / "reliability"))
 
 from link_proxy import LinkProxy  # noqa: E402
 
-from rehab_hil.config import load_config  # noqa: E402
 from rehab_hil.devices.spawn import spawn_sim_device  # noqa: E402
 from rehab_hil.hardware import HardwareError, SerialHardware  # noqa: E402
-from rehab_hil.plants import get_plant  # noqa: E402
+from rehab_hil.plants import (  # noqa: E402
+    get_plant,
+    load_config,
+)
 from rehab_hil.service import assembly  # noqa: E402
 from rehab_hil.service.controllers import Actuator, Command, PIDPosition  # noqa: E402
 from rehab_hil.service.estimation import State  # noqa: E402

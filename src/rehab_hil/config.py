@@ -1,15 +1,14 @@
 """Load and validate ``configs/*.toml``: every error names the file and the dotted key.
 
-Each plant declares its schema as pydantic models (strict types, no unknown keys, no NaN or
-infinity, ranges as field constraints) and registers it under the value of the file's
-top-level ``plant`` key. Units are in the key names (``radius_m``, ``kt_nm_per_a``).
+Each plant declares its schema as pydantic models on these sections (strict types, no unknown
+keys, no NaN or infinity, ranges as field constraints); ``rehab_hil.plants.load_config`` picks
+the schema by the file's top-level ``plant`` key. Units are in the key names (``radius_m``).
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -17,7 +16,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 __all__ = [
     "ConfigError",
-    "EffectSpec",
     "Field",
     "RigHostSection",
     "RigLimitsSection",
@@ -26,11 +24,9 @@ __all__ = [
     "RigThermalSection",
     "Section",
     "SimulationSection",
-    "load_config",
     "load_toml",
     "model_validator",
-    "plant_names",
-    "register_plant",
+    "validate",
 ]
 
 
@@ -128,68 +124,6 @@ class RigSection(Section):
 
 
 T = TypeVar("T", bound=BaseModel)
-_PLANTS: dict[str, type[BaseModel]] = {}
-
-
-def register_plant(name: str) -> Callable[[type[T]], type[T]]:
-    """Class decorator: the schema of config files whose ``plant`` key equals ``name``."""
-
-    def deco(cls: type[T]) -> type[T]:
-        cls = _with_effects(name, cls)
-        _PLANTS[name] = cls
-        return cls
-
-    return deco
-
-
-class EffectSpec(Section):
-    """One added model effect (``[[effects]]`` tables): a library name and its parameters.
-
-    Written by ``rehab-hil discrepancy`` into ``augmented.toml``; names and bounds are those of
-    ``rehab_hil.discrepancy.effects`` (docs/discrepancy.md)."""
-
-    name: str = Field(min_length=1, description="effect name in the library, e.g. coulomb_friction")
-    params: dict[str, float] = Field(default_factory=dict, description="parameter values, SI units in the keys")
-
-    @model_validator(mode="after")
-    def _known(self) -> EffectSpec:
-        from rehab_hil.discrepancy.effects import check_spec
-
-        check_spec(self.name, self.params)
-        return self
-
-
-def _with_effects(plant: str, cls: type[T]) -> type[T]:
-    """Give every plant schema an optional ``effects`` list, checked to apply to that plant."""
-    if "effects" in cls.model_fields:
-        return cls
-
-    class WithEffects(cls):  # type: ignore[valid-type,misc]
-        effects: list[EffectSpec] = Field(default_factory=list, description="added model effects")
-
-        @model_validator(mode="after")
-        def _effects_apply(self) -> WithEffects:
-            from rehab_hil.discrepancy.effects import EFFECTS
-
-            for i, e in enumerate(self.effects):
-                if plant not in EFFECTS[e.name].attachments:
-                    ok = sorted(n for n, eff in EFFECTS.items() if plant in eff.attachments)
-                    raise ValueError(f"effects.{i}.name: effect {e.name!r} does not apply to plant {plant!r}; "
-                                     f"applicable: {ok}")
-            return self
-
-    WithEffects.__name__, WithEffects.__qualname__ = cls.__name__, cls.__qualname__
-    WithEffects.__module__, WithEffects.__doc__ = cls.__module__, cls.__doc__
-    return WithEffects  # type: ignore[return-value]
-
-
-def plant_names() -> list[str]:
-    _import_plants()
-    return sorted(_PLANTS)
-
-
-def _import_plants() -> None:
-    import rehab_hil.plants  # noqa: F401  (registers the schemas)
 
 
 def _dotted(loc: tuple[Any, ...]) -> str:
@@ -250,17 +184,3 @@ def _reject_non_finite(path: str | Path, data: Any, loc: tuple[Any, ...]) -> Non
             _reject_non_finite(path, v, (*loc, i))
     elif isinstance(data, float) and not math.isfinite(data):
         raise ConfigError(path, _dotted(loc), f"must be a finite number, got {data!r}")
-
-
-def load_config(path: str | Path, expect: str | None = None) -> BaseModel:
-    """Load a plant config; its top-level ``plant`` key selects the schema."""
-    _import_plants()
-    data = load_toml(path)
-    plant = data.get("plant")
-    if plant is None:
-        raise ConfigError(path, "plant", f"missing key (one of {sorted(_PLANTS)})")
-    if not isinstance(plant, str) or plant not in _PLANTS:
-        raise ConfigError(path, "plant", f"unknown plant {plant!r}; known plants: {sorted(_PLANTS)}")
-    if expect is not None and plant != expect:
-        raise ConfigError(path, "plant", f"this command needs a {expect!r} config, the file is {plant!r}")
-    return validate(path, data, _PLANTS[plant])

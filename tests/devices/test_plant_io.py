@@ -7,9 +7,8 @@ from typing import Any
 
 import pytest
 
-from rehab_hil.config import load_config
 from rehab_hil.devices.plant_io import PlantIO
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 
 from .conftest import CONFIG
 

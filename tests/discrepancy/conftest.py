@@ -6,8 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.config import load_config
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 FE_CONFIG = ROOT / "configs" / "finger_extensor.toml"

@@ -9,9 +9,8 @@ import time
 
 import pytest
 
-from rehab_hil.config import load_config
 from rehab_hil.devices.plant_io import PlantIO
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.protocol import Command, Sample
 
 from .conftest import ROOT, Hardware, _missing, config

@@ -6,8 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.config import load_config
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import compose, get_plant, load_config
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 EFFECT = '\n[[effects]]\nname = "coulomb_friction"\nparams = { level_nm = 0.03 }\n'
@@ -20,7 +19,7 @@ def test_config_effects_reach_the_build_and_the_simulated_rig(tmp_path, plant):
     cfg = load_config(path)
     spec = get_plant(plant)
     plain = {p.name for p in spec.device(load_config(CONFIGS / f"{plant}.toml")).parts}
-    built = {p.name for p in spec.build(cfg)}
+    built = {p.name for p in compose(spec, cfg)}
     rig = {p.name for p in spec.device(cfg).parts}
     added = built - plain
     assert added, "the effect was not attached to the build"

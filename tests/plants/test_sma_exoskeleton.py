@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from rehab_hil.analysis.sma_experiments import compile_plant
-from rehab_hil.config import ConfigError, load_config
-from rehab_hil.plants import get_plant
+from rehab_hil.config import ConfigError
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.plants import sma_exoskeleton as sx
 
 CFG_PATH = Path(__file__).resolve().parents[2] / "configs" / "sma_exoskeleton.toml"
@@ -86,7 +86,7 @@ def test_angle_at_one_temperature_differs_heating_and_cooling(cfg, system):
 
 
 def test_device_binding_drives_the_wire_from_pwm_channel_0_and_reads_mcp_and_force(cfg):
-    dev = sx.device_binding(cfg)
+    dev = sx.SMAExoskeleton.device(cfg)
     assert dev.duty_inputs["pwm_duty"].channel == 0 and dev.duty_inputs["pwm_duty"].scale == 1.0
     assert dev.constant_inputs == {"supply_voltage_v": 32.0}
     assert dev.encoder_signal == "theta_mcp_rad" and dev.encoder_counts_per_rev == cfg.encoder.counts_per_rev
@@ -119,7 +119,7 @@ def test_simulated_rig_reads_the_bent_mcp_angle_through_the_encoder(cfg, system)
     from rehab_hil.devices.plant_io import PlantIO
     from rehab_hil.protocol import DUTY_FULL
 
-    io = PlantIO(sx.device_binding(cfg))
+    io = PlantIO(sx.SMAExoskeleton.device(cfg))
     for _ in range(1500):
         enc, adc0, _ = io.tick((DUTY_FULL, 0), 0)
     res = system.simulate(1500, {"pwm_duty": 1.0, "supply_voltage_v": 32.0}, outputs=["theta_mcp_rad"])

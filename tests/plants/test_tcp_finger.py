@@ -9,14 +9,14 @@ import control
 import numpy as np
 import pytest
 
-from rehab_hil.config import ConfigError, load_config
+from rehab_hil.config import ConfigError
 from rehab_hil.models.system import Diagram
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.plants.base import run_scenario
 from rehab_hil.plants.tcp_finger import (
     JOINTS,
+    TcpFinger,
     build,
-    device_binding,
     fis_scenario,
     muscle_tf,
     pulse_scenario,
@@ -113,7 +113,7 @@ def test_a_negative_spring_constant_is_refused(tmp_path):
 
 
 def test_device_binding_maps_pwm_duty_to_power_and_reads_mcp_and_force(cfg):
-    b = device_binding(cfg)
+    b = TcpFinger.device(cfg)
     assert b.duty_inputs["power_w"].scale == cfg.muscle.max_power_w
     assert not b.duty_inputs["power_w"].signed
     assert b.encoder_signal == "theta_mcp_rad"

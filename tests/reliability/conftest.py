@@ -12,9 +12,8 @@ from typing import Any
 
 import pytest
 
-from rehab_hil.config import load_config
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 
 from .link_proxy import LinkProxy
 

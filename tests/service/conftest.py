@@ -8,10 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.config import load_config
 from rehab_hil.devices.spawn import spawn_sim_device
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.controllers import Actuator, PIDPosition, constant_reference
 from rehab_hil.service.runner import LoopService

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import zenoh
 
-from rehab_hil.config import load_config
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import Recorder, read_mcap

@@ -41,24 +41,29 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from rehab_hil.cli import UserError
-    from rehab_hil.config import load_config
     from rehab_hil.discrepancy.replay import check_recording
-    from rehab_hil.discrepancy.workflow import run as run_workflow
+    from rehab_hil.discrepancy.report import write_report
+    from rehab_hil.discrepancy.workflow import find_missing_effects
     from rehab_hil.interchange import read_csv
-    from rehab_hil.plants import get_plant
+    from rehab_hil.plants import get_plant, load_config
 
     if not 1 <= args.max_effects <= 5:
         raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
     if not 0.1 <= args.holdout <= 0.9:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
     # check the inputs before the progress display starts, so a user error prints one line only
-    check_recording(get_plant(load_config(args.config).plant), read_csv(args.data), args.data)
+    cfg = load_config(args.config)
+    rec = read_csv(args.data)
+    check_recording(get_plant(cfg.plant), rec, args.data)
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())
     with Progress(*cols, console=console, transient=False) as bar:
-        res = run_workflow(args.config, args.data, args.out, RichProgress(bar),
-                           Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+        progress = RichProgress(bar)
+        res = find_missing_effects(cfg, rec, args.data, progress,
+                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+        progress.start("writing report", None)
+        write_report(res, Path(args.config), Path(args.data), Path(args.out))
     print(f"{res.plant}: " + (f"missing effect found: {', '.join(res.named)}" if res.named
                               else "no missing effect found") + f" ({res.wall_s:.1f} s)")
     for f in res.chosen:

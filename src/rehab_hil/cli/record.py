@@ -9,8 +9,7 @@ import time
 from pathlib import Path
 
 from rehab_hil.cli import UserError
-from rehab_hil.config import load_config
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
 from rehab_hil.telemetry.keys import RigIdError, validate_rig_id
 from rehab_hil.telemetry.session import TelemetryConfigError, open_session

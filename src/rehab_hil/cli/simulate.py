@@ -9,9 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from rehab_hil.cli import UserError
-from rehab_hil.config import load_config
 from rehab_hil.interchange import write_csv
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, load_config
 from rehab_hil.plants.base import run_scenario
 
 
@@ -62,18 +61,19 @@ def run(args: argparse.Namespace) -> int:
 
 def _with_effects(cfg: Any, options: list[str]) -> Any:
     """The config with the ``--effect`` options appended to its ``effects`` list."""
-    from rehab_hil.config import EffectSpec
-    from rehab_hil.discrepancy.effects import EFFECTS, parse_effect_option
+    from rehab_hil.effects import applicable, not_applicable_message, parse_effect_option
+    from rehab_hil.plants import get_plant
+    from rehab_hil.plants.base import EffectSpec
 
     added = []
+    ports = get_plant(cfg.plant).ports(cfg)
+    ok = {e.name for e in applicable(ports)}
     for text in options:
         try:
             name, params = parse_effect_option(text)
         except ValueError as e:
             raise UserError(str(e)) from None
-        if cfg.plant not in EFFECTS[name].attachments:
-            ok = sorted(n for n, e in EFFECTS.items() if cfg.plant in e.attachments)
-            raise UserError(f"--effect {text!r}: effect {name!r} does not apply to plant {cfg.plant!r}; "
-                            f"applicable: {ok}")
+        if name not in ok:
+            raise UserError(f"--effect {text!r}: {not_applicable_message(name, cfg.plant, ports)}")
         added.append(EffectSpec(name=name, params=params))
     return cfg.model_copy(update={"effects": [*cfg.effects, *added]})

@@ -35,14 +35,18 @@ class PlantIO:
         if len(binding.adc) > 2:
             raise ValueError(f"the device has 2 ADC inputs, the binding asks for {len(binding.adc)}")
         self.binding = binding
-        self.system = Diagram(binding.parts).compile(binding.step_s, binding.substeps)
+        inputs = (*binding.duty_inputs, *binding.constant_inputs)
+        self.system = Diagram(binding.parts, inputs=inputs).compile(binding.step_s, binding.substeps)
         names = self.system.input_names
         known = set(binding.duty_inputs) | set(binding.constant_inputs)
         missing = [n for n in names if n not in known]
         if missing:
             raise ValueError(f"plant inputs {missing} are neither duty inputs nor constant inputs")
         self._index = {n: i for i, n in enumerate(names)}
-        self.stepper = self.system.stepper([binding.encoder_signal, *(a.signal for a in binding.adc)])
+        # a plant without an encoder port reads count 0 (the protocol always carries one)
+        self._enc = 1 if binding.encoder_source else 0
+        enc = [binding.encoder_source] if binding.encoder_source else []
+        self.stepper = self.system.stepper([*enc, *(a.source for a in binding.adc)])
         self._u = np.zeros(len(names))
         for name, value in binding.constant_inputs.items():
             self.set_input(name, value)
@@ -71,10 +75,10 @@ class PlantIO:
         return self._counts(y)
 
     def _counts(self, y: np.ndarray) -> tuple[int, int, int]:
-        enc = math.floor(y[0] * self._counts_per_rad)
+        enc = math.floor(y[0] * self._counts_per_rad) if self._enc else 0
         adc = [0, 0]
         for k, ch in enumerate(self.binding.adc):
-            v = ch.offset_counts + ch.counts_per_unit * y[1 + k]
+            v = ch.offset_counts + ch.counts_per_unit * y[self._enc + k]
             if self.noise:
                 v += self._rng.normal(0.0, self.noise)
             adc[k] = int(min(max(round(v), 0), ADC_MAX)) if math.isfinite(v) else ADC_MAX

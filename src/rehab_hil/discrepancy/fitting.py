@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from rehab_hil.discrepancy.effects import Effect, EffectParam
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.selection import effective_fraction
+from rehab_hil.effects import Effect, EffectParam
 
 __all__ = ["Fit", "fit_effect"]
 
@@ -60,7 +60,7 @@ def fit_effect(replay: Replay, base: np.ndarray, effect: Effect, n_train: int,
 
     r0 = replay.residual(replay.simulate(base, n_train), slice(0, n_train)).ravel()
     count[0] += 1
-    params = effect.params_for(replay.spec.name)
+    params = effect.params_for(replay.ports)
     start = _regression_start(effect, params, residual, r0)
     names = [p.name for p in params]
     typ = np.array([p.typical for p in params])

@@ -3,7 +3,8 @@
 Regions are defined on the measured primary channel (the plant's first output: an angle or a
 temperature) and its smoothed rate: reversals of motion, fast motion, rest, high displacement
 (or high temperature), rising vs falling (heating vs cooling for a temperature), and high force
-when a force channel is present. Signatures per channel: lag (cross-correlation of the rates),
+when a force channel is present
+(channel kinds come from the plant's measured ports). Signatures per channel: lag (cross-correlation of the rates),
 offset (mean residual), gain error (slope of measured on model minus one), dead zone (residual
 at reversals relative to elsewhere, the mark of backlash and stiction).
 """
@@ -45,12 +46,13 @@ def time_windows(t: np.ndarray, r: np.ndarray, n: int = N_WINDOWS) -> list[dict[
     return out
 
 
-def _masks(t: np.ndarray, measured: Mapping[str, np.ndarray], primary: str) -> dict[str, np.ndarray]:
+def _masks(t: np.ndarray, measured: Mapping[str, np.ndarray], primary: str,
+           kinds: Mapping[str, str]) -> dict[str, np.ndarray]:
     y = measured[primary]
     v = _rate(t, y)
     vmax = float(np.max(np.abs(v))) or 1.0
     moving = np.abs(v) > 0.05 * vmax
-    thermal = primary.endswith("_c")
+    thermal = kinds.get(primary) == "temperature"
     masks: dict[str, np.ndarray] = {}
     sign = np.sign(v) * moving
     nz = np.nonzero(sign)[0]
@@ -66,20 +68,21 @@ def _masks(t: np.ndarray, measured: Mapping[str, np.ndarray], primary: str) -> d
     masks["rest"] = ~moving
     masks["high_displacement" if not thermal else "high_temperature"] = y > np.quantile(y, 0.75)
     for name, sig in measured.items():
-        if name.endswith("_n"):
+        if kinds.get(name) == "force":
             masks[f"high_force ({name})"] = np.abs(sig) > np.quantile(np.abs(sig), 0.75)
     return masks
 
 
 def regions(t: np.ndarray, measured: Mapping[str, np.ndarray], residual: np.ndarray,
-            channels: Sequence[str]) -> list[dict[str, object]]:
+            channels: Sequence[str], kinds: Mapping[str, str]) -> list[dict[str, object]]:
     """RMS of the scaled residual (channels x samples) in each state region, overall and per channel.
 
-    ``ratio`` > 1 means the residual concentrates there."""
+    ``kinds`` says what each channel measures (the plant's measured ports: angle, force,
+    temperature ...). ``ratio`` > 1 means the residual concentrates there."""
     combined = np.sqrt(np.mean(residual**2, axis=0))
     total = _rms(combined)
     out = []
-    for name, m in _masks(t, measured, channels[0]).items():
+    for name, m in _masks(t, measured, channels[0], kinds).items():
         share = float(np.mean(m))
         rms = _rms(combined[m])
         out.append({
@@ -91,10 +94,10 @@ def regions(t: np.ndarray, measured: Mapping[str, np.ndarray], residual: np.ndar
 
 
 def signatures(t: np.ndarray, measured: Mapping[str, np.ndarray], model: Mapping[str, np.ndarray],
-               channels: Sequence[str]) -> dict[str, dict[str, float]]:
+               channels: Sequence[str], kinds: Mapping[str, str]) -> dict[str, dict[str, float]]:
     """Per channel: lag [s] (measured behind model > 0), offset and gain error, dead-zone ratio."""
     dt = float(np.median(np.diff(t)))
-    masks = _masks(t, measured, channels[0])
+    masks = _masks(t, measured, channels[0], kinds)
     rev = masks.get("reversal", masks.get("heating_cooling_switch"))
     out = {}
     for c in channels:

@@ -15,28 +15,27 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.discrepancy.effects import Effect, applicable, attach
+from rehab_hil.effects import Effect, applicable, attach
 from rehab_hil.interchange import CsvError, Recording
+from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import CompiledSystem, Diagram
-from rehab_hil.plants.base import PLANTS, PlantSpec
+from rehab_hil.plants.base import Plant, compose, plants
 
-__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "OPTIONAL_INPUTS", "Replay", "check_recording"]
+__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "Replay", "check_recording"]
 
 CANDIDATE_PREFIX = "candidate"
 MIN_DURATION_S = 2.0  # shorter records cannot be split into a fit part and a held-out part
 MIN_SAMPLES = 100
-# inputs a recording may lack (taken as zero): the TCP finger's force input is used only in FIS runs
-OPTIONAL_INPUTS = {"tcp_finger": ("measured_force_n",)}
 
 
-def check_recording(spec: PlantSpec, rec: Recording, path: str | Path) -> list[str]:
+def check_recording(spec: type[Plant], rec: Recording, path: str | Path) -> list[str]:
     """Check a recording can be replayed on ``spec``; returns the output channels present.
 
     Errors name the file: missing input columns (and which plant the file looks like), no output
     column, too short, inputs that never change."""
-    missing = [n for n in spec.inputs if n not in rec.signals and n not in OPTIONAL_INPUTS.get(spec.name, ())]
+    missing = [n for n in spec.inputs if n not in rec.signals and n not in spec.optional_inputs]
     if missing:
-        looks = [p.name for p in PLANTS.values() if p.name != spec.name and all(i in rec.signals for i in p.inputs)]
+        looks = [p.name for p in plants().values() if p.name != spec.name and all(i in rec.signals for i in p.inputs)]
         hint = f"; the columns look like a {looks[0]!r} recording, the config is {spec.name!r}" if looks else ""
         raise CsvError(path, 1, f"missing input columns {missing} of plant {spec.name!r} "
                                 f"(have {sorted(rec.signals)}){hint}")
@@ -58,8 +57,9 @@ def check_recording(spec: PlantSpec, rec: Recording, path: str | Path) -> list[s
 class Replay:
     """Measured data bound to the plant's augmented compiled system."""
 
-    spec: PlantSpec
+    spec: type[Plant]
     cfg: Any
+    ports: Ports
     system: CompiledSystem
     candidates: list[Effect]
     t: np.ndarray  # measured time stamps, from 0
@@ -71,13 +71,14 @@ class Replay:
     _w: np.ndarray
 
     @classmethod
-    def build(cls, spec: PlantSpec, cfg: Any, rec: Recording, path: str | Path = "<data>") -> Replay:
+    def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>") -> Replay:
         channels = check_recording(spec, rec, path)
         step_s, substeps = spec.step(cfg)
-        candidates = applicable(spec.name)
-        parts = attach(spec.name, cfg, spec.build(cfg), [(e.name, e.disabled()) for e in candidates],
+        ports = spec.ports(cfg)
+        candidates = applicable(ports)
+        parts = attach(spec.name, ports, step_s, compose(spec, cfg), [(e.name, e.disabled()) for e in candidates],
                        prefix=CANDIDATE_PREFIX)
-        system = Diagram(parts).compile(step_s, substeps)
+        system = Diagram(parts, inputs=spec.external_inputs(cfg)).compile(step_s, substeps)
         t = rec.t - rec.t[0]
         n = int(np.floor(t[-1] / step_s + 1e-9)) + 2
         grid = np.arange(n) * step_s
@@ -87,7 +88,7 @@ class Replay:
         idx = np.minimum(np.floor(pos).astype(np.int64), n - 2)
         measured = {c: np.asarray(rec.signals[c], float) for c in channels}
         scale = np.array([max(float(np.std(measured[c])), 1e-9) for c in channels])
-        return cls(spec, cfg, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx)
+        return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx)
 
     @property
     def n_steps(self) -> int:

@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.config import load_config
 from rehab_hil.discrepancy import localise
-from rehab_hil.discrepancy.effects import EFFECTS
-from rehab_hil.discrepancy.workflow import Result
+from rehab_hil.discrepancy.result import Result
+from rehab_hil.effects import EFFECTS
+from rehab_hil.plants import load_config
 
 __all__ = ["SCHEMA", "augmented_toml", "report_dict", "write_report"]
 
@@ -82,9 +82,9 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         "rounds": rounds,
         "localisation": {
             "time_windows": localise.time_windows(res.t, combined0),
-            "regions": localise.regions(res.t, res.measured, r0, res.channels),
-            "regions_after": localise.regions(res.t, res.measured, r1, res.channels),
-            "signatures": localise.signatures(res.t, res.measured, res.nominal, res.channels),
+            "regions": localise.regions(res.t, res.measured, r0, res.channels, res.kinds),
+            "regions_after": localise.regions(res.t, res.measured, r1, res.channels, res.kinds),
+            "signatures": localise.signatures(res.t, res.measured, res.nominal, res.channels, res.kinds),
         },
         "wall_s": res.wall_s,
         "figures": figures,
@@ -138,8 +138,8 @@ def _figures(res: Result, out: Path) -> list[str]:
     names.append("residual.png")
 
     r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
-    reg0 = localise.regions(res.t, res.measured, r0, res.channels)
-    reg1 = localise.regions(res.t, res.measured, r1, res.channels)
+    reg0 = localise.regions(res.t, res.measured, r0, res.channels, res.kinds)
+    reg1 = localise.regions(res.t, res.measured, r1, res.channels, res.kinds)
     fig, ax = plt.subplots(figsize=(9, 3.5))
     x = np.arange(len(reg0))
     ax.bar(x - 0.2, [g["rms"] for g in reg0], 0.4, label="before")

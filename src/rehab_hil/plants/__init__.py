@@ -1,13 +1,18 @@
-"""Plant definitions: config schema, diagram builder and scenarios for each seed system.
+"""Plant definitions: one module per plant, each declaring one ``Plant`` (schema, parts, ports,
+scenarios). ``plants()`` finds them by scanning this package: no import list to keep."""
 
-Importing this package registers every plant's config schema with ``rehab_hil.config``.
-"""
-
-from rehab_hil.plants import (
-    finger_extensor,  # noqa: F401  (registers)
-    sma_exoskeleton,  # noqa: F401  (registers)
-    tcp_finger,  # noqa: F401  (registers)
+from rehab_hil.plants.base import (
+    DeviceBinding,
+    Plant,
+    PlantConfig,
+    Scenario,
+    compose,
+    get_plant,
+    load_config,
+    plant_names,
+    plants,
+    run_scenario,
 )
-from rehab_hil.plants.base import PLANTS, PlantSpec, Scenario, get_plant
 
-__all__ = ["PLANTS", "PlantSpec", "Scenario", "get_plant"]
+__all__ = ["DeviceBinding", "Plant", "PlantConfig", "Scenario", "compose", "get_plant", "load_config",
+           "plant_names", "plants", "run_scenario"]

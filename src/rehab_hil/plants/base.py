@@ -1,24 +1,50 @@
-"""What every plant provides: canonical signal names, a diagram builder and scenarios."""
+"""The plant contract: one ``Plant`` declaration per plant, registered once when its class is made.
+
+A plant declares its config schema (on the shared ``PlantConfig``: plant, simulation, rig,
+effects), its parts, its scenarios, its CSV signals and its typed ports (``models/ports.py``).
+Everything else is derived here: the integration step, the ``[[effects]]`` a config adds
+(``compose``, the same for simulation and for the simulated rig), and the rig binding (PWM duty
+in, encoder and ADC counts out). ``rehab_hil.plants`` finds plant modules by scanning its own
+package, so a fourth plant is one module, its parts and one config.
+"""
 
 from __future__ import annotations
 
+import difflib
+import importlib
+import pkgutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
+from rehab_hil.config import ConfigError, Field, RigSection, Section, SimulationSection, load_toml, model_validator
+from rehab_hil.config import validate as validate_config
+from rehab_hil.effects import applicable, attach, check_spec, not_applicable_message
+from rehab_hil.hardware.contract import CommandInterface, StateInterface
+from rehab_hil.models.ports import MeasuredPort, Ports
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 
 __all__ = [
-    "PLANTS",
     "AdcChannel",
     "DeviceBinding",
     "DutyInput",
-    "PlantSpec",
+    "EffectSpec",
+    "EncoderSection",
+    "Excitation",
+    "ForceSensorSection",
+    "Plant",
+    "PlantConfig",
     "Scenario",
+    "compose",
     "get_plant",
-    "register",
+    "load_config",
+    "multisine",
+    "plant_names",
+    "plants",
+    "random_levels",
     "run_scenario",
 ]
 
@@ -37,6 +63,79 @@ class Scenario:
 
 
 @dataclass(frozen=True)
+class Excitation:
+    """How to excite a plant for identification (synthetic records, the discrepancy benchmark):
+    input arrays for time stamps, one nominal parameter to mistune, and sensor noise per channel."""
+
+    inputs: Callable[[np.ndarray, np.random.Generator], dict[str, np.ndarray]]
+    mismatch: tuple[str, float]  # qualified parameter, factor
+    noise: Mapping[str, float]  # channel -> standard deviation (its unit)
+
+
+def multisine(t: np.ndarray, rng: np.random.Generator, amplitude: float, freqs_hz: tuple[float, ...],
+               rest_share: float) -> np.ndarray:
+    """Sum of sines with random phases, switched off during random rests (stick, cool down)."""
+    u = sum(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)) for f in freqs_hz)
+    u = amplitude * np.asarray(u) / len(freqs_hz) * 1.6
+    gate = np.sin(2 * np.pi * 0.11 * t + rng.uniform(0, 2 * np.pi)) > (2 * rest_share - 1)
+    return u * gate if rest_share > 0 else u
+
+
+def random_levels(t: np.ndarray, rng: np.random.Generator, levels: tuple[float, ...], hold_s: tuple[float, float],
+            off_share: float) -> np.ndarray:
+    """Piecewise-constant random levels (heating pulses and cooling rests of random length)."""
+    out = np.zeros_like(t)
+    start = 0.0
+    while start < t[-1]:
+        hold = rng.uniform(*hold_s)
+        level = 0.0 if rng.random() < off_share else float(rng.choice(levels))
+        out[(t >= start) & (t < start + hold)] = level
+        start += hold
+    return out
+
+
+# --- configuration --------------------------------------------------------------------------
+
+
+class EffectSpec(Section):
+    """One added model effect (``[[effects]]`` tables): a library name and its parameters.
+
+    Written by ``rehab-hil discrepancy`` into ``augmented.toml``; names and bounds are those of
+    ``rehab_hil.effects`` (docs/discrepancy.md)."""
+
+    name: str = Field(min_length=1, description="effect name in the library, e.g. coulomb_friction")
+    params: dict[str, float] = Field(default_factory=dict, description="parameter values, SI units in the keys")
+
+    @model_validator(mode="after")
+    def _known(self) -> EffectSpec:
+        check_spec(self.name, self.params)
+        return self
+
+
+class PlantConfig(Section):
+    """What every plant file has: its plant name, the integration step, the rig and added effects."""
+
+    plant: str
+    simulation: SimulationSection
+    rig: RigSection
+    effects: list[EffectSpec] = Field(default_factory=list, description="added model effects")
+
+
+class EncoderSection(Section):
+    counts_per_rev: int = Field(ge=4, le=10_000_000, description="encoder edges per revolution of its axis")
+
+
+class ForceSensorSection(Section):
+    """A Flexiforce (or load cell) on an ADC input: counts = offset_counts + counts_per_n * force."""
+
+    counts_per_n: float = Field(gt=0.0, le=10000.0, description="ADC counts per newton")
+    offset_counts: float = Field(ge=0.0, le=1023.0, description="ADC counts at zero force")
+
+
+# --- rig binding ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
 class DutyInput:
     """A plant input driven by a PWM channel: value = scale * duty (0..1), negated when the
     channel's direction pin is set and ``signed`` (an H-bridge); e.g. motor_voltage_v = 24 * duty."""
@@ -48,11 +147,21 @@ class DutyInput:
 
 @dataclass(frozen=True)
 class AdcChannel:
-    """An analog input the firmware samples: counts = offset + per_unit * signal, clipped to 0..1023."""
+    """An analog input the firmware samples: counts = offset + per_unit * signal, clipped to 0..1023.
+
+    ``signal`` names the channel (the model signal, also the recorded column); ``source`` is the
+    plant signal the simulated device reads (differs when a sensor effect sits on the wire)."""
 
     signal: str
     counts_per_unit: float
     offset_counts: float = 0.0
+    kind: str = "force"
+    unit: str = "n"
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.source:
+            object.__setattr__(self, "source", self.signal)
 
 
 @dataclass
@@ -60,72 +169,191 @@ class DeviceBinding:
     """How a plant sits behind the rig's I/O: PWM duty in, encoder counts and ADC counts out.
 
     Used by the simulated devices (Python on a pty, and the firmware in simavr) to close the
-    loop with a plant model, and by the host to calibrate counts back into SI units."""
+    loop with a plant model, and by the host to calibrate counts back into SI units. Derived
+    from the plant's ports (``Plant.device``)."""
 
     parts: list[Part]
     duty_inputs: dict[str, DutyInput]
     constant_inputs: dict[str, float]
-    encoder_signal: str  # plant signal in rad
+    encoder_signal: str | None  # plant signal in rad (the recorded column); None: no encoder
     encoder_counts_per_rev: int
     adc: tuple[AdcChannel, ...]
     step_s: float
     substeps: int
+    encoder_source: str = ""  # what the simulated encoder reads (differs under a sensor effect)
+    plant: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.encoder_source and self.encoder_signal:
+            self.encoder_source = self.encoder_signal
+
+    @property
+    def state_interfaces(self) -> tuple[StateInterface, ...]:
+        """What the device measures: the encoder first (if any), then the ADC channels."""
+        enc = (StateInterface(self.encoder_signal, "angle", "rad", "encoder"),) if self.encoder_signal else ()
+        return (*enc, *(StateInterface(ch.signal, ch.kind, ch.unit, f"adc{i}")  # type: ignore[arg-type]
+                        for i, ch in enumerate(self.adc)))
+
+    @property
+    def command_interfaces(self) -> tuple[CommandInterface, ...]:
+        """What the host commands: each duty-driven plant input."""
+        return tuple(CommandInterface(name, name.rsplit("_", 1)[-1], d.channel, d.scale, d.signed)
+                     for name, d in self.duty_inputs.items())
+
+    def state(self, kind: str) -> StateInterface | None:
+        """The first state interface of a kind (``angle``, ``force``, ``torque``, ``temperature``)."""
+        return next((s for s in self.state_interfaces if s.kind == kind), None)
+
+    @property
+    def angle_column(self) -> str | None:
+        """The recorded angle column in degrees (the model's encoder-angle output)."""
+        return self.encoder_signal.removesuffix("_rad") + "_deg" if self.encoder_signal else None
 
 
-@dataclass
-class PlantSpec:
-    """A plant: CSV signal names (inputs, outputs), its parts, its scenarios."""
+# --- the plant declaration and its registry -------------------------------------------------
 
-    name: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    build: Callable[[Any], list[Part]]
-    scenarios: dict[str, Callable[..., Scenario]]
-    step: Callable[[Any], tuple[float, int]]  # config -> (step_s, substeps)
-    device: Callable[[Any], DeviceBinding] | None = None  # config -> rig I/O binding
+_REGISTRY: dict[str, type[Plant]] = {}
 
 
-PLANTS: dict[str, PlantSpec] = {}
+class Plant:
+    """One plant: its schema, parts, ports, signals and scenarios. Subclasses that set ``name``
+    register themselves; ``compose``, ``step`` and ``device`` come from here."""
+
+    name: ClassVar[str]
+    config: ClassVar[type[PlantConfig]]
+    inputs: ClassVar[tuple[str, ...]]  # CSV input signals (SI units in the names)
+    outputs: ClassVar[tuple[str, ...]]  # CSV output signals
+    optional_inputs: ClassVar[tuple[str, ...]] = ()  # a recording may lack these (taken as zero)
+    scenarios: ClassVar[Mapping[str, Callable[..., Scenario]]] = {}
+    excitation: ClassVar[Excitation | None] = None
+
+    def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if register and "name" in cls.__dict__:
+            _REGISTRY[cls.name] = cls
+
+    @staticmethod
+    def build(cfg: Any) -> list[Part]:
+        """The nominal plant as parts (a fresh list each call: ``compose`` rewires it)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def ports(cfg: Any) -> Ports:
+        """The plant's typed ports under ``cfg``."""
+        raise NotImplementedError
+
+    @classmethod
+    def step(cls, cfg: Any) -> tuple[float, int]:
+        """(sample step [s], RK4 substeps) from ``[simulation]``."""
+        return cfg.simulation.step_s, cfg.simulation.substeps
+
+    @classmethod
+    def n_steps(cls, cfg: Any, duration_s: float) -> int:
+        return max(1, round(duration_s / cls.step(cfg)[0]))
+
+    @classmethod
+    def external_inputs(cls, cfg: Any) -> tuple[str, ...]:
+        """Signals the plant's diagram may take from outside: its inputs and config constants."""
+        return tuple(dict.fromkeys([*cls.inputs, *cls.ports(cfg).constants]))
+
+    @classmethod
+    def pid_gains(cls, cfg: Any) -> tuple[float, float, float, float] | None:
+        """The rig's position PID on the encoder angle in degrees: (kp, ki, kd, derivative filter
+        [s]) in actuator units per degree; None when the plant has none."""
+        return None
+
+    @classmethod
+    def applicable_effects(cls, cfg: Any) -> list[str]:
+        return [e.name for e in applicable(cls.ports(cfg))]
+
+    @classmethod
+    def device(cls, cfg: Any) -> DeviceBinding:
+        """The rig's view, from the ports: actuators on PWM channels, the encoder port, ADC ports."""
+        ports = cls.ports(cfg)
+        parts = compose(cls, cfg)
+        feeds = {(p.name, port): terms for p in parts for port, terms in p.connections.items()}
+
+        def source(m: MeasuredPort) -> str:
+            assert m.wire is not None
+            if not m.wire.consumers:
+                return m.wire.signal
+            return feeds[m.wire.consumers[0]][0][0]
+
+        enc = next((m for m in ports.measured if m.sensor == "encoder" and m.wire is not None), None)
+        adc = tuple(AdcChannel(m.wire.signal, m.counts_per_unit, m.offset_counts, m.kind, m.unit, source(m))
+                    for m in ports.measured if m.sensor == "adc" and m.wire is not None)
+        step_s, substeps = cls.step(cfg)
+        return DeviceBinding(
+            parts=parts,
+            duty_inputs={a.signal: DutyInput(a.duty_channel, a.duty_scale, a.signed) for a in ports.actuators},
+            constant_inputs=dict(ports.constants),
+            encoder_signal=enc.wire.signal if enc and enc.wire else None,
+            encoder_counts_per_rev=int(enc.counts_per_unit) if enc else 0,
+            adc=adc, step_s=step_s, substeps=substeps,
+            encoder_source=source(enc) if enc else "", plant=cls.name,
+        )
 
 
-def register(spec: PlantSpec) -> PlantSpec:
-    """Register a plant; its ``build`` and its rig ``device`` binding both append the config's
-    ``effects`` (docs/discrepancy.md), so a fitted model drives the simulated rig too."""
-    build, device = spec.build, spec.device
-
-    def with_effects(cfg: Any, parts: list[Part]) -> list[Part]:
-        effects = getattr(cfg, "effects", None)
-        if not effects:
-            return parts
-        from rehab_hil.discrepancy.effects import attach
-
-        return attach(spec.name, cfg, parts, [(e.name, e.params) for e in effects])
-
-    def build_with_effects(cfg: Any) -> list[Part]:
-        return with_effects(cfg, build(cfg))
-
-    spec.build = build_with_effects
-    if device is not None:
-        def device_with_effects(cfg: Any) -> DeviceBinding:
-            binding = device(cfg)
-            binding.parts = with_effects(cfg, binding.parts)
-            return binding
-
-        spec.device = device_with_effects
-    PLANTS[spec.name] = spec
-    return spec
+def compose(plant: type[Plant], cfg: Any) -> list[Part]:
+    """The plant's parts plus the config's ``[[effects]]``: the one place effects are added, for
+    simulation, replay and the simulated rig alike."""
+    parts = plant.build(cfg)
+    effects = [(e.name, e.params) for e in getattr(cfg, "effects", ())]
+    if not effects:
+        return parts
+    return attach(plant.name, plant.ports(cfg), plant.step(cfg)[0], parts, effects)
 
 
-def get_plant(name: str) -> PlantSpec:
-    if name not in PLANTS:
-        raise KeyError(f"unknown plant {name!r}; known: {sorted(PLANTS)}")
-    return PLANTS[name]
+def plants() -> dict[str, type[Plant]]:
+    """Every registered plant; the first call imports each module of ``rehab_hil.plants``."""
+    if not getattr(plants, "_scanned", False):
+        pkg = importlib.import_module("rehab_hil.plants")
+        for mod in pkgutil.iter_modules(pkg.__path__):
+            if not mod.name.startswith("_") and mod.name != "base":
+                importlib.import_module(f"rehab_hil.plants.{mod.name}")
+        plants._scanned = True  # type: ignore[attr-defined]
+    return _REGISTRY
 
 
-def run_scenario(spec: PlantSpec, cfg: Any, scenario: Scenario,
+def plant_names() -> list[str]:
+    return sorted(plants())
+
+
+def get_plant(name: str) -> type[Plant]:
+    known = plants()
+    if name not in known:
+        near = difflib.get_close_matches(name, known, n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        raise KeyError(f"unknown plant {name!r}{hint}; known: {sorted(known)}")
+    return known[name]
+
+
+def load_config(path: str | Path, expect: str | None = None) -> Any:
+    """Load a plant config; its top-level ``plant`` key selects the schema. Errors name file and key."""
+    known = plants()
+    data = load_toml(path)
+    plant = data.get("plant")
+    if plant is None:
+        raise ConfigError(path, "plant", f"missing key (one of {sorted(known)})")
+    if not isinstance(plant, str) or plant not in known:
+        raise ConfigError(path, "plant", f"unknown plant {plant!r}; known plants: {sorted(known)}")
+    if expect is not None and plant != expect:
+        raise ConfigError(path, "plant", f"this command needs a {expect!r} config, the file is {plant!r}")
+    cls = known[plant]
+    cfg = validate_config(path, data, cls.config)
+    ports = cls.ports(cfg)
+    ok = {e.name for e in applicable(ports)}
+    for i, e in enumerate(cfg.effects):
+        if e.name not in ok:
+            raise ConfigError(path, f"effects.{i}.name", not_applicable_message(e.name, plant, ports))
+    return cfg
+
+
+def run_scenario(spec: type[Plant], cfg: Any, scenario: Scenario,
                  extra_parts: list[Part] | None = None) -> SimulationResult:
     """Compile plant + scenario (+ extra effect parts) and simulate; records CSV signals."""
-    diagram = Diagram([*spec.build(cfg), *(extra_parts or []), *scenario.parts])
+    diagram = Diagram([*compose(spec, cfg), *(extra_parts or []), *scenario.parts],
+                      inputs=(*spec.external_inputs(cfg), *scenario.inputs))
     step_s, substeps = spec.step(cfg)
     system = diagram.compile(step_s, substeps)
     record = [*spec.inputs, *spec.outputs, *scenario.extra_outputs]
@@ -136,3 +364,4 @@ def run_scenario(spec: PlantSpec, cfg: Any, scenario: Scenario,
         if name not in res.signals and name in system.input_names:
             res.signals[name] = system.input_matrix(scenario.n_steps, external)[:, system.input_names.index(name)]
     return res
+

@@ -24,24 +24,26 @@ not given there: configs/finger_extensor.toml documents the physically plausible
 
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rehab_hil import metrics
-from rehab_hil.config import Field, RigSection, Section, SimulationSection, register_plant
+from rehab_hil.config import Field, Section
 from rehab_hil.control.pid import PIDController
 from rehab_hil.control.trajectories import OpenCloseReference, StepReference
 from rehab_hil.models.dc_motor import DCMotorArmature
 from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSpring, ViscousFriction
+from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
+from rehab_hil.plants.base import EncoderSection, Excitation, Plant, PlantConfig, Scenario, multisine
 
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control
 
-__all__ = ["SPEC", "FingerExtensorConfig", "build", "iris_inertia_kg_m2", "linear_model"]
+__all__ = ["FingerExtensor", "FingerExtensorConfig", "build", "iris_inertia_kg_m2", "linear_model", "ports"]
 
 INPUTS = ("motor_voltage_v", "patient_torque_nm")
 OUTPUTS = ("iris_angle_deg", "motor_current_a")
@@ -66,10 +68,6 @@ class MotorSection(Section):
     inductance_h: float = Field(gt=0.0, le=10.0)
     rotor_inertia_kg_m2: float = Field(ge=0.0, le=1.0, description="J_m at the motor shaft")
     rotor_viscous_nm_s_per_rad: float = Field(ge=0.0, le=10.0, description="B_v at the motor shaft")
-
-
-class EncoderSection(Section):
-    counts_per_rev: int = Field(ge=4, le=10_000_000, description="edges per iris revolution (500 CPR x4)")
 
 
 class TorqueSensorSection(Section):
@@ -104,17 +102,13 @@ class ScenariosSection(Section):
     cycle: CycleScenarioSection
 
 
-@register_plant("finger_extensor")
-class FingerExtensorConfig(Section):
-    plant: str
-    simulation: SimulationSection
+class FingerExtensorConfig(PlantConfig):
     iris: IrisSection
     motor: MotorSection
     encoder: EncoderSection
     torque_sensor: TorqueSensorSection
     pid: PIDSection
     scenarios: ScenariosSection
-    rig: RigSection
 
 
 def iris_inertia_kg_m2(cfg: FingerExtensorConfig) -> float:
@@ -206,10 +200,6 @@ def _pid(cfg: FingerExtensorConfig) -> PIDController:
     )
 
 
-def _n_steps(cfg: FingerExtensorConfig, duration_s: float) -> int:
-    return max(1, round(duration_s / cfg.simulation.step_s))
-
-
 def step_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
                   target_deg: float | None = None, patient_torque_nm: float = 0.0) -> Scenario:
     """PID step (seed 002 Fig. 11: to 59.58 deg in ~0.3 s, 2.86 deg overshoot)."""
@@ -220,7 +210,7 @@ def step_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
         return metrics.step_metrics(res.t, res["iris_angle_deg"], sc.start_deg, target)
 
     return Scenario(
-        "step", _n_steps(cfg, duration_s or sc.duration_s),
+        "step", FingerExtensor.n_steps(cfg, duration_s or sc.duration_s),
         parts=[StepReference("reference", rename={"reference": "iris_angle_reference_deg"},
                              start=sc.start_deg, target=target, t_step_s=0.0), _pid(cfg)],
         inputs={"patient_torque_nm": patient_torque_nm},
@@ -237,7 +227,7 @@ def cycle_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
         return metrics.tracking_metrics(res["iris_angle_reference_deg"], res["iris_angle_deg"])
 
     return Scenario(
-        "cycle", _n_steps(cfg, duration_s or sc.duration_s),
+        "cycle", FingerExtensor.n_steps(cfg, duration_s or sc.duration_s),
         parts=[OpenCloseReference("reference", rename={"reference": "iris_angle_reference_deg"},
                                   closed=sc.closed_deg, opened=sc.open_deg, move_s=sc.move_s,
                                   hold_open_s=sc.hold_open_s, hold_closed_s=sc.hold_closed_s), _pid(cfg)],
@@ -258,26 +248,46 @@ def steady_speed_rad_s(cfg: FingerExtensorConfig, voltage_v: float) -> float:
     return m.kt_nm_per_a * voltage_v / (m.kt_nm_per_a * m.kv_v_s_per_rad + m.resistance_ohm * b)
 
 
-def device_binding(cfg: FingerExtensorConfig) -> DeviceBinding:
+def ports(cfg: FingerExtensorConfig) -> Ports:
     """The rig's view: PWM channel 0 + direction pin drive the H-bridge (V = +-supply * duty);
     the encoder reads the iris angle; A0 is the torque sensor (``torque_sensor`` table)."""
     ts = cfg.torque_sensor
-    return DeviceBinding(
-        parts=build(cfg),
-        duty_inputs={"motor_voltage_v": DutyInput(channel=0, scale=cfg.motor.supply_v, signed=True)},
-        constant_inputs={"patient_torque_nm": 0.0},
-        encoder_signal="iris_angle_rad",
-        encoder_counts_per_rev=cfg.encoder.counts_per_rev,
-        adc=(AdcChannel("drive_torque_nm", ts.counts_per_nm, ts.offset_counts),),
-        step_s=cfg.simulation.step_s,
-        substeps=cfg.simulation.substeps,
+    return Ports(
+        actuators=(ActuatorPort(Wire("motor_voltage_v", (("motor", "voltage_v"),)), "v",
+                                duty_channel=0, duty_scale=cfg.motor.supply_v, signed=True),),
+        axes=(AxisPort("iris", "iris_angle_rad", "iris_velocity_rad_s", "drive_torque_nm", ("iris", "torque_nm"),
+                       stick_velocity_rad_s=cfg.iris.stick_velocity_rad_s,
+                       stick_damping_nm_s_per_rad=cfg.iris.stick_damping_nm_s_per_rad),),
+        measured=(
+            MeasuredPort("iris_angle_deg", "angle", "deg", "encoder",
+                         Wire("iris_angle_rad", (("encoder", "angle_rad"),)),
+                         counts_per_unit=cfg.encoder.counts_per_rev),
+            MeasuredPort("drive_torque_nm", "torque", "nm", "adc", Wire("drive_torque_nm", ()),
+                         counts_per_unit=ts.counts_per_nm, offset_counts=ts.offset_counts),
+            MeasuredPort("motor_current_a", "current", "a"),
+        ),
+        constants={"patient_torque_nm": 0.0},
     )
 
 
-SPEC = register(PlantSpec(
-    name="finger_extensor", inputs=INPUTS, outputs=OUTPUTS, build=build,
-    scenarios={"step": step_scenario, "cycle": cycle_scenario},
-    step=lambda cfg: (cfg.simulation.step_s, cfg.simulation.substeps),
-    device=device_binding,
-))
+class FingerExtensor(Plant):
+    """Seed 002's 1-DOF Finger Extensor."""
 
+    name = "finger_extensor"
+    config = FingerExtensorConfig
+    inputs = INPUTS
+    outputs = OUTPUTS
+    build = staticmethod(build)
+    ports = staticmethod(ports)
+    scenarios = MappingProxyType({"step": step_scenario, "cycle": cycle_scenario})
+
+    @classmethod
+    def pid_gains(cls, cfg: FingerExtensorConfig) -> tuple[float, float, float, float]:
+        g = cfg.pid
+        return g.kp_v_per_deg, g.ki_v_per_deg_s, g.kd_v_s_per_deg, g.derivative_filter_s
+    excitation = Excitation(
+        inputs=lambda t, rng: {"motor_voltage_v": multisine(t, rng, 2.5, (0.35, 0.8, 1.7), 0.2),
+                               "patient_torque_nm": np.zeros_like(t)},
+        mismatch=("iris.inertia_kg_m2", 1.05),
+        noise={"motor_current_a": 0.01},
+    )

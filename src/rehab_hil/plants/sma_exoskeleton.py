@@ -12,23 +12,33 @@ Signal flow (every effect its own part; docs/sma_exoskeleton.md):
 
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import Literal
 
 import numpy as np
 
-from rehab_hil.config import Field, RigSection, Section, SimulationSection, model_validator, register_plant
+from rehab_hil.config import Field, Section, model_validator
 from rehab_hil.models.contact import ContactForce, ContactPad
 from rehab_hil.models.finger_chain import COUPLING, CoupledFingerChain
 from rehab_hil.models.hill_muscle import HillPassiveMuscle
 from rehab_hil.models.mechanics import ViscousFriction
 from rehab_hil.models.passive_wire import PassiveWire, TendonExcursion
+from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, TemperatureWire, Wire
 from rehab_hil.models.sensors import Gain
 from rehab_hil.models.sma_tanaka import SMATanakaWire
 from rehab_hil.models.sma_thermal import SMAThermal
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
+from rehab_hil.plants.base import (
+    EncoderSection,
+    Excitation,
+    ForceSensorSection,
+    Plant,
+    PlantConfig,
+    Scenario,
+    random_levels,
+)
 
-__all__ = ["SPEC", "SMAExoskeletonConfig", "build", "device_binding", "duty_profile", "tendon_lever_m"]
+__all__ = ["SMAExoskeleton", "SMAExoskeletonConfig", "build", "duty_profile", "ports", "tendon_lever_m"]
 
 INPUTS = ("pwm_duty", "supply_voltage_v")
 OUTPUTS = ("theta_mcp_deg", "theta_pip_deg", "theta_dip_deg", "contact_force_n", "sma_tension_n",
@@ -125,15 +135,6 @@ class ContactSection(Section):
     finger_radius_m: float = Field(gt=0.0, le=0.5)
 
 
-class EncoderSection(Section):
-    counts_per_rev: int = Field(ge=4, le=10_000_000)
-
-
-class ForceSensorSection(Section):
-    counts_per_n: float = Field(gt=0.0, le=10000.0)
-    offset_counts: float = Field(ge=0.0, le=1023.0)
-
-
 class SessionSection(Section):
     cycles_per_minute: float = Field(gt=0.0, le=60.0, description="seed 000 sec VI.A: 5 per minute")
     heating_s: float = Field(gt=0.0, le=600.0)
@@ -171,10 +172,7 @@ class ScenariosSection(Section):
     pwm_sweep: PwmSweepSection
 
 
-@register_plant("sma_exoskeleton")
-class SMAExoskeletonConfig(Section):
-    plant: str
-    simulation: SimulationSection
+class SMAExoskeletonConfig(PlantConfig):
     drive: DriveSection
     sma: SMASection
     passive_wire: PassiveWireSection
@@ -186,7 +184,6 @@ class SMAExoskeletonConfig(Section):
     force_sensor: ForceSensorSection
     session: SessionSection
     scenarios: ScenariosSection
-    rig: RigSection
 
 
 def tendon_lever_m(cfg: SMAExoskeletonConfig) -> float:
@@ -282,10 +279,6 @@ def build(cfg: SMAExoskeletonConfig) -> list[Part]:
     return parts
 
 
-def _n_steps(cfg: SMAExoskeletonConfig, duration_s: float) -> int:
-    return max(1, round(duration_s / cfg.simulation.step_s))
-
-
 def duty_profile(n_steps: int, step_s: float, segments: list[tuple[float, float, float]]) -> np.ndarray:
     """Per-step duty from (start_s, end_s, duty) segments; zero elsewhere."""
     t = np.arange(n_steps) * step_s
@@ -318,7 +311,7 @@ def bend_metrics(res: SimulationResult) -> dict[str, float]:
 def pwm_step_scenario(cfg: SMAExoskeletonConfig, duration_s: float | None = None) -> Scenario:
     """The 32 V bending experiment (Fig. 7-9): duty on for ``heating_s``, then natural cooling."""
     sc = cfg.scenarios.pwm_step
-    n = _n_steps(cfg, duration_s or sc.duration_s)
+    n = SMAExoskeleton.n_steps(cfg, duration_s or sc.duration_s)
     duty = duty_profile(n, cfg.simulation.step_s, [(sc.start_s, sc.start_s + sc.heating_s, sc.duty)])
     return Scenario("pwm-step", n, inputs={"pwm_duty": duty, "supply_voltage_v": cfg.drive.supply_voltage_v},
                     extra_outputs=_EXTRA, metrics=bend_metrics)
@@ -328,7 +321,7 @@ def pwm_sweep_scenario(cfg: SMAExoskeletonConfig, duration_s: float | None = Non
     """Fig. 10 as a staircase: each duty level held ``hold_s`` (heating branch only)."""
     sc = cfg.scenarios.pwm_sweep
     total = sc.hold_s * len(sc.duty_levels)
-    n = _n_steps(cfg, duration_s or total)
+    n = SMAExoskeleton.n_steps(cfg, duration_s or total)
     segs = [(i * sc.hold_s, (i + 1) * sc.hold_s, d) for i, d in enumerate(sc.duty_levels)]
     duty = duty_profile(n, cfg.simulation.step_s, segs)
 
@@ -347,7 +340,7 @@ def session_scenario(cfg: SMAExoskeletonConfig, duration_s: float | None = None)
     """Rehabilitation session: ``cycles_per_minute`` bends of ``heating_s`` at ``duty``, cooling between."""
     ss = cfg.session
     dur = duration_s or ss.duration_s
-    n = _n_steps(cfg, dur)
+    n = SMAExoskeleton.n_steps(cfg, dur)
     period = 60.0 / ss.cycles_per_minute
     segs = [(k * period, k * period + ss.heating_s, ss.duty) for k in range(int(np.ceil(dur / period)))]
     duty = duty_profile(n, cfg.simulation.step_s, segs)
@@ -362,25 +355,49 @@ def session_scenario(cfg: SMAExoskeletonConfig, duration_s: float | None = None)
                     extra_outputs=_EXTRA, metrics=score)
 
 
-def device_binding(cfg: SMAExoskeletonConfig) -> DeviceBinding:
+def ports(cfg: SMAExoskeletonConfig) -> Ports:
     """The rig's view: PWM channel 0 switches the supply across the wire (duty -> ``pwm_duty``),
-    the encoder reads the MCP angle, A0 is the Flexiforce (``force_sensor`` table)."""
+    the encoder reads the MCP angle, A0 is the Flexiforce (``force_sensor`` table); the MCP joint
+    is the axis joint effects attach to."""
     fs = cfg.force_sensor
-    return DeviceBinding(
-        parts=build(cfg),
-        duty_inputs={"pwm_duty": DutyInput(channel=0, scale=1.0)},
-        constant_inputs={"supply_voltage_v": cfg.drive.supply_voltage_v},
-        encoder_signal="theta_mcp_rad",
-        encoder_counts_per_rev=cfg.encoder.counts_per_rev,
-        adc=(AdcChannel("contact_force_n", fs.counts_per_n, fs.offset_counts),),
-        step_s=cfg.simulation.step_s,
-        substeps=cfg.simulation.substeps,
+    damping = cfg.finger.joint_damping_nm_s_per_rad
+    return Ports(
+        actuators=(ActuatorPort(Wire("pwm_duty", (("sma_thermal", "duty"),)), "duty"),),
+        axes=(AxisPort("mcp", "theta_mcp_rad", "omega_mcp_rad_s", "tau_mcp_nm", ("finger", "tau1_nm"), finger=True,
+                       stick_damping_nm_s_per_rad=damping,
+                       typical={"coulomb_friction.level_nm": 0.005, "viscous_friction.damping_nm_s_per_rad": 0.005,
+                                "contact_spring_damper.stiffness_nm_per_rad": 0.05,
+                                "contact_spring_damper.damping_nm_s_per_rad": 0.002,
+                                "passive_muscle.scale_nm": 0.002, "passive_muscle.damping_nm_s_per_rad": 0.002}),),
+        measured=(
+            MeasuredPort("theta_mcp_deg", "angle", "deg", "encoder", Wire("theta_mcp_rad", (("mcp_deg", "u"),)),
+                         counts_per_unit=cfg.encoder.counts_per_rev),
+            MeasuredPort("contact_force_n", "force", "n", "adc", Wire("contact_force_n", ()),
+                         counts_per_unit=fs.counts_per_n, offset_counts=fs.offset_counts),
+            MeasuredPort("theta_pip_deg", "angle", "deg"), MeasuredPort("theta_dip_deg", "angle", "deg"),
+            MeasuredPort("sma_tension_n", "force", "n"), MeasuredPort("sma_temperature_c", "temperature", "c"),
+        ),
+        transformation_temperature=(TemperatureWire(Wire("sma_temperature_c", (("sma_active", "temperature_c"),)),
+                                                    cfg.sma.ambient_c),),
+        constants={"supply_voltage_v": cfg.drive.supply_voltage_v},
     )
 
 
-SPEC = register(PlantSpec(
-    name="sma_exoskeleton", inputs=INPUTS, outputs=OUTPUTS, build=build,
-    scenarios={"pwm-step": pwm_step_scenario, "pwm-sweep": pwm_sweep_scenario, "session": session_scenario},
-    step=lambda cfg: (cfg.simulation.step_s, cfg.simulation.substeps),
-    device=device_binding,
-))
+class SMAExoskeleton(Plant):
+    """Seed 000's SMA-driven soft finger exoskeleton on an index finger."""
+
+    name = "sma_exoskeleton"
+    config = SMAExoskeletonConfig
+    inputs = INPUTS
+    outputs = OUTPUTS
+    build = staticmethod(build)
+    ports = staticmethod(ports)
+    scenarios = MappingProxyType({"pwm-step": pwm_step_scenario, "pwm-sweep": pwm_sweep_scenario,
+                                  "session": session_scenario})
+    excitation = Excitation(
+        inputs=lambda t, rng: {"pwm_duty": random_levels(t, rng, (0.4, 0.6, 0.8, 1.0), (1.5, 4.0), 0.4),
+                               "supply_voltage_v": np.full_like(t, 32.0)},
+        mismatch=("damping_dip.damping_nm_s_per_rad", 1.1),
+        noise={"theta_mcp_deg": 0.1, "theta_pip_deg": 0.1, "theta_dip_deg": 0.1, "contact_force_n": 0.02,
+               "sma_tension_n": 0.05, "sma_temperature_c": 0.3},
+    )

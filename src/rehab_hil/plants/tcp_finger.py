@@ -18,26 +18,36 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from rehab_hil.config import Field, RigSection, Section, SimulationSection, model_validator, register_plant
+from rehab_hil.config import Field, Section, model_validator
 from rehab_hil.models.finger_chain import CHAIN_PARAMS, FingerChain, chain_param_vector, mass_matrix
 from rehab_hil.models.lti import lti_part
 from rehab_hil.models.mechanics import TorsionSpring, ViscousFriction
+from rehab_hil.models.ports import ActuatorPort, AxisPort, HeatPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 from rehab_hil.models.tcp_tendon import TendonTorqueSplit
 from rehab_hil.models.tcp_thermal import LumpedThermal
-from rehab_hil.plants.base import AdcChannel, DeviceBinding, DutyInput, PlantSpec, Scenario, register
+from rehab_hil.plants.base import (
+    EncoderSection,
+    Excitation,
+    ForceSensorSection,
+    Plant,
+    PlantConfig,
+    Scenario,
+    random_levels,
+)
 
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control
 
 __all__ = [
     "JOINTS",
-    "SPEC",
+    "TcpFinger",
     "TcpFingerConfig",
     "build",
     "fastest_finger_pole",
@@ -133,19 +143,7 @@ class SensitivitySection(Section):
     factors: list[float] = Field(min_length=1, max_length=8)
 
 
-class EncoderSection(Section):
-    counts_per_rev: int = Field(ge=4, le=10_000_000)
-
-
-class ForceSensorSection(Section):
-    counts_per_n: float = Field(gt=0.0, le=10000.0)
-    offset_counts: float = Field(ge=0.0, le=1023.0)
-
-
-@register_plant("tcp_finger")
-class TcpFingerConfig(Section):
-    plant: str
-    simulation: SimulationSection
+class TcpFingerConfig(PlantConfig):
     muscle: MuscleSection
     table1: dict[str, TFEntry]
     finger: FingerSection
@@ -154,7 +152,6 @@ class TcpFingerConfig(Section):
     sensitivity: SensitivitySection
     encoder: EncoderSection
     force_sensor: ForceSensorSection
-    rig: RigSection
 
     @model_validator(mode="after")
     def _chosen_tfs_exist(self) -> TcpFingerConfig:
@@ -262,10 +259,6 @@ def static_angles_deg(cfg: TcpFingerConfig, force_n: float, moment_arm_m: float 
     return fractions * force_n * e / cfg.finger.spring_nm_per_deg
 
 
-def _n(cfg: TcpFingerConfig, seconds: float) -> int:
-    return max(1, round(seconds / cfg.simulation.step_s))
-
-
 def _square(cfg: TcpFingerConfig, n: int, level: float, on_s: float, period_s: float | None = None) -> np.ndarray:
     t = np.arange(n) * cfg.simulation.step_s
     phase = t if period_s is None else np.mod(t, period_s)
@@ -283,7 +276,7 @@ def _peaks(res: SimulationResult) -> dict[str, float]:
 def pulse_scenario(cfg: TcpFingerConfig, duration_s: float | None = None, power_w: float | None = None) -> Scenario:
     """PIS, pulsed actuation: power_w for on_s (1 s), then natural cooling (seed 001 sec 3.1, 5.1)."""
     sc = cfg.scenarios.pulse
-    n = _n(cfg, duration_s or sc.duration_s)
+    n = TcpFinger.n_steps(cfg, duration_s or sc.duration_s)
     p = sc.power_w if power_w is None else power_w
     return Scenario("pulse", n, inputs={"power_w": _square(cfg, n, p, sc.on_s), "measured_force_n": 0.0},
                     metrics=_peaks)
@@ -293,7 +286,7 @@ def regular_scenario(cfg: TcpFingerConfig, duration_s: float | None = None,
                      power_w: float | None = None) -> Scenario:
     """PIS, regular actuation: a square wave of power (on_s on, off_s off) over duration_s."""
     sc = cfg.scenarios.regular
-    n = _n(cfg, duration_s or sc.duration_s)
+    n = TcpFinger.n_steps(cfg, duration_s or sc.duration_s)
     p = sc.power_w if power_w is None else power_w
     return Scenario("regular", n, inputs={"power_w": _square(cfg, n, p, sc.on_s, sc.on_s + sc.off_s),
                                           "measured_force_n": 0.0}, metrics=_peaks)
@@ -302,7 +295,7 @@ def regular_scenario(cfg: TcpFingerConfig, duration_s: float | None = None,
 def fis_scenario(cfg: TcpFingerConfig, duration_s: float | None = None, force_n: float | None = None) -> Scenario:
     """FIS: a tendon force pulse (Table 2: 3 N) drives the finger; the muscle is unpowered."""
     sc = cfg.scenarios.fis
-    n = _n(cfg, duration_s or sc.duration_s)
+    n = TcpFinger.n_steps(cfg, duration_s or sc.duration_s)
     f = sc.force_n if force_n is None else force_n
     return Scenario("fis", n, inputs={"power_w": 0.0, "measured_force_n": _square(cfg, n, f, sc.on_s)},
                     extra_outputs=("measured_force_n",), metrics=_peaks)
@@ -367,25 +360,48 @@ def sensitivity_table(rows: Sequence[SensitivityRow]) -> str:
     return "\n".join(lines)
 
 
-def device_binding(cfg: TcpFingerConfig) -> DeviceBinding:
+def ports(cfg: TcpFingerConfig) -> Ports:
     """The rig's view: PWM channel 0 heats the muscle (power_w = max_power_w x duty); the encoder
-    reads the MCP joint; A0 reads the tendon force (``force_sensor`` table)."""
-    fs = cfg.force_sensor
-    return DeviceBinding(
-        parts=build(cfg),
-        duty_inputs={"power_w": DutyInput(channel=0, scale=cfg.muscle.max_power_w, signed=False)},
-        constant_inputs={"measured_force_n": 0.0},
-        encoder_signal="theta_mcp_rad",
-        encoder_counts_per_rev=cfg.encoder.counts_per_rev,
-        adc=(AdcChannel("tcp_force_n", fs.counts_per_n, fs.offset_counts),),
-        step_s=cfg.simulation.step_s,
-        substeps=cfg.simulation.substeps,
+    reads the MCP joint; A0 reads the tendon force (``force_sensor`` table). Heat and the actuator
+    enter whichever thermal model the config chose."""
+    fs, m = cfg.force_sensor, cfg.muscle
+    heat_in = ("tf1", "u") if m.model == "transfer_function" else ("thermal", "power_w")
+    return Ports(
+        actuators=(ActuatorPort(Wire("power_w", (heat_in,)), "w", duty_scale=m.max_power_w),),
+        axes=(AxisPort("mcp", "theta_mcp_rad", "omega_mcp_rad_s", "tau1_nm", ("finger", "tau1_nm"), finger=True,
+                       stick_damping_nm_s_per_rad=cfg.finger.damping_nm_s_per_rad,
+                       typical={"coulomb_friction.level_nm": 0.002, "viscous_friction.damping_nm_s_per_rad": 0.0005,
+                                "contact_spring_damper.stiffness_nm_per_rad": 0.01,
+                                "contact_spring_damper.damping_nm_s_per_rad": 0.0002,
+                                "passive_muscle.scale_nm": 0.001, "passive_muscle.damping_nm_s_per_rad": 0.0002}),),
+        measured=(
+            MeasuredPort("theta_mcp_deg", "angle", "deg", "encoder", Wire("theta_mcp_rad", (("deg_mcp", "u"),)),
+                         counts_per_unit=cfg.encoder.counts_per_rev),
+            MeasuredPort("tcp_force_n", "force", "n", "adc", Wire("tcp_force_n", ()),
+                         counts_per_unit=fs.counts_per_n, offset_counts=fs.offset_counts),
+            MeasuredPort("tcp_temperature_c", "temperature", "c"),
+            MeasuredPort("theta_pip_deg", "angle", "deg"), MeasuredPort("theta_dip_deg", "angle", "deg"),
+        ),
+        heat=(HeatPort("tcp_temperature_c", heat_in, m.ambient_c),),
+        constants={"measured_force_n": 0.0},
     )
 
 
-SPEC = register(PlantSpec(
-    name="tcp_finger", inputs=INPUTS, outputs=OUTPUTS, build=build,
-    scenarios={"pulse": pulse_scenario, "regular": regular_scenario, "fis": fis_scenario},
-    step=lambda cfg: (cfg.simulation.step_s, cfg.simulation.substeps),
-    device=device_binding,
-))
+class TcpFinger(Plant):
+    """Seed 001's robotic index finger driven by a TCP nylon muscle."""
+
+    name = "tcp_finger"
+    config = TcpFingerConfig
+    inputs = INPUTS
+    outputs = OUTPUTS
+    optional_inputs = ("measured_force_n",)  # used only in FIS runs
+    build = staticmethod(build)
+    ports = staticmethod(ports)
+    scenarios = MappingProxyType({"pulse": pulse_scenario, "regular": regular_scenario, "fis": fis_scenario})
+    excitation = Excitation(
+        inputs=lambda t, rng: {"power_w": random_levels(t, rng, (34.0, 40.0, 47.0), (1.0, 4.0), 0.5),
+                               "measured_force_n": np.zeros_like(t)},
+        mismatch=("damping_dip.damping_nm_s_per_rad", 1.1),
+        noise={"tcp_temperature_c": 0.2, "tcp_force_n": 0.01, "theta_mcp_deg": 0.1, "theta_pip_deg": 0.1,
+               "theta_dip_deg": 0.1},
+    )

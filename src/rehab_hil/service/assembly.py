@@ -9,7 +9,7 @@ import math
 from typing import Any
 
 from rehab_hil.hardware.interface import configure_from_config
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.plants.base import DeviceBinding, get_plant
 from rehab_hil.protocol import Configure
 from rehab_hil.service.controllers import (
     Actuator,
@@ -39,23 +39,16 @@ def period_s(cfg: Any) -> float:
 
 
 def force_channels(binding: DeviceBinding) -> tuple[str, ...]:
-    """ADC signals that are contact forces (unit suffix ``_n``): the force limit applies to them."""
-    return tuple(ch.signal for ch in binding.adc if ch.signal.endswith("_n"))
+    """ADC channels whose state interface is a force: the force limit applies to them."""
+    return tuple(ch.signal for ch in binding.adc if ch.kind == "force")
 
 
 def _pid_gains(cfg: Any) -> tuple[float, float, float, float]:
-    pid = getattr(cfg, "pid", None)
-    if pid is None:
-        raise ServiceSetupError("the config has no [pid] table (gains per degree of encoder angle)")
-    fields = type(pid).model_fields
-
-    def pick(prefix: str) -> float:
-        for name in fields:
-            if name.startswith(prefix):
-                return float(getattr(pid, name))
-        raise ServiceSetupError(f"[pid] has no {prefix}* gain")
-
-    return pick("kp_"), pick("ki_"), pick("kd_"), float(getattr(pid, "derivative_filter_s", 0.0))
+    gains = get_plant(cfg.plant).pid_gains(cfg)
+    if gains is None:
+        raise ServiceSetupError(f"plant {cfg.plant!r} declares no position PID (no [pid] table of gains per "
+                                "degree of encoder angle)")
+    return gains
 
 
 def build_controller(cfg: Any, binding: DeviceBinding, name: str) -> Controller:
@@ -112,7 +105,7 @@ def firmware_configure(cfg: Any, binding: DeviceBinding) -> Configure:
     """The firmware's copy of the limits: range of motion, heating time, max duty and, when A0 is a
     contact force, its limit in ADC counts (the firmware checks A0 only)."""
     limit_counts = 1023
-    if binding.adc and binding.adc[0].signal.endswith("_n"):
+    if binding.adc and binding.adc[0].kind == "force":
         ch = binding.adc[0]
         limit_counts = int(min(1023, math.floor(ch.offset_counts + ch.counts_per_unit * cfg.rig.limits.max_force_n)))
     return configure_from_config(cfg, binding.encoder_counts_per_rev, force_limit_counts=limit_counts)

@@ -2,15 +2,29 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from rehab_hil.discrepancy.effects import EFFECTS, applicable, attach, check_spec, parse_effect_option
-from rehab_hil.discrepancy.parts import DELAY_SLOTS, Backlash, ContactSpringDamper, TransportDelay
+from rehab_hil.effects import EFFECTS, applicable, attach, check_spec, parse_effect_option
+from rehab_hil.models.effect_parts import DELAY_SLOTS, Backlash, ContactSpringDamper, TransportDelay
 from rehab_hil.models.system import DiagramError
+from rehab_hil.plants import base, get_plant, load_config
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 REQUIRED = {"coulomb_friction", "viscous_friction", "backlash", "time_delay", "contact_spring_damper",
             "passive_muscle", "sma_hysteresis", "nonlinear_convection"}
+
+
+@pytest.fixture(scope="module")
+def fe():
+    return get_plant("finger_extensor"), load_config(CONFIGS / "finger_extensor.toml")
+
+
+def _applicable(plant: str) -> list:
+    return applicable(get_plant(plant).ports(load_config(CONFIGS / f"{plant}.toml")))
 
 
 def test_library_has_every_required_effect_with_bounded_unit_named_params():
@@ -25,7 +39,7 @@ def test_library_has_every_required_effect_with_bounded_unit_named_params():
 
 
 def test_finger_extensor_gets_the_mechanical_effects():
-    names = {e.name for e in applicable("finger_extensor")}
+    names = {e.name for e in _applicable("finger_extensor")}
     assert {"coulomb_friction", "viscous_friction", "backlash", "time_delay", "contact_spring_damper"} <= names
     assert "sma_hysteresis" not in names
 
@@ -52,8 +66,8 @@ def test_parse_effect_option_reads_name_and_params():
 
 def test_attach_inserts_a_delay_on_the_motor_input_and_sums_friction_into_the_iris(fe):
     spec, cfg = fe
-    parts = attach(spec.name, cfg, spec.build(cfg), [("time_delay", {"delay_s": 0.01}),
-                                                     ("coulomb_friction", {"level_nm": 0.02})])
+    parts = attach(spec.name, spec.ports(cfg), cfg.simulation.step_s, spec.build(cfg),
+                   [("time_delay", {"delay_s": 0.01}), ("coulomb_friction", {"level_nm": 0.02})])
     by = {p.name: p for p in parts}
     assert by["motor"].connections["voltage_v"] == [("effect_time_delay_y", 1.0)]
     assert by["effect_time_delay"].connections["u"] == [("motor_voltage_v", 1.0)]
@@ -63,7 +77,8 @@ def test_attach_inserts_a_delay_on_the_motor_input_and_sums_friction_into_the_ir
 def test_attach_refuses_an_effect_that_does_not_apply(fe):
     spec, cfg = fe
     with pytest.raises(DiagramError, match="does not apply to plant 'finger_extensor'"):
-        attach(spec.name, cfg, spec.build(cfg), [("sma_hysteresis", {"width_c": 5.0})])
+        attach(spec.name, spec.ports(cfg), cfg.simulation.step_s, spec.build(cfg),
+               [("sma_hysteresis", {"width_c": 5.0})])
 
 
 def _out(part_cls, u, p, xd=None):
@@ -90,3 +105,24 @@ def test_contact_pushes_back_past_the_contact_angle_and_never_pulls():
     assert _out(ContactSpringDamper, [0.3, 1.0], [2.0, 0.1, 0.5]) == 0.0
     assert _out(ContactSpringDamper, [0.7, 0.0], [2.0, 0.1, 0.5]) == pytest.approx(-0.4)
     assert _out(ContactSpringDamper, [0.6, -5.0], [2.0, 0.1, 0.5]) == 0.0  # leaving fast: no pull
+
+
+SHORT = {"finger_extensor": ("step", 0.6), "sma_exoskeleton": ("pwm-step", 1.5), "tcp_finger": ("pulse", 2.0)}
+
+
+@pytest.mark.parametrize("plant", sorted(SHORT))
+def test_every_applicable_effect_at_zero_magnitude_leaves_the_nominal_response_unchanged(plant):
+    from rehab_hil.plants import run_scenario
+
+    spec = get_plant(plant)
+    cfg = load_config(CONFIGS / f"{plant}.toml")
+    effects = applicable(spec.ports(cfg))
+    assert {"coulomb_friction", "viscous_friction", "backlash", "time_delay", "contact_spring_damper"} <= {
+        e.name for e in effects}  # the mechanical effects attach to every plant with an axis and an encoder
+    scenario, duration = SHORT[plant]
+    nominal = run_scenario(spec, cfg, spec.scenarios[scenario](cfg, duration))
+    off = [base.EffectSpec(name=e.name, params=e.disabled()) for e in effects]
+    res = run_scenario(spec, cfg.model_copy(update={"effects": off}), spec.scenarios[scenario](cfg, duration))
+    for name in spec.outputs:
+        if name in nominal.signals:
+            np.testing.assert_allclose(res[name], nominal[name], rtol=0, atol=1e-9, err_msg=name)

@@ -1,0 +1,312 @@
+"""The library of model effects: what each is, its bounded parameters, and the port kind it needs.
+
+An effect is a model part that attaches to a plant through a typed port (``models/ports.py``):
+friction and contact to a joint axis, a delay to the actuator input, backlash to the encoder's
+wire, hysteresis to the temperature an SMA's material law sees, convection to a heat input.
+Which effects apply to a plant is computed from its ports; no plant or part name appears here.
+``attach`` appends effect parts to a plant's parts: used for the ``[[effects]]`` of a config
+(``plants.compose``, every command and the simulated rig) and by the discrepancy workflow, which
+attaches every applicable effect disabled and enables them by editing the parameter vector.
+Parameter bounds live here with the effect (documented in docs/discrepancy.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from rehab_hil.models.effect_parts import (
+    DELAY_SLOTS,
+    Backlash,
+    ContactSpringDamper,
+    NonlinearConvection,
+    PassiveMuscle,
+    SmaHysteresis,
+    TransportDelay,
+)
+from rehab_hil.models.mechanics import CoulombFriction, ViscousFriction
+from rehab_hil.models.ports import ActuatorPort, AxisPort, HeatPort, MeasuredPort, Ports, TemperatureWire, Wire
+from rehab_hil.models.system import DiagramError, Part
+
+__all__ = ["EFFECTS", "Attachment", "Effect", "EffectParam", "applicable", "attach", "check_spec",
+           "parse_effect_option"]
+
+
+@dataclass(frozen=True)
+class EffectParam:
+    """A fitted parameter: SI unit in the name, bounds, a typical magnitude (start and scale).
+
+    ``linear`` marks parameters the output responds to about linearly near zero (fitted first by
+    regression on the residual); the others are scanned over ``grid`` values. ``off`` is the
+    value at which the effect does nothing (only magnitude parameters have one)."""
+
+    name: str
+    lower: float
+    upper: float
+    typical: float
+    linear: bool = True
+    off: float | None = 0.0
+    grid: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """Where an effect part sits in a diagram, computed from the port it attaches to.
+
+    connect: the effect's inputs from plant signals; output_to: plant signal its output is summed
+    onto (None: a signal of its own); insert: the effect goes on this wire (its consumers read the
+    effect's output, the effect reads the wire's signal); sum_into: (part, port) pairs the effect's
+    own output is added to; fixed: part parameters that are not fitted; xd0: discrete state."""
+
+    connect: Mapping[str, Any] = field(default_factory=dict)
+    output_to: str | None = None
+    insert: Wire | None = None
+    sum_into: tuple[tuple[str, str], ...] = ()
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    xd0: Sequence[float] | None = None
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A candidate missing effect: its part, fitted parameters, seed, the port kind it needs and how
+    it wires onto a port of that kind (``wire(port, step_s) -> Attachment``)."""
+
+    name: str
+    part: type[Part]
+    params: tuple[EffectParam, ...]
+    seed: str
+    description: str
+    needs: str
+    wire: Callable[[Any, float], Attachment]
+
+    def param(self, name: str) -> EffectParam:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def port(self, ports: Ports) -> Any:
+        """The port this effect attaches to (the primary one of its kind), or None."""
+        found = ports.of_kind(self.needs)
+        return found[0] if found else None
+
+    def params_for(self, ports: Ports) -> tuple[EffectParam, ...]:
+        """The parameters with the typical magnitudes of the port they attach to (an axis says how
+        large its torques are)."""
+        port = self.port(ports)
+        over = port.typical if isinstance(port, AxisPort) else {}
+        return tuple(replace(p, typical=over.get(f"{self.name}.{p.name}", p.typical)) for p in self.params)
+
+    def defaults(self) -> dict[str, float]:
+        return {p.name: p.typical for p in self.params}
+
+    def disabled(self) -> dict[str, float]:
+        """Parameter values that switch the effect off (shape parameters at their typical value)."""
+        return {p.name: (p.off if p.off is not None else p.typical) for p in self.params}
+
+
+def _coulomb(axis: AxisPort, step_s: float) -> Attachment:
+    # Reads the axis's net torque (nominal friction included): inside the stick band a nominal
+    # friction already holds what it can, and this one holds only the remainder, so the two never
+    # double the holding torque. Its torque goes straight to the integrating port (no loop).
+    return Attachment(connect={"velocity_rad_s": axis.velocity, "other_torque_nm": "@applied"},
+                      sum_into=(axis.applied,),
+                      fixed={"stick_velocity_rad_s": axis.stick_velocity_rad_s,
+                             "stick_damping_nm_s_per_rad": axis.stick_damping_nm_s_per_rad})
+
+
+def _viscous(axis: AxisPort, step_s: float) -> Attachment:
+    return Attachment(connect={"velocity_rad_s": axis.velocity}, output_to=axis.torque)
+
+
+def _joint(axis: AxisPort, step_s: float) -> Attachment:
+    return Attachment(connect={"angle_rad": axis.angle, "velocity_rad_s": axis.velocity}, output_to=axis.torque)
+
+
+def _on_sensor(port: MeasuredPort, step_s: float) -> Attachment:
+    assert port.wire is not None
+    return Attachment(insert=port.wire)
+
+
+def _delay(port: ActuatorPort, step_s: float) -> Attachment:
+    return Attachment(insert=port.wire, fixed={"step_s": step_s})
+
+
+def _hysteresis(port: TemperatureWire, step_s: float) -> Attachment:
+    return Attachment(insert=port.wire, xd0=[port.initial_c])
+
+
+def _convection(port: HeatPort, step_s: float) -> Attachment:
+    return Attachment(connect={"temperature_c": port.temperature}, sum_into=(port.into,),
+                      fixed={"ambient_c": port.ambient_c}, xd0=[port.ambient_c])
+
+
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in [
+        Effect(
+            "coulomb_friction", CoulombFriction,
+            (EffectParam("level_nm", 0.0, 1.0, 0.02),),
+            "seed 002 eq 6 (F_c sgn(theta')); seed 001 blames friction",
+            "extra Coulomb friction with stiction on the joint axis",
+            "axis", _coulomb,
+        ),
+        Effect(
+            "viscous_friction", ViscousFriction,
+            (EffectParam("damping_nm_s_per_rad", 0.0, 0.5, 0.02),),
+            "seed 002 eq 6-8 (V_c, B_v)",
+            "extra viscous friction on the joint axis",
+            "axis", _viscous,
+        ),
+        Effect(
+            "backlash", Backlash,
+            (EffectParam("width_rad", 0.0, 0.2, 0.02),),
+            "seed 002 sec 2 (chain and sprocket between gearbox and iris)",
+            "play between the drive and the measured angle: a dead zone at every reversal",
+            "encoder", _on_sensor,
+        ),
+        Effect(
+            "time_delay", TransportDelay,
+            (EffectParam("delay_s", 0.0, 0.05, 0.01, linear=False,
+                         grid=(0.002, 0.005, 0.01, 0.02, 0.035)),),
+            "seed 002 sec 4.2 (the hardware lags the simulation)",
+            f"transport delay on the actuator input (FIFO of {DELAY_SLOTS - 1} steps)",
+            "actuator", _delay,
+        ),
+        Effect(
+            "contact_spring_damper", ContactSpringDamper,
+            (EffectParam("stiffness_nm_per_rad", 0.0, 20.0, 0.5),
+             EffectParam("damping_nm_s_per_rad", 0.0, 2.0, 0.02),
+             EffectParam("contact_angle_rad", -0.5, 3.0, 0.5, linear=False, off=None,
+                         grid=(0.0, 0.4, 0.8, 1.2, 1.6))),
+            "seed 000 eq 18-28 and Table 4 (contact force k dx + c dx', k and c by regression)",
+            "one-sided spring-damper of the patient's finger beyond a contact angle",
+            "axis", _joint,
+        ),
+        Effect(
+            "passive_muscle", PassiveMuscle,
+            (EffectParam("scale_nm", 0.0, 1.0, 0.005),
+             EffectParam("shape_per_rad", 0.1, 10.0, 2.0, linear=False, off=None, grid=(1.0, 2.0, 4.0)),
+             EffectParam("damping_nm_s_per_rad", 0.0, 0.1, 0.001)),
+            "seed 000 eq 1-3, Table 1 (Hill passive muscle force)",
+            "exponential passive joint torque of the finger's muscles and tendons (MCP joint)",
+            "finger_axis", _joint,
+        ),
+        Effect(
+            "sma_hysteresis", SmaHysteresis,
+            (EffectParam("width_c", 0.0, 40.0, 5.0),),
+            "seed 000 eq 14-17, Table 2 (A_s, A_f, M_s, M_f)",
+            "transformation hysteresis: heating and cooling see temperatures width_c apart",
+            "transformation_temperature", _hysteresis,
+        ),
+        Effect(
+            "nonlinear_convection", NonlinearConvection,
+            (EffectParam("coefficient_w_per_k3", 0.0, 1e-3, 1e-5),),
+            "seed 000 eq 13 (h = h1 + h2 T^2); seed 001 sec 4 (error grows with power)",
+            "heat loss growing with the cube of the temperature rise",
+            "heat", _convection,
+        ),
+    ]
+}
+
+
+def applicable(ports: Ports) -> list[Effect]:
+    """Library effects that attach to a plant with these ports."""
+    kinds = ports.kinds()
+    return [e for e in EFFECTS.values() if e.needs in kinds]
+
+
+def check_spec(name: str, params: Mapping[str, float]) -> dict[str, float]:
+    """Validate an effect name and parameters (bounds included); returns the full parameter set.
+
+    Unnamed parameters take the effect's typical value. Raises ValueError with a clear message."""
+    if name not in EFFECTS:
+        raise ValueError(f"unknown effect {name!r}; the library has {sorted(EFFECTS)}")
+    eff = EFFECTS[name]
+    known = {p.name for p in eff.params}
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise ValueError(f"effect {name!r} has no parameters {unknown}; its parameters are {sorted(known)}")
+    out = eff.defaults()
+    for k, v in params.items():
+        p = eff.param(k)
+        v = float(v)
+        if not (p.lower <= v <= p.upper):
+            raise ValueError(f"effect {name!r}: {k} = {v} is outside [{p.lower}, {p.upper}]")
+        out[k] = v
+    return out
+
+
+def parse_effect_option(text: str) -> tuple[str, dict[str, float]]:
+    """Parse ``name:key=value,key=value`` (the ``--effect`` option of ``simulate``)."""
+    name, _, rest = text.partition(":")
+    params: dict[str, float] = {}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, val = item.partition("=")
+        if not eq:
+            raise ValueError(f"--effect {text!r}: expected key=value, got {item!r}")
+        try:
+            params[key.strip()] = float(val)
+        except ValueError:
+            raise ValueError(f"--effect {text!r}: {key.strip()} is not a number: {val!r}") from None
+    check_spec(name.strip(), params)
+    return name.strip(), params
+
+
+def not_applicable_message(name: str, plant: str, ports: Ports) -> str:
+    """The one-line refusal of an effect a plant has no port for."""
+    ok = sorted(e.name for e in applicable(ports))
+    return (f"effect {name!r} does not apply to plant {plant!r} (it needs a {EFFECTS[name].needs!r} port); "
+            f"applicable: {ok}")
+
+
+def attach(plant: str, ports: Ports, step_s: float, parts: list[Part],
+           effects: Sequence[tuple[str, Mapping[str, float]]], prefix: str = "effect") -> list[Part]:
+    """Append one part per (effect name, parameters) to ``parts``, wired onto the plant's ports.
+
+    Parts are named ``<prefix>_<effect>`` (``_<i>`` added for repeats). Raises DiagramError when the
+    plant has no port of the kind an effect needs."""
+    parts = list(parts)
+    by_name = {p.name: p for p in parts}
+    used: set[str] = set(by_name)
+    for name, given in effects:
+        try:
+            values = check_spec(name, given)
+        except ValueError as e:
+            raise DiagramError(str(e)) from None
+        eff = EFFECTS[name]
+        port = eff.port(ports)
+        if port is None:
+            raise DiagramError(not_applicable_message(name, plant, ports))
+        att = eff.wire(port, step_s)
+        pname = f"{prefix}_{name}"
+        i = 1
+        while pname in used:
+            i += 1
+            pname = f"{prefix}_{name}_{i}"
+        used.add(pname)
+        own_out = f"{pname}_{eff.part.outputs[0]}"
+        connect: dict[str, Any] = {}
+        for k, v in att.connect.items():  # "@applied": the terms that feed the axis's integrating port
+            connect[k] = list(_port(by_name, att.sum_into[0], name)) if v == "@applied" else v
+        if att.insert is not None:
+            feeds = [_port(by_name, c, name) for c in att.insert.consumers]
+            connect[eff.part.inputs[0]] = list(feeds[0])
+            for terms in feeds:
+                terms[:] = [(own_out, 1.0)]
+        rename = {eff.part.outputs[0]: att.output_to or own_out}
+        for target in att.sum_into:
+            _port(by_name, target, name).append((own_out, 1.0))
+        part = eff.part(pname, connect=connect, rename=rename, xd0=att.xd0, **att.fixed, **values)
+        parts.append(part)
+        by_name[pname] = part
+    return parts
+
+
+def _port(by_name: Mapping[str, Part], where: tuple[str, str], effect: str) -> list[tuple[str, float]]:
+    """The connection list of a (part, input) a port names."""
+    part, port = where
+    if part not in by_name or port not in by_name[part].connections:
+        raise DiagramError(f"effect {effect!r}: the plant's port names {part}.{port}, which its parts lack")
+    return by_name[part].connections[port]
