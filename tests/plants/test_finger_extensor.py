@@ -24,7 +24,7 @@ def cfg():
 
 @pytest.fixture(scope="module")
 def plant(cfg):
-    d = Diagram(fe.build(cfg))
+    d = Diagram(fe.build(cfg), inputs=fe.INPUTS)
     return d, d.compile(cfg.simulation.step_s, cfg.simulation.substeps)
 
 

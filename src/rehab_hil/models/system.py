@@ -111,11 +111,10 @@ class Diagram:
     ``inputs`` names the signals allowed to come from outside: a part input that no part
     produces must be declared there, so a misspelled signal is an error, not an input of zero.
     The declared inputs that some part reads and no part produces are the diagram's external
-    inputs (``input_names``, in order of first use). ``inputs=None`` is the transitional
-    permissive mode: every unproduced name is external.
+    inputs (``input_names``, in order of first use), as Drake refuses an unconnected port.
     """
 
-    def __init__(self, parts: Sequence[Part], inputs: Sequence[str] | None = None) -> None:
+    def __init__(self, parts: Sequence[Part], inputs: Sequence[str]) -> None:
         names = [p.name for p in parts]
         dup = {n for n in names if names.count(n) > 1}
         if dup:
@@ -123,7 +122,7 @@ class Diagram:
         if isinstance(inputs, str):
             raise DiagramError(f"inputs must be a sequence of signal names, not the string {inputs!r}")
         self.parts = list(parts)
-        self.declared_inputs: tuple[str, ...] | None = None if inputs is None else tuple(inputs)
+        self.declared_inputs: tuple[str, ...] = tuple(inputs)
         self.producers: dict[str, list[int]] = {}  # signal -> flat output slots
         spans = []
         xo = xdo = uo = po = slot = 0
@@ -171,13 +170,13 @@ class Diagram:
                 for sname, _ in terms:
                     if sname in self.producers or sname in external:
                         continue
-                    if declared is not None and sname not in declared:
+                    if sname not in declared:
                         raise DiagramError(self._undeclared_message(part, port, sname))
                     external.append(sname)
         return tuple(external)
 
     def _undeclared_message(self, part: Part, port: str, sname: str) -> str:
-        known = list(dict.fromkeys([*self.producers, *(self.declared_inputs or ())]))
+        known = list(dict.fromkeys([*self.producers, *self.declared_inputs]))
         close = difflib.get_close_matches(sname, known, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else "; if it comes from outside, declare it in inputs"
         return (f"part {part.name!r} input {port!r} reads {sname!r}, which no part produces and is not "
