@@ -5,7 +5,7 @@
 set -eu
 
 # gcc, libc6-dev and make build the simavr harness (a fresh Debian image may lack them).
-PKGS="gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev pkg-config gcc libc6-dev make"
+PKGS="gcc-avr avr-libc arduino-core-avr avrdude simavr libsimavr-dev libelf-dev pkg-config gcc libc6-dev make"
 
 missing=""
 for p in $PKGS; do
