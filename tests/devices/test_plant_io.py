@@ -41,8 +41,17 @@ def test_the_direction_bit_reverses_a_signed_h_bridge(binding: Any) -> None:
 
 def test_adc_counts_are_clipped_to_ten_bits(binding: Any) -> None:
     plant = PlantIO(binding)
+    plant.set_input("patient_torque_nm", 10.0)  # A0 measures the patient's torque: 10 N m is beyond its range
     adcs = [plant.tick([10000, 0], 0)[1] for _ in range(50)]
-    assert max(adcs) == 1023  # a full-duty stall torque is beyond the sensor's range
+    assert max(adcs) == 1023
+
+
+def test_the_torque_sensor_reads_the_patient_torque_input(binding: Any) -> None:
+    plant = PlantIO(binding)
+    ch = binding.adc[0]
+    assert ch.signal == "patient_torque_nm"
+    plant.set_input("patient_torque_nm", -1.5)
+    assert plant.tick([0, 0], 0)[1] == round(ch.offset_counts - 1.5 * ch.counts_per_unit)
 
 
 def test_noise_is_seeded_and_reproducible(binding: Any) -> None:

@@ -57,7 +57,7 @@ def test_too_few_pwm_channels_or_adc_inputs_are_refused(cfg, binding) -> None:
     with pytest.raises(ContractError, match=r"motor_voltage_v needs PWM channel 0, the device has 0"):
         on_configure(binding, no_pwm.info, pid_claims(cfg, binding))
     no_adc = inprocess_rig(CONFIG, configured=False, hello={"n_adc": 0})
-    with pytest.raises(ContractError, match=r"drive_torque_nm needs ADC input 0, the device has 0"):
+    with pytest.raises(ContractError, match=r"patient_torque_nm needs ADC input 0, the device has 0"):
         on_configure(binding, no_adc.info)
 
 

@@ -67,16 +67,22 @@ def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, f
 
 @pytest.mark.parametrize(("reason", "kwargs"), [
     ("range_of_motion", {"max_angle_deg": 45.0}),  # from HOME_DEG = 30 towards 59.58
-    ("contact_force", {"max_force_n": 0.05, "force_signals": ("drive_torque_nm",)}),  # the torque channel
+    ("contact_force", {"max_force_n": 0.05, "force_signals": ("patient_torque_nm",)}),  # the torque channel
     ("heating_time", {"max_heating_s": 0.2}),
     ("temperature", {"max_temperature_c": 26.0, "thermal": FirstOrderThermal(23.0, 100.0, 0.5)}),
 ])
-def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, binding, fresh_hw, reason, kwargs):
+def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, binding, fresh_hw, shared_device,
+                                                                   reason, kwargs):
+    if reason == "contact_force":  # the patient pushes on the torque sensor (A0)
+        shared_device.control("input patient_torque_nm 0.2")
     sup = supervisor_with(cfg, binding, **kwargs)
     # the PID towards 59.58 deg for the range of motion; a steady push (duty 0.2) for the others
     push = OpenLoopPWM(Actuator(binding), 0.2, on_s=100.0, off_s=0.0)
     ctl = "pid" if reason == "range_of_motion" else push
-    res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)
+    try:
+        res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)
+    finally:
+        shared_device.control("input patient_torque_nm 0")
     assert [e.reason for e in res.events][:1] == [reason]
     assert res.cycles < 3000  # the session stopped early
     assert_safe_end(res)

@@ -46,7 +46,11 @@ class PlantIO:
         # a plant without an encoder port reads count 0 (the protocol always carries one)
         self._enc = 1 if binding.encoder_source else 0
         enc = [binding.encoder_source] if binding.encoder_source else []
-        self.stepper = self.system.stepper([*enc, *(a.source for a in binding.adc)])
+        # an ADC sensor may measure a plant input (the Finger Extensor's patient torque): read it there
+        self._adc_input = [self._index.get(a.source, -1) if a.source not in self.system.diagram.producers else -1
+                           for a in binding.adc]
+        self.stepper = self.system.stepper([*enc, *(a.source for a, i in zip(binding.adc, self._adc_input, strict=True)
+                                                    if i < 0)])
         self._u = np.zeros(len(names))
         for name, value in binding.constant_inputs.items():
             self.set_input(name, value)
@@ -77,8 +81,13 @@ class PlantIO:
     def _counts(self, y: np.ndarray) -> tuple[int, int, int]:
         enc = math.floor(y[0] * self._counts_per_rad) if self._enc else 0
         adc = [0, 0]
+        k_out = self._enc
         for k, ch in enumerate(self.binding.adc):
-            v = ch.offset_counts + ch.counts_per_unit * y[self._enc + k]
+            if self._adc_input[k] >= 0:
+                value = self._u[self._adc_input[k]]
+            else:
+                value, k_out = y[k_out], k_out + 1
+            v = ch.offset_counts + ch.counts_per_unit * value
             if self.noise:
                 v += self._rng.normal(0.0, self.noise)
             adc[k] = int(min(max(round(v), 0), ADC_MAX)) if math.isfinite(v) else ADC_MAX

@@ -71,7 +71,7 @@ class MotorSection(Section):
 
 
 class TorqueSensorSection(Section):
-    counts_per_nm: float = Field(gt=0.0, le=10000.0, description="ADC counts per N m of drive torque")
+    counts_per_nm: float = Field(gt=0.0, le=10000.0, description="ADC counts per N m of patient torque")
     offset_counts: float = Field(ge=0.0, le=1023.0, description="ADC counts at zero torque")
 
 
@@ -250,7 +250,8 @@ def steady_speed_rad_s(cfg: FingerExtensorConfig, voltage_v: float) -> float:
 
 def ports(cfg: FingerExtensorConfig) -> Ports:
     """The rig's view: PWM channel 0 + direction pin drive the H-bridge (V = +-supply * duty);
-    the encoder reads the iris angle; A0 is the torque sensor (``torque_sensor`` table)."""
+    the encoder reads the iris angle; A0 is the torque sensor between the patient's finger and the
+    iris (``torque_sensor`` table): it measures the model's input ``patient_torque_nm``."""
     ts = cfg.torque_sensor
     return Ports(
         actuators=(ActuatorPort(Wire("motor_voltage_v", (("motor", "voltage_v"),)), "v",
@@ -262,7 +263,7 @@ def ports(cfg: FingerExtensorConfig) -> Ports:
             MeasuredPort("iris_angle_deg", "angle", "deg", "encoder",
                          Wire("iris_angle_rad", (("encoder", "angle_rad"),)),
                          counts_per_unit=cfg.encoder.counts_per_rev),
-            MeasuredPort("drive_torque_nm", "torque", "nm", "adc", Wire("drive_torque_nm", ()),
+            MeasuredPort("patient_torque_nm", "torque", "nm", "adc", Wire("patient_torque_nm", ()),
                          counts_per_unit=ts.counts_per_nm, offset_counts=ts.offset_counts),
             MeasuredPort("motor_current_a", "current", "a"),
         ),
