@@ -9,6 +9,7 @@
 #include <util/atomic.h>
 #include "io.h"
 #include "protocol.h"
+#include "rx_buffer_check.h"
 
 #define FW_MAJOR 1
 #define FW_MINOR 0
