@@ -44,6 +44,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--telemetry", metavar="RIG", default=None,
                    help="publish telemetry over zenoh as rig RIG on loopback (docs/telemetry.md)")
     p.add_argument("--telemetry-port", type=int, default=7447, help="loopback zenoh hub port (default 7447)")
+    p.add_argument("--foxglove", metavar="PORT", type=int, nargs="?", const=8765, default=None,
+                   help="serve the session live to Foxglove over its WebSocket protocol (default port 8765)")
+    p.add_argument("--foxglove-host", default="127.0.0.1", help="address the Foxglove server binds (default 127.0.0.1)")
     return p
 
 
@@ -57,6 +60,18 @@ def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: HardwareInt
         return RigTelemetry(args.telemetry, info, NetworkConfig(port=args.telemetry_port), queue_size=20_000)
     except (RigIdError, TelemetryConfigError, ValueError) as e:
         raise UserError(f"--telemetry: {e}") from None
+
+
+def _foxglove(args: argparse.Namespace, binding: Any, telemetry: Any) -> Any:
+    """The Foxglove live view for ``--foxglove [PORT]``, tee'd with ``telemetry`` (rehab_hil.telemetry.foxglove)."""
+    from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, LiveView
+
+    try:
+        live = FoxgloveLive(args.foxglove_host, args.foxglove)
+    except FoxgloveError as e:
+        raise UserError(f"--foxglove: {e}") from None
+    print(f"Foxglove live view: {live.url} (layout: docs/foxglove_layout.json)")
+    return LiveView(live, live.add_rig(binding), telemetry)
 
 
 def _progress_table(p: Progress) -> Table:
@@ -125,6 +140,9 @@ def run(args: argparse.Namespace) -> int:
             stack.callback(recorder.close)
         telemetry = _telemetry(args, cfg, binding, hw) if args.telemetry else None
         if telemetry is not None:
+            stack.callback(telemetry.close)
+        if args.foxglove is not None:  # the Foxglove live view, tee'd with zenoh telemetry when that is on
+            telemetry = _foxglove(args, binding, telemetry)
             stack.callback(telemetry.close)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
                           assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),

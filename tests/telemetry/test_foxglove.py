@@ -1,0 +1,115 @@
+"""Live view in Foxglove: a real WebSocket client against the foxglove-sdk server during a session."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from rehab_hil.cli import main
+from rehab_hil.config import ConfigError
+from rehab_hil.plants import get_plant, load_config
+from rehab_hil.service import assembly
+from rehab_hil.service.estimation import Estimator
+from rehab_hil.service.recorder import Recorder, read_mcap
+from rehab_hil.service.runner import LoopService
+from rehab_hil.telemetry.foxglove import GENERIC, FoxgloveError, FoxgloveLive, schemas, topics
+from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths
+
+from .fake_rig import LockstepRig, RampController
+from .fgclient import FoxgloveClient
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / "configs" / "finger_extensor.toml"
+LAYOUT = ROOT / "docs" / "foxglove_layout.json"
+
+
+def binding_of(config: Path):  # type: ignore[no-untyped-def]
+    cfg = load_config(config)
+    return cfg, get_plant(cfg.plant).device(cfg)
+
+
+def test_a_websocket_client_sees_the_channels_and_the_samples_of_the_local_recording(tmp_path: Path, wait) -> None:
+    cfg, binding = binding_of(CONFIG)
+    t = topics("/rig")
+    with FoxgloveLive(port=0) as live:
+        feed = live.add_rig(binding)
+        client = FoxgloveClient(live.port, [t["sample"], t["command"]])
+        try:
+            assert client.wait_subscribed(), client.error
+            assert wait(lambda: feed.channels["sample"].has_sinks() and feed.channels["command"].has_sinks())
+            local = Recorder(tmp_path, binding)
+            svc = LoopService(LockstepRig(), assembly.firmware_configure(cfg, binding), RampController(),
+                              Estimator(binding), assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
+                              recorder=local, telemetry=feed)
+            try:
+                result = svc.run(0.4, pacing="device", realtime=False, sample_timeout_s=0.5)
+            finally:
+                local.close()
+            assert result.cycles > 300 and not result.events
+            recorded = [(topic, msg) for topic, _, msg in read_mcap(tmp_path / "run.mcap")]
+            n_samples = sum(1 for topic, _ in recorded if topic == "/rig/sample")
+            assert wait(lambda: len(client.messages[t["sample"]]) == n_samples)
+        finally:
+            client.close()
+    assert client.error is None
+    assert client.server_info["op"] == "serverInfo"
+    assert set(client.channels) == set(t.values())  # sample, command, event, stats
+    for kind, ch in schemas(binding).items():
+        adv = client.channels[t[kind]]
+        assert adv["encoding"] == "json" and adv["schemaEncoding"] == "jsonschema" and adv["schemaName"] == ch.name
+        assert json.loads(adv["schema"])["properties"]
+    assert feed.dropped == 0
+    live_samples = client.messages[t["sample"]]
+    local_samples = [msg for topic, msg in recorded if topic == "/rig/sample"]
+    # every recorded field, value for value; the live view adds the plant-independent fields
+    assert [{k: v for k, v in m.items() if k not in GENERIC} for m in live_samples] == \
+        [{k: v for k, v in m.items() if k not in GENERIC} for m in local_samples]
+    assert all(m["angle_deg"] == m["iris_angle_deg"] for m in live_samples)
+    assert client.messages[t["command"]] == [msg for topic, msg in recorded if topic == "/rig/command"]
+
+
+@pytest.mark.parametrize("config", sorted((ROOT / "configs").glob("*.toml")), ids=lambda p: p.stem)
+def test_the_shipped_layout_parses_and_names_only_existing_channels_and_fields(config: Path) -> None:
+    doc = json.loads(LAYOUT.read_text())
+    assert LAYOUT.read_text() == layout_json()  # regenerated from telemetry/foxglove_layout.py
+    try:
+        _, binding = binding_of(config)
+    except ConfigError as e:  # another plant's config being reworked must not hide this test's point
+        pytest.skip(f"config does not load: {e}")
+    t = topics("/rig")
+    fields = {t[k]: set(json.loads(s.data)["properties"]) for k, s in schemas(binding).items()}
+    named = message_paths(doc)
+    assert {topic for topic, _ in named} == {t["sample"], t["event"]}
+    for topic, field in named:
+        assert topic in fields, topic
+        assert field is None or field in fields[topic], f"{topic}.{field}"
+    assert {"angle_deg", "reference_deg", "analog0", "command_duty0_ratio", "estimated_temperature_c"} <= \
+        {f for _, f in named}
+
+
+def test_a_port_in_use_is_one_line_and_the_first_server_keeps_serving(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    with FoxgloveLive(port=0) as first:
+        with pytest.raises(FoxgloveError, match=r"cannot serve Foxglove on 127\.0\.0\.1:\d+: .*in use"):
+            FoxgloveLive(port=first.port)
+        code = main(["run", "--config", str(CONFIG), "--device", "inprocess", "--duration", "0.1", "--no-display",
+                     "--foxglove", str(first.port)])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and err.startswith("rehab-hil run: error: --foxglove: cannot serve") and "\n" not in err
+        client = FoxgloveClient(first.port, [])
+        try:
+            assert client.wait_subscribed() and client.error is None
+            assert wait_for(lambda: client.server_info.get("op") == "serverInfo")
+        finally:
+            client.close()
+
+
+def wait_for(pred, timeout_s: float = 10.0) -> bool:  # type: ignore[no-untyped-def]
+    import time
+
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and not pred():
+        time.sleep(0.01)
+    return bool(pred())
