@@ -3,7 +3,8 @@ configure.
 
 ``device``: "sim" (the Python simulated device on a pty), "avr" (the firmware in simavr), "inprocess"
 (``InProcessHardware``: the device logic and the plant in this process, lockstep), or a serial path
-(a real board). The config's plant closes the loop of the simulated backends.
+(a real board), or "auto" (the one Arduino-like USB serial port). The config's plant closes the
+loop of the simulated backends.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.hardware.discovery import announce_device, resolve_device
 from rehab_hil.hardware.inprocess import InProcessHardware
 from rehab_hil.hardware.interface import HardwareError, HardwareInterface
 
@@ -38,6 +40,8 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
     closes the hardware and stops a spawned device process on exit. ``lockstep``: the sim device
     advances one sample per COMMAND (deterministic; "inprocess" always does, "avr" cannot).
     ``baud``: a serial path's rate (default ``[rig].baud``). Failures raise ``HardwareError``."""
+    device = resolve_device(device)  # "auto": the one Arduino-like USB serial port (hardware/discovery.py)
+    announce_device(device, config_path, _config(config_path).rig.port)  # which device, on stderr
     with ExitStack() as stack:
         hw: HardwareInterface
         if device == "inprocess":
