@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
-.PHONY: run test lint bench firmware harness toolchain clean
+.PHONY: run test lint bench firmware harness toolchain upload clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -36,6 +36,12 @@ toolchain:
 # The Arduino Uno firmware (firmware/build/rehab_fw.elf/.hex); prints flash/RAM use.
 firmware: toolchain
 	$(MAKE) -s -C firmware
+
+# Build and upload the firmware to the Uno with avrdude, then check its handshake (rehab-hil flash).
+# PORT=/dev/serial/by-id/... picks the board; default: auto (the one Arduino-like USB port).
+PORT ?= auto
+upload: $(STAMP) firmware
+	$(BIN)/rehab-hil flash --no-build --port $(PORT)
 
 # The simavr harness that runs the firmware ELF (sim_devices/build/avr_harness).
 harness: toolchain

@@ -111,7 +111,7 @@ def _no_arduino(seen: Sequence[PortCandidate] | None) -> str:
     others = f" (serial ports present: {', '.join(c.device for c in seen)})" if seen else " (no serial ports at all)"
     raise HardwareError("no Arduino found: no USB serial port with vendor id 2341/2a03 (Arduino), "
                         f"1a86 (CH340) or 0403 (FTDI){others}; plug the board in, check `rehab-hil ports`, "
-                        "or pass --device PATH / sim")
+                        "or give its path (or sim)")
 
 
 def describe_device(device: str, config_path: str | Path, rig_port: str,
