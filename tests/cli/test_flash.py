@@ -11,10 +11,11 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from stk500_bootloader import Stk500Bootloader
 
 from rehab_hil.cli import main
 from rehab_hil.cli.flash import HEX, SKETCH, FlashError, avrdude_command, expected_firmware_version, verify_handshake
+
+from .stk500_bootloader import Stk500Bootloader
 
 ROOT = Path(__file__).resolve().parents[2]
 ARDUINO = Path("/usr/share/arduino/hardware/arduino/avr")
