@@ -7,6 +7,7 @@ extra columns; malformed files raise ``CsvError`` with the line number.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -34,6 +35,7 @@ class Recording:
 
     t: np.ndarray
     signals: dict[str, np.ndarray]
+    truncated: bool = False  # the file's last line was cut short and dropped
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -62,14 +64,34 @@ def write_csv(path: str | Path, t: np.ndarray, signals: Mapping[str, np.ndarray]
     return path
 
 
-def read_csv(path: str | Path) -> Recording:
-    """Read and check an interchange CSV (header, numeric cells, finite, strictly increasing time)."""
+def read_csv(path: str | Path, drop_partial_tail: bool = False) -> Recording:
+    """Read and check an interchange CSV (header, numeric cells, finite, strictly increasing time).
+
+    ``drop_partial_tail``: a last line cut short (no newline at the end of the file, as a killed
+    writer or a full disk leaves it) is dropped and ``Recording.truncated`` set, instead of an error."""
     path = Path(path)
     try:
-        fh = path.open(newline="", encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as e:
         raise CsvError(path, None, f"cannot open: {e.strerror}") from None
-    with fh:
+    truncated = False
+    if drop_partial_tail and raw and not raw.endswith(b"\n") and b"\n" in raw:
+        cut = raw[:raw.rindex(b"\n") + 1]
+        try:
+            rec = _parse(path, raw)
+        except CsvError:
+            rec, truncated = _parse(path, cut), True
+        rec.truncated = truncated
+        return rec
+    return _parse(path, raw)
+
+
+def _parse(path: Path, raw: bytes) -> Recording:
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise CsvError(path, 1, f"unreadable: not UTF-8 at byte {e.start}") from None
+    with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         try:
             header = next(reader)

@@ -26,9 +26,10 @@ def test_run_lockstep_session_records_and_summarises(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0, out
     assert "duration reached" in out and "tracking mae" in out and "missed cycles" in out
-    rec = read_csv(tmp_path / "run.csv")
+    (run_dir,) = tmp_path.iterdir()  # --record DIR makes one new run directory per run
+    rec = read_csv(run_dir / "run.csv")
     assert len(rec.t) >= 1000 and "iris_angle_reference_deg" in rec.signals
-    assert (tmp_path / "run.mcap").stat().st_size > 0
+    assert (run_dir / "run.mcap").stat().st_size > 0
 
 
 def test_run_refuses_a_bad_duration_and_a_config_without_a_session(tmp_path, capsys):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,9 @@ class RichProgress(Progress):
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("discrepancy", help="find the effect missing from the model in measured data")
     p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--data", required=True, type=Path, help="measured interchange CSV (inputs and outputs)")
+    p.add_argument("--data", required=True, type=Path,
+                   help="measured data: a run directory of `rehab-hil run --record`, its run.csv or run.mcap, "
+                        "or an interchange CSV")
     p.add_argument("--out", required=True, type=Path, help="report directory to write")
     p.add_argument("--max-effects", type=int, default=2, help="most effects to add in turn (default 2)")
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
@@ -44,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
-    from rehab_hil.interchange import read_csv
     from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.rig_recording import load_recording
 
     if not 1 <= args.max_effects <= 5:
         raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
@@ -53,14 +56,18 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
     # check the inputs before the progress display starts, so a user error prints one line only
     cfg = load_config(args.config)
-    rec = read_csv(args.data)
-    check_recording(get_plant(cfg.plant), rec, args.data)
+    plant = get_plant(cfg.plant)
+    loaded = load_recording(args.data, plant, cfg)
+    rec = loaded.recording
+    for note in loaded.notes:
+        print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
+    check_recording(plant, rec, loaded.source)
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())
     with Progress(*cols, console=console, transient=False) as bar:
         progress = RichProgress(bar)
-        res = find_missing_effects(cfg, rec, args.data, progress,
+        res = find_missing_effects(cfg, rec, loaded.source, progress,
                                    Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
         progress.start("writing report", None)
         write_report(res, Path(args.config), Path(args.data), Path(args.out))

@@ -4,11 +4,12 @@ print a seed 001 Table 1-style fit table (fit %, MSE, AIC, recommended order).""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from rehab_hil.cli import UserError
 from rehab_hil.identification import IdentificationError, compare_orders, format_table
-from rehab_hil.interchange import read_csv
+from rehab_hil.rig_recording import read_recording
 
 
 def parse_range(text: str, what: str, lo: int, hi: int) -> list[int]:
@@ -30,7 +31,9 @@ def parse_range(text: str, what: str, lo: int, hi: int) -> list[int]:
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("identify", help="fit transfer functions (orders 1-3) to an input/output CSV record")
-    p.add_argument("--data", required=True, type=Path, help="interchange CSV (time_s + signal columns)")
+    p.add_argument("--data", required=True, type=Path,
+                   help="interchange CSV (time_s + signal columns), or a run directory or run.mcap "
+                        "of `rehab-hil run --record`")
     p.add_argument("--input", required=True, help="input column, e.g. power_w")
     p.add_argument("--output", required=True, help="output column, e.g. tcp_temperature_c")
     p.add_argument("--orders", default="1-3", help="numbers of poles to try, e.g. 1-3 (default)")
@@ -41,8 +44,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     orders = parse_range(args.orders, "--orders", 1, 6)
     zeros = None if args.zeros is None else parse_range(args.zeros, "--zeros", 0, 6)
-    rec = read_csv(args.data)
-    rec.require([args.input, args.output], args.data)
+    loaded = read_recording(args.data)
+    for note in loaded.notes:
+        print(f"rehab-hil identify: warning: {note}", file=sys.stderr)
+    rec = loaded.recording
+    rec.require([args.input, args.output], loaded.source)
     try:
         results = compare_orders(rec.t, rec[args.input], rec[args.output], orders, zeros)
     except IdentificationError as e:

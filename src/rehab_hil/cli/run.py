@@ -26,6 +26,7 @@ from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_c
 from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder
+from rehab_hil.service.run_dir import METADATA_FILE, new_run_dir, result_metadata, session_metadata, write_metadata
 from rehab_hil.service.runner import LoopService, Progress, RunResult
 
 
@@ -35,7 +36,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--device", default=None,
                    help=f"{', '.join(repr(k) for k in RIG_KINDS)} or a serial path (default: [rig].port)")
     p.add_argument("--duration", type=float, default=30.0, help="session length [s]")
-    p.add_argument("--record", type=Path, default=None, help="directory for run.csv and run.mcap")
+    p.add_argument("--record", type=Path, default=None, metavar="DIR",
+                   help="record the session: each run writes a new DIR/<UTC time>-<rig id>/ with run.csv, "
+                        "run.mcap and metadata.json (never overwriting an earlier run)")
+    p.add_argument("--rig-id", default=None,
+                   help="the rig's name in run directories and metadata (default: --telemetry RIG, else the plant)")
+    p.add_argument("--sim-plant", type=Path, default=None, metavar="DEVICE.toml",
+                   help="simulated devices: the plant config the device runs (default: --config), e.g. one with "
+                        "[[effects]] the host's model lacks")
     p.add_argument("--controller", choices=assembly.CONTROLLERS, default="session")
     p.add_argument("--pacing", choices=("device", "host"), default="device",
                    help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
@@ -117,6 +125,21 @@ def summary_table(r: RunResult) -> Table:
     return t
 
 
+def _device_config(args: argparse.Namespace, cfg: Any, device: str) -> Path:
+    """The plant config the simulated device runs: ``--sim-plant`` (same plant, maybe other effects)
+    or the host's own."""
+    if args.sim_plant is None:
+        return args.config
+    if device not in RIG_KINDS:
+        raise UserError(f"--sim-plant is for simulated devices ({', '.join(RIG_KINDS)}); --device {device} is a "
+                        "real board, whose plant is the physical one")
+    dev = load_config(args.sim_plant)
+    if dev.plant != cfg.plant:
+        raise UserError(f"--sim-plant {args.sim_plant}: a {dev.plant!r} plant; the host's config "
+                        f"{args.config} is a {cfg.plant!r} plant")
+    return args.sim_plant
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     if not 0 < args.duration <= 24 * 3600:
@@ -127,16 +150,24 @@ def run(args: argparse.Namespace) -> int:
     except assembly.ServiceSetupError as e:
         raise UserError(f"{args.config}: {e}") from None
     device = args.device or cfg.rig.port
+    device_config = _device_config(args, cfg, device)
     console = Console()
     lockstep = args.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
     with ExitStack() as stack:
         try:
-            hw = stack.enter_context(open_rig(device, args.config, lockstep=args.lockstep, baud=cfg.rig.baud))
+            hw = stack.enter_context(open_rig(device, device_config, lockstep=args.lockstep, baud=cfg.rig.baud))
             on_configure(binding, hw.info, controller.claims)  # refuse a mismatch before anything moves
         except HardwareError as e:
             raise UserError(f"--device {device}: {e}") from None
-        recorder = Recorder(args.record, binding) if args.record else None
-        if recorder is not None:
+        recorder = None
+        if args.record:
+            rig_id = args.rig_id or args.telemetry or cfg.plant
+            run_dir = new_run_dir(args.record, rig_id)
+            meta = session_metadata(plant=cfg.plant, config_path=args.config, device=device, rig_id=rig_id,
+                                    binding=binding, hello=hw.info, controller=args.controller, pacing=args.pacing,
+                                    sim_plant=args.sim_plant)
+            write_metadata(run_dir, meta)  # first now: a killed run still says what it ran against
+            recorder = Recorder(run_dir, binding, metadata=meta)
             stack.callback(recorder.close)
         telemetry = _telemetry(args, cfg, binding, hw) if args.telemetry else None
         if telemetry is not None:
@@ -178,6 +209,11 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(errors[0], HardwareError):
                 raise UserError(f"device: {errors[0]}")
             raise errors[0]
+        if recorder is not None:
+            end = result_metadata(result[0], recorder.rows)
+            recorder.close(summary=end)
+            write_metadata(run_dir, {**meta, **end})
+            result[0].files.append(str(run_dir / METADATA_FILE))
     time.sleep(0)
     console.print(summary_table(result[0]))
     return 1 if result[0].events and result[0].events[0].reason != "stop_request" else 0

@@ -4,7 +4,8 @@ The loop calls ``offer`` (never blocks: a full queue drops and counts the record
 turns records into CSV rows (plant signal names + raw columns) and MCAP messages on JSON-schema
 channels (``/rig/sample``, ``/rig/command``, ``/rig/event``; Foxglove and PlotJuggler open them),
 and flushes both files at least every ``flush_s``: a killed run leaves files that hold everything
-up to the last flush. ``read_mcap`` reads such a file even without its footer.
+up to the last flush. ``read_mcap`` reads such a file even without its footer. The session's
+metadata (``service/run_dir.py``) goes into MCAP metadata records at the start and the end.
 """
 
 from __future__ import annotations
@@ -74,6 +75,11 @@ def _schema(title: str, fields: list[str]) -> bytes:
                        "properties": {f: {"type": "number"} for f in fields}}).encode()
 
 
+def _metadata_strings(meta: dict[str, Any]) -> dict[str, str]:
+    """MCAP metadata values are strings: nested values become JSON."""
+    return {str(k): v if isinstance(v, str) else json.dumps(v, default=str) for k, v in meta.items()}
+
+
 def _clean(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
@@ -82,7 +88,7 @@ class Recorder:
     """Writes ``<out_dir>/<name>.csv`` and ``<out_dir>/<name>.mcap`` from a bounded queue."""
 
     def __init__(self, out_dir: str | Path, binding: DeviceBinding, name: str = "run",
-                 queue_size: int = 20_000, flush_s: float = 0.1) -> None:
+                 queue_size: int = 20_000, flush_s: float = 0.1, metadata: dict[str, Any] | None = None) -> None:
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.csv_path = self.out_dir / f"{name}.csv"
@@ -110,6 +116,8 @@ class Recorder:
                         "properties": {"time_s": {"type": "number"}, "kind": {"type": "string"},
                                        "detail": {"type": "string"}}}).encode())
         self._ch_event = self._mcap.register_channel("/rig/event", "json", ev_schema)
+        if metadata:
+            self._mcap.add_metadata("rehab_hil.session", _metadata_strings(metadata))
         self._mcap.flush()
         self._wall0_ns = time.time_ns() - int(time.perf_counter() * 1e9)
         self._last_time_s = -math.inf
@@ -139,13 +147,16 @@ class Recorder:
         except queue.Full:
             self.dropped += 1
 
-    def close(self) -> None:
-        """Drain the queue, write the MCAP summary and close both files; idempotent."""
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        """Drain the queue, add ``summary`` as an MCAP metadata record (``rehab_hil.summary``: the
+        run's figures and safety events), write the MCAP summary and close both files; idempotent."""
         if self._closed:
             return
         self._closed = True
         self._q.put(None)
         self._thread.join()
+        if summary:
+            self._mcap.add_metadata("rehab_hil.summary", _metadata_strings(summary))
         self._mcap.finish()
         self._mcap_fh.close()
         os.close(self._csv_fd)

@@ -12,12 +12,15 @@ import datetime as dt
 import hashlib
 import json
 import os
+import platform
 import re
+import sys
+from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "config_identity", "new_run_dir", "read_metadata",
-           "write_metadata"]
+__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "config_identity", "new_run_dir", "read_metadata", "result_metadata",
+           "session_metadata", "write_metadata"]
 
 METADATA_FILE = "metadata.json"
 METADATA_SCHEMA = "rehab-hil/run-metadata/1"
@@ -68,3 +71,49 @@ def read_metadata(run_dir: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path}: no metadata file (not a rehab-hil run directory?)") from None
     except (OSError, json.JSONDecodeError) as e:
         raise ValueError(f"{path}: unreadable metadata: {e}") from None
+
+
+def _version() -> str:
+    try:
+        return importlib_metadata.version("rehab-hil")
+    except importlib_metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def session_metadata(*, plant: str, config_path: str | Path, device: str, rig_id: str, binding: Any,
+                     hello: Any | None, controller: str, pacing: str, sim_plant: str | Path | None = None,
+                     calibration: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What is known when a run starts: the model, the device and its firmware, the calibration."""
+    fw = None
+    if hello is not None:
+        fw = {"name": "rehab_fw", "version": f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}",
+              "protocol_version": hello.protocol_version, "n_pwm": hello.n_pwm, "n_adc": hello.n_adc,
+              "encoder_counts_per_rev": hello.encoder_counts_per_rev, "reset_cause": hello.reset_cause}
+    simulated = device in ("sim", "avr", "inprocess")
+    return {
+        "plant": plant, **config_identity(config_path),
+        "sim_plant": config_identity(sim_plant) if sim_plant else None,
+        "device": {"kind": device if simulated else "serial", "port": None if simulated else device},
+        "firmware": fw, "rig_id": rig_id, "controller": controller, "pacing": pacing,
+        "calibration": {
+            "encoder_counts_per_rev": binding.encoder_counts_per_rev,
+            "adc": [{"signal": ch.signal, "source": f"adc{i}", "kind": ch.kind, "unit": ch.unit,
+                     "counts_per_unit": ch.counts_per_unit, "offset_counts": ch.offset_counts}
+                    for i, ch in enumerate(binding.adc)],
+            **(calibration or {}),
+        },
+        "start_time_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
+        "host": platform.node(), "rehab_hil_version": _version(), "command": sys.argv,
+    }
+
+
+def result_metadata(result: Any, rows: int) -> dict[str, Any]:
+    """What is known when it ends: duration, summary figures and the safety events."""
+    return {
+        "end_time_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
+        "duration_s": result.duration_s, "stop_reason": result.stop_reason, "rows": rows,
+        "cycles": result.cycles, "samples": result.samples, "sample_gaps": result.sample_gaps,
+        "reboots": result.reboots, "tracking": result.tracking, "timing": result.timing, "link": result.link,
+        "safety_events": [{"t_s": e.t_s, "reason": e.reason, "detail": e.detail} for e in result.events],
+        "pwm_off_at_end": result.pwm_off_at_end,
+    }

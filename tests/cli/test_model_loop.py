@@ -1,0 +1,137 @@
+"""The model loop from the command line, as a user runs it: a simulated rig whose plant hides an
+effect the host's model lacks -> ``rehab-hil run --record`` -> ``rehab-hil discrepancy`` on the run
+directory names the effect -> ``augmented.toml`` -> ``rehab-hil replay`` and a new session on the
+augmented model match the recording much better. Clean recordings name nothing."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rehab_hil.cli import main
+from rehab_hil.interchange import read_csv
+from rehab_hil.service.recorder import read_mcap
+
+ROOT = Path(__file__).resolve().parents[2]
+FE = ROOT / "configs" / "finger_extensor.toml"
+SMA = ROOT / "configs" / "sma_exoskeleton.toml"
+
+
+def _with_effect(src: Path, dest: Path, name: str, params: str) -> Path:
+    dest.write_text(src.read_text() + f'\n[[effects]]\nname = "{name}"\nparams = {{ {params} }}\n')
+    return dest
+
+
+def _session(config: Path, root: Path, capsys, *, device: str = "sim", sim_plant: Path | None = None,
+             duration: float = 10.0) -> Path:
+    args = ["run", "--config", str(config), "--device", device, "--duration", str(duration), "--record", str(root),
+            "--no-display", "--rig-id", "bench1"]
+    if device == "sim":
+        args.append("--lockstep")
+    if sim_plant is not None:
+        args += ["--sim-plant", str(sim_plant)]
+    code = main(args)
+    out = capsys.readouterr()
+    assert code == 0, out.out + out.err
+    runs = sorted(root.iterdir())
+    return runs[-1]
+
+
+def _discrepancy(config: Path, data: Path, out: Path, capsys) -> dict:
+    code = main(["discrepancy", "--config", str(config), "--data", str(data), "--out", str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.out + printed.err
+    return json.loads((out / "report.json").read_text())
+
+
+def _replay_rmse(config: Path, data: Path, channel: str, capsys) -> float:
+    assert main(["replay", "--config", str(config), "--data", str(data)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith(channel))
+    return float(line.split("RMSE")[1].split()[0])
+
+
+@pytest.mark.slow
+def test_hidden_coulomb_friction_is_found_in_a_session_recording_and_the_augmented_model_closes_the_loop(
+        tmp_path, capsys):
+    device = _with_effect(FE, tmp_path / "rig_plant.toml", "coulomb_friction", "level_nm = 0.03")
+    run = _session(FE, tmp_path / "runs", capsys, sim_plant=device)
+    meta = json.loads((run / "metadata.json").read_text())
+    assert meta["plant"] == "finger_extensor" and meta["sim_plant"]["config_path"] == str(device)
+    assert meta["firmware"]["protocol_version"] >= 1 and meta["rig_id"] == "bench1"
+    assert meta["safety_events"] == [] and meta["rows"] >= 9000
+
+    report = _discrepancy(FE, run, tmp_path / "report", capsys)
+    assert [c["effect"] for c in report["chosen"]] == ["coulomb_friction"]
+    assert report["chosen"][0]["params"]["level_nm"] == pytest.approx(0.03, rel=0.15)
+
+    augmented = tmp_path / "report" / "augmented.toml"
+    before = _replay_rmse(FE, run, "iris_angle_deg", capsys)
+    after = _replay_rmse(augmented, run, "iris_angle_deg", capsys)
+    assert after < 0.2 * before, (before, after)
+
+    # a new session whose simulated rig runs the augmented model behaves like the rig did
+    again = read_csv(_session(FE, tmp_path / "again", capsys, sim_plant=augmented) / "run.csv")
+    nominal = read_csv(_session(FE, tmp_path / "nominal", capsys) / "run.csv")
+    rig = read_csv(run / "run.csv")
+    n = min(len(rig.t), len(again.t), len(nominal.t))
+
+    def gap(rec):
+        return float(np.sqrt(np.mean((rec["iris_angle_deg"][:n] - rig["iris_angle_deg"][:n]) ** 2)))
+
+    assert gap(again) < 0.3 * gap(nominal), (gap(again), gap(nominal))
+
+
+@pytest.mark.slow
+def test_hidden_backlash_is_found_in_a_session_recording(tmp_path, capsys):
+    device = _with_effect(FE, tmp_path / "rig_plant.toml", "backlash", "width_rad = 0.03")
+    run = _session(FE, tmp_path / "runs", capsys, sim_plant=device)
+    report = _discrepancy(FE, run, tmp_path / "report", capsys)
+    assert [c["effect"] for c in report["chosen"]] == ["backlash"]
+    assert report["chosen"][0]["params"]["width_rad"] == pytest.approx(0.03, rel=0.2)
+    before = _replay_rmse(FE, run, "iris_angle_deg", capsys)
+    after = _replay_rmse(tmp_path / "report" / "augmented.toml", run, "iris_angle_deg", capsys)
+    assert after < 0.5 * before, (before, after)
+
+
+@pytest.mark.slow
+def test_a_clean_session_recording_names_nothing_and_reads_from_csv_mcap_or_the_directory(tmp_path, capsys):
+    run = _session(FE, tmp_path / "runs", capsys, duration=6.0)
+    report = _discrepancy(FE, run, tmp_path / "report", capsys)
+    assert report["chosen"] == []
+    csv, mcap = read_csv(run / "run.csv"), None
+    rows = [m for topic, _, m in read_mcap(run / "run.mcap") if topic == "/rig/sample"]
+    mcap = np.array([r["iris_angle_deg"] for r in rows])
+    np.testing.assert_allclose(mcap, csv["iris_angle_deg"], atol=1e-6)  # the two files hold the same samples
+    r_mcap = _discrepancy(FE, run / "run.mcap", tmp_path / "report_mcap", capsys)
+    assert r_mcap["chosen"] == [] and r_mcap["samples"] == report["samples"]
+
+
+@pytest.mark.slow
+def test_hidden_sma_hysteresis_is_found_in_a_session_recording(tmp_path, capsys):
+    device = _with_effect(SMA, tmp_path / "rig_plant.toml", "sma_hysteresis", "width_c = 10.0")
+    run = _session(SMA, tmp_path / "runs", capsys, sim_plant=device, duration=60.0)
+    report = _discrepancy(SMA, run, tmp_path / "report", capsys)
+    assert "sma_hysteresis" in [c["effect"] for c in report["chosen"]]
+    before = _replay_rmse(SMA, run, "theta_mcp_deg", capsys)
+    after = _replay_rmse(tmp_path / "report" / "augmented.toml", run, "theta_mcp_deg", capsys)
+    assert after < 0.5 * before, (before, after)
+
+
+@pytest.mark.slow
+@pytest.mark.firmware
+def test_hidden_coulomb_friction_behind_the_real_firmware_in_simavr_is_found(tmp_path, capsys):
+    from rehab_hil.devices import avr_device
+
+    reason = avr_device.unavailable_reason()
+    if reason:
+        pytest.skip(reason)
+    device = _with_effect(FE, tmp_path / "rig_plant.toml", "coulomb_friction", "level_nm = 0.03")
+    run = _session(FE, tmp_path / "runs", capsys, device="avr", sim_plant=device)
+    meta = json.loads((run / "metadata.json").read_text())
+    assert meta["device"]["kind"] == "avr" and meta["firmware"]["version"]
+    report = _discrepancy(FE, run, tmp_path / "report", capsys)
+    assert [c["effect"] for c in report["chosen"]] == ["coulomb_friction"]
+    assert report["chosen"][0]["params"]["level_nm"] == pytest.approx(0.03, rel=0.2)
