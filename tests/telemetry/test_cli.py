@@ -60,7 +60,7 @@ def test_monitor_shows_the_rig_values_safety_and_rates(client: Callable[..., zen
         th = threading.Thread(target=feed)
         th.start()
         try:
-            code = main(["monitor", "--port", str(hub), "--duration", "1.0", "--no-live"])
+            code = main(["monitor", "mon1", "--port", str(hub), "--duration", "1.0", "--no-live"])
         finally:
             stop.set()
             th.join()
@@ -102,15 +102,17 @@ def test_record_from_zenoh_writes_the_rigs_samples_until_the_rig_stops(
         pub.close()  # the rig stops: the recorder finishes on its own
         th.join(30)
     assert codes == [0]
-    rec = read_csv(tmp_path / "run.csv")
+    (run_dir,) = tmp_path.iterdir()  # one run directory: <UTC start>-rec1
+    assert run_dir.name.endswith("-rec1") and (run_dir / "metadata.json").is_file()
+    rec = read_csv(run_dir / "run.csv")
     assert list(rec["sample_index"]) == [r.sample.sample_index for r in recs]
     assert list(rec["host_time_s"]) == [r.host_time_s for r in recs]
-    assert "rig stopped: 250 records, 250 CSV rows" in capsys.readouterr().out
+    assert "rig stopped: rig rec1: 250 records, 250 CSV rows" in capsys.readouterr().out
 
 
 def test_record_refuses_a_rig_that_never_answers(hub: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["record", "--from-zenoh", "ghost", "--out", str(tmp_path), "--port", str(hub), "--wait", "0.3"]) == 2
-    assert "did not answer on rehab/ghost/info" in capsys.readouterr().err
+    assert "no live rig matches 'ghost' within 0.3 s" in capsys.readouterr().err
 
 
 def test_user_without_a_password_source_is_refused(hub: int, tmp_path: Path, monkeypatch,

@@ -14,7 +14,8 @@ from collections.abc import Sequence
 __all__ = ["SUBCOMMANDS", "UserError", "main"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
-SUBCOMMANDS = ["simulate", "run", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record", "ports", "flash"]
+SUBCOMMANDS = ["simulate", "run", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record", "ports",
+               "flash", "router", "foxglove"]
 
 
 class UserError(Exception):

@@ -1,4 +1,5 @@
-"""``rehab-hil monitor [RIG]``: live terminal view of a rig's zenoh telemetry (docs/telemetry.md)."""
+"""``rehab-hil monitor [RIG]``: live terminal view of a rig's zenoh telemetry; without RIG, a compact
+table of every live rig of the lab (docs/telemetry.md)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from rich.live import Live
 from rehab_hil.cli import UserError
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
 from rehab_hil.telemetry.keys import RigIdError, validate_rig_id
+from rehab_hil.telemetry.lab_view import LabView, render_lab
 from rehab_hil.telemetry.monitor_view import MonitorState, render
 from rehab_hil.telemetry.session import TelemetryConfigError, open_session
 from rehab_hil.telemetry.subscriber import list_rigs, query_info, subscribe, watch_alive
@@ -18,22 +20,49 @@ from rehab_hil.telemetry.subscriber import list_rigs, query_info, subscribe, wat
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("monitor", help="live view of a rig's telemetry over zenoh")
-    p.add_argument("rig", nargs="?", default=None, help="rig id (default: the only running rig)")
+    p.add_argument("rig", nargs="?", default=None, help="rig id (default: a table of every live rig)")
     p.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     p.add_argument("--no-live", action="store_true", help="no live screen: print one snapshot at exit (logs, CI)")
     add_network_args(p)
     return p
 
 
-def _pick_rig(session: object, wanted: str | None) -> str:
-    if wanted is not None:
-        return validate_rig_id(wanted)
-    rigs = list_rigs(session)  # type: ignore[arg-type]
-    if len(rigs) == 1:
-        return rigs[0]
-    if not rigs:
-        raise UserError("no running rig found (is `rehab-hil run --telemetry RIG` running?); name one to wait for it")
-    raise UserError(f"several rigs are running: {', '.join(rigs)}; name one")
+def _lab(session: object, args: argparse.Namespace, console: Console) -> int:
+    """The lab table: every rig whose liveliness token is present, with its latest values."""
+    view = LabView(session)  # type: ignore[arg-type]
+    try:
+        give_up = time.monotonic() + 2.0
+        rigs = view.live()  # the liveliness subscriber's history, or a liveliness query (either may lag)
+        while not rigs and time.monotonic() < give_up:
+            time.sleep(0.1)
+            rigs = view.live() or list_rigs(session, timeout_s=0.5)  # type: ignore[arg-type]
+        if not rigs:
+            raise UserError("no running rig found (is `rehab-hil run --telemetry RIG` running?); "
+                            "name one to wait for it")
+        asked: set[str] = set()
+        end = time.monotonic() + args.duration if args.duration else float("inf")
+
+        def refresh() -> None:
+            for rig in view.live():
+                if rig not in asked:  # plant name once per rig, from the main thread
+                    asked.add(rig)
+                    view.set_plant(rig, (query_info(session, rig, timeout_s=0.5) or {}).get("plant"))  # type: ignore[arg-type]
+
+        if args.no_live:
+            while time.monotonic() < end:
+                refresh()
+                time.sleep(0.1)
+            wide = console if console.is_terminal else Console(width=160)  # logs: never cut a rig's row
+            wide.print(render_lab(view.snapshot()))
+        else:
+            with Live(render_lab(view.snapshot()), console=console, refresh_per_second=4) as live:
+                while time.monotonic() < end:
+                    refresh()
+                    time.sleep(0.25)
+                    live.update(render_lab(view.snapshot()))
+    finally:
+        view.close()
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,8 +75,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(e)) from None
     console = Console()
     try:
+        if args.rig is None:
+            return _lab(session, args, console)
         try:
-            rig = _pick_rig(session, args.rig)
+            rig = validate_rig_id(args.rig)
         except RigIdError as e:
             raise UserError(str(e)) from None
         state = MonitorState(rig)

@@ -1,66 +1,47 @@
-"""``rehab-hil record --from-zenoh RIG --out DIR``: write a rig's zenoh telemetry as run.csv + run.mcap,
-the same files a local ``run --record`` writes (docs/telemetry.md)."""
+"""``rehab-hil record --from-zenoh 'RIG_PATTERN' --out ROOT``: record every matching rig from zenoh, one
+run directory each (``ROOT/<UTC start>-<rig>/``: run.csv, run.mcap, metadata.json), the same files a
+local ``run --record`` writes (docs/telemetry.md)."""
 
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
 
 from rehab_hil.cli import UserError
-from rehab_hil.plants import get_plant, load_config
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
-from rehab_hil.telemetry.keys import RigIdError, validate_rig_id
+from rehab_hil.telemetry.lab import LabError, LabRecorder, rig_matcher
 from rehab_hil.telemetry.session import TelemetryConfigError, open_session
-from rehab_hil.telemetry.subscriber import query_info
-from rehab_hil.telemetry.zrecord import ZenohRecorder
+from rehab_hil.telemetry.subscriber import list_rigs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser("record", help="record a rig's telemetry from zenoh to CSV + MCAP")
-    p.add_argument("--from-zenoh", required=True, metavar="RIG", help="rig id to record")
-    p.add_argument("--out", required=True, type=Path, help="directory for run.csv and run.mcap")
-    p.add_argument("--name", default="run", help="file name stem (default: run)")
+    p = sub.add_parser("record", help="record rigs' telemetry from zenoh to CSV + MCAP, one run directory per rig")
+    p.add_argument("--from-zenoh", required=True, metavar="RIG_PATTERN",
+                   help="rig id or shell-style pattern (quote it), e.g. bench1, 'bench*', 'lab-?'")
+    p.add_argument("--out", required=True, type=Path, help="root directory for the run directories")
     p.add_argument("--config", type=Path, default=None,
-                   help="plant config (default: the one the rig reports in rehab/<rig>/info)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: until "
-                   "the rig stops)")
+                   help="plant config (default: the one each rig reports in rehab/<rig>/info)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: when "
+                   "every recorded rig has stopped)")
     p.add_argument("--wait", type=float, default=10.0,
-                   help="how long to wait for the hub and the rig to appear [s] (default 10)")
+                   help="how long to wait for the hub and a matching rig to appear [s] (default 10)")
     add_network_args(p)
     return p
 
 
-def _binding(args: argparse.Namespace, info: dict | None):  # type: ignore[no-untyped-def]
-    if args.config is not None:
-        cfg = load_config(args.config)
-    else:
-        text = (info or {}).get("config_toml")
-        if not text:
-            raise UserError(f"rig {args.from_zenoh!r} did not report its config; pass --config")
-        with tempfile.TemporaryDirectory() as d:
-            path = Path(d) / "rig_config.toml"
-            path.write_text(text, encoding="utf-8")
-            cfg = load_config(path)
-    spec = get_plant(cfg.plant)
-    if spec.device is None:
-        raise UserError(f"plant {spec.name!r} has no device binding")
-    return spec.device(cfg)
-
-
 def run(args: argparse.Namespace) -> int:
     try:
-        rig = validate_rig_id(args.from_zenoh)
+        rig_matcher(args.from_zenoh)
         net = network_from_args(args)
-    except (RigIdError, TelemetryConfigError) as e:
+    except (LabError, TelemetryConfigError) as e:
         raise UserError(str(e)) from None
     if args.duration is not None and not 0 < args.duration <= 24 * 3600:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
     if not 0 <= args.wait <= 3600:
         raise UserError(f"--wait must be in [0, 3600] s, got {args.wait}")
     end_wait = time.monotonic() + args.wait
-    while True:  # the rig (hosting the loopback hub) may start after the recorder
+    while True:  # a rig hosting the loopback hub may start after the recorder
         try:
             session = open_session(net)
             break
@@ -68,26 +49,34 @@ def run(args: argparse.Namespace) -> int:
             if time.monotonic() >= end_wait:
                 raise UserError(str(e)) from None
             time.sleep(0.25)
+    lab = None
     try:
-        info = None
-        while info is None and time.monotonic() < end_wait:
-            info = query_info(session, rig, timeout_s=min(1.0, max(0.1, end_wait - time.monotonic())))
-        if info is None and args.config is None:
-            raise UserError(f"rig {rig!r} did not answer on rehab/{rig}/info within {args.wait} s")
-        binding = _binding(args, info)
-        with ZenohRecorder(session, rig, args.out, binding, name=args.name) as zrec:
-            print(f"recording rig {rig} into {zrec.recorder.csv_path} and {zrec.recorder.mcap_path}")
-            end = time.monotonic() + args.duration if args.duration else float("inf")
-            try:
-                while time.monotonic() < end and not zrec.done.is_set():
-                    time.sleep(0.05)
-            except KeyboardInterrupt:
-                pass
-            time.sleep(0.2)  # the last batches behind the liveliness change
-        why = "rig stopped" if zrec.done.is_set() else "duration reached"
-        sub = zrec.subscription
-        print(f"{why}: {zrec.samples} records, {zrec.recorder.rows} CSV rows; lost: {sub.missing_batches} batches "
-              f"in transit, {sub.publisher_dropped} samples at the publisher, {zrec.recorder.dropped} in the writer")
+        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config)
+        started = False
+        end = None
+        try:
+            while True:
+                for line in lab.poll():
+                    print(line, flush=True)
+                if lab.runs and not started:
+                    started = True
+                    end = time.monotonic() + args.duration if args.duration else None
+                if not started and time.monotonic() >= end_wait:
+                    live = ", ".join(list_rigs(session, timeout_s=0.5)) or "none"
+                    why = "; ".join(lab.errors) if lab.errors else f"live rigs: {live}"
+                    raise UserError(f"no live rig matches {args.from_zenoh!r} within {args.wait} s ({why})")
+                if started and not lab.runs:
+                    break  # every recorded rig has stopped
+                if end is not None and time.monotonic() >= end:
+                    break
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            pass
+        for line in lab.close():
+            print(line, flush=True)
+        lab = None
     finally:
+        if lab is not None:
+            lab.close("error")
         session.close()
     return 0

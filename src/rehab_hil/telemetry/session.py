@@ -31,7 +31,8 @@ class NetworkConfig:
 
     ``mode="loopback"`` (default): only 127.0.0.1; a ``hub`` listens on ``port``, a ``client`` connects
     to it, over TLS when ``tls`` (hub: certificate and key; client: root CA). ``mode="lab"``: a client
-    that connects to ``router`` endpoints (e.g. ``tls/lab-router:7447``).
+    that connects to ``router`` endpoints (e.g. ``tls/lab-router:7447``), or the lab's router itself
+    (``role="hub"``) listening on ``listen`` endpoints (``rehab-hil router``).
     ``user``/``password`` and the TLS files are passed through to zenoh unchanged.
     """
 
@@ -40,6 +41,7 @@ class NetworkConfig:
     port: int = DEFAULT_PORT
     tls: bool = False
     router: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()  # lab router (mode="lab", role="hub"): the endpoints it listens on
     user: str | None = None
     password: str | None = None
     tls_root_ca: Path | None = None
@@ -53,7 +55,7 @@ class NetworkConfig:
         """The endpoints this session listens on (hub) or connects to (client)."""
         if self.mode == "loopback":
             return [f"{'tls' if self.tls else 'tcp'}/127.0.0.1:{self.port}"]
-        return list(self.router)
+        return list(self.listen if self.role == "hub" else self.router)
 
     def validate(self) -> NetworkConfig:
         """Raise ``TelemetryConfigError`` naming the first setting that cannot work."""
@@ -71,9 +73,22 @@ class NetworkConfig:
             raise TelemetryConfigError("a TLS hub needs tls_certificate and tls_private_key")
         if self.tls and self.role == "client" and self.tls_root_ca is None:
             raise TelemetryConfigError("a TLS client needs tls_root_ca to check the hub's certificate")
-        if self.mode == "lab":
-            if self.role != "client":
-                raise TelemetryConfigError("mode='lab' sessions are clients of the lab router (role='client')")
+        if self.mode == "loopback" and self.listen:
+            raise TelemetryConfigError("listen endpoints are for the lab router (mode='lab', role='hub')")
+        if self.mode == "lab" and self.role == "hub":
+            if self.router:
+                raise TelemetryConfigError("a lab router listens (listen=...); it does not connect to a router")
+            if not self.listen:
+                raise TelemetryConfigError("the lab router needs at least one listen endpoint, e.g. tcp/0.0.0.0:7447")
+            for ep in self.listen:
+                m = _ENDPOINT.match(ep) if isinstance(ep, str) else None
+                if not m or not 0 <= int(m.group(3)) <= 65535:
+                    raise TelemetryConfigError(f"listen endpoint {ep!r} must look like tcp/HOST:PORT or tls/HOST:PORT")
+                if m.group(1) == "tls" and self.tls_certificate is None:
+                    raise TelemetryConfigError(f"listen endpoint {ep!r} uses TLS: set tls_certificate and key")
+        elif self.mode == "lab":
+            if self.listen:
+                raise TelemetryConfigError("listen endpoints are for the lab router (role='hub')")
             if not self.router:
                 raise TelemetryConfigError("mode='lab' needs at least one router endpoint, e.g. tcp/10.0.0.2:7447")
             for ep in self.router:

@@ -1,0 +1,220 @@
+"""A lab of rigs on loopback: ``rehab-hil router`` (a real process), three in-process rigs as clients,
+the monitor's lab table, a multi-rig zenoh recording equal to each rig's local recording, the
+router's access control, and the one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from rehab_hil.cli import main
+from rehab_hil.plants import get_plant, load_config
+from rehab_hil.protocol import Sample
+from rehab_hil.service import assembly
+from rehab_hil.service.estimation import Estimator
+from rehab_hil.service.recorder import Recorder
+from rehab_hil.service.run_dir import read_metadata
+from rehab_hil.service.runner import LoopService
+from rehab_hil.telemetry import (
+    NetworkConfig,
+    TelemetryConfigError,
+    TelemetryPublisher,
+    list_rigs,
+    open_session,
+    subscribe,
+)
+from rehab_hil.telemetry.access import command_access_control
+from rehab_hil.telemetry.rig import rig_info
+from rehab_hil.testing import free_port
+
+from .fake_rig import LockstepRig, RampController
+from .fgclient import FoxgloveClient
+
+CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
+
+
+def start_router(*extra: str) -> tuple[subprocess.Popen[str], str]:
+    """``rehab-hil router`` in its own process on a free loopback port; returns it and its endpoint."""
+    for _ in range(5):
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.cli", "router", "--listen", ep, "--duration", "120",
+                                 *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        if line.startswith("zenoh router listening on"):
+            return proc, ep
+        _, err = proc.communicate(timeout=10)
+    raise RuntimeError(f"no router started: {line!r} {err[-500:]!r}")
+
+
+def stop_router(proc: subprocess.Popen[str]) -> str:
+    proc.terminate()
+    out, _ = proc.communicate(timeout=20)
+    return out
+
+
+@pytest.fixture
+def router() -> Iterator[str]:
+    proc, ep = start_router()
+    yield ep
+    assert "router stopped after" in stop_router(proc)
+
+
+def lab_client(ep: str, **kw) -> zenoh.Session:  # type: ignore[no-untyped-def]
+    return open_session(NetworkConfig(mode="lab", router=(ep,), **kw))
+
+
+def test_three_rigs_on_one_router_monitor_and_a_multi_rig_recording(router: str, wait, tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = load_config(CONFIG)
+    binding = get_plant(cfg.plant).device(cfg)
+    rigs = ["lab-a", "lab-b", "lab-c"]
+    sessions = {r: lab_client(router) for r in [*rigs, "bench-x"]}
+    hws = {r: LockstepRig() for r in rigs}
+    info = rig_info(cfg.plant, CONFIG, binding, assembly.period_s(cfg), hws[rigs[0]].info)
+    pubs = {r: TelemetryPublisher(sessions[r], r, info=info, queue_size=20_000) for r in sessions}
+    try:
+        probe = lab_client(router)
+        assert wait(lambda: len(list_rigs(probe, timeout_s=0.5)) == 4)  # the tokens reached the router
+        probe.close()
+        # the monitor without a rig id: one row per live rig
+        assert main(["monitor", "--connect", router, "--duration", "1.0", "--no-live"]) == 0
+        table = capsys.readouterr().out
+        for r in [*rigs, "bench-x"]:
+            assert r in table
+        assert "4 live rig(s)" in table and table.count("finger_extensor") == 4
+
+        codes: list[int] = []
+        rec = threading.Thread(target=lambda: codes.append(main(
+            ["record", "--from-zenoh", "lab-*", "--out", str(tmp_path / "zenoh"), "--connect", router])))
+        rec.start()
+        assert all(wait(pubs[r].has_subscribers, 20) for r in rigs)
+        locals_ = {r: Recorder(tmp_path / "local" / r, binding) for r in rigs}
+        results = {}
+
+        def session(r: str) -> None:
+            svc = LoopService(hws[r], assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
+                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=locals_[r],
+                              telemetry=pubs[r])
+            results[r] = svc.run(0.3, pacing="device", realtime=False, sample_timeout_s=0.5)
+
+        loops = [threading.Thread(target=session, args=(r,)) for r in rigs]
+        for th in loops:
+            th.start()
+        for th in loops:
+            th.join(60)
+        for r in rigs:
+            locals_[r].close()
+            pubs[r].close()  # the rig stops; the recorder finishes its run directory
+        rec.join(60)
+    finally:
+        for p in pubs.values():
+            p.close()
+        for s in sessions.values():
+            s.close()
+    assert codes == [0]
+    assert all(results[r].cycles > 200 and not results[r].events for r in rigs)
+    dirs = sorted((tmp_path / "zenoh").iterdir())
+    assert [d.name.split("-", 1)[1] for d in dirs] == rigs  # one run directory per matching rig, bench-x not
+    for d in dirs:
+        rig = d.name.split("-", 1)[1]
+        assert (d / "run.csv").read_text() == (tmp_path / "local" / rig / "run.csv").read_text()
+        meta = read_metadata(d)
+        assert meta["rig_id"] == rig and meta["plant"] == "finger_extensor" and meta["records"] > 400
+        assert meta["lost"] == {"batches_in_transit": 0, "publisher_dropped": 0, "writer_dropped": 0}
+    assert capsys.readouterr().out.count("rig stopped: rig lab-") == 3
+
+
+def test_the_router_acl_refuses_an_unauthorised_client_while_telemetry_flows(tmp_path: Path, wait) -> None:
+    users = {"rig": "rig-pw", "victor": "view-pw", "mallory": "mal-pw"}
+    (tmp_path / "users").write_text("".join(f"{u}:{p}\n" for u, p in users.items()))
+    acl = command_access_control(rig_users=["rig"], viewers=["victor"])  # mallory: in no policy
+    (tmp_path / "acl.json").write_text(json.dumps({"access_control": acl}))
+    proc, ep = start_router("--users", str(tmp_path / "users"), "--access-control", str(tmp_path / "acl.json"))
+    try:
+        def as_user(u: str) -> zenoh.Session:
+            return lab_client(ep, user=u, password=users[u])
+
+        rig, viewer, mallory, mallory_spy = as_user("rig"), as_user("victor"), as_user("mallory"), as_user("mallory")
+        with pytest.raises(TelemetryConfigError, match="cannot connect"):
+            lab_client(ep)  # no credentials: refused at the handshake
+        seen: list[int] = []
+        stolen: list[object] = []
+        spy = mallory_spy.declare_subscriber("rehab/**", stolen.append)
+        try:
+            with TelemetryPublisher(rig, "acl1", batch=1) as pub, \
+                    subscribe("acl1", lambda s: seen.append(s.sample_index), session=viewer):
+                assert wait(pub.has_subscribers)
+                fake = mallory.declare_publisher("rehab/acl1/state")
+                fake.put(b"RS-forged")  # denied on ingress: the viewer never sees it
+                for i in range(20):
+                    pub.offer(Sample(i, i, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+                assert wait(lambda: len(seen) == 20)
+                fake.undeclare()
+        finally:
+            spy.undeclare()
+        assert seen == list(range(20)) and stolen == []
+        for s in (rig, viewer, mallory, mallory_spy):
+            s.close()
+    finally:
+        stop_router(proc)
+
+
+def test_the_foxglove_bridge_serves_a_rig_from_zenoh(router: str, wait, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = load_config(CONFIG)
+    binding = get_plant(cfg.plant).device(cfg)
+    rig_session = lab_client(router)
+    ws_port = free_port()
+    hw = LockstepRig()
+    pub = TelemetryPublisher(rig_session, "fox1", info=rig_info(cfg.plant, CONFIG, binding, 0.001, hw.info))
+    codes: list[int] = []
+    bridge = threading.Thread(target=lambda: codes.append(main(
+        ["foxglove", "fox1", "--ws-port", str(ws_port), "--connect", router, "--duration", "5"])))
+    bridge.start()
+    client = None
+    try:
+        assert wait(pub.has_subscribers)  # the bridge is subscribed, so its server is up
+        client = FoxgloveClient(ws_port, ["/rig/sample"])
+        assert client.wait_subscribed(), client.error
+        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
+                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), telemetry=pub)
+        result = svc.run(0.2, pacing="device", realtime=False, sample_timeout_s=0.5)
+        assert wait(lambda: len(client.messages["/rig/sample"]) >= result.samples - 5)
+    finally:
+        if client is not None:
+            client.close()
+        pub.close()
+        bridge.join(30)
+        rig_session.close()
+    msgs = client.messages["/rig/sample"]
+    idx = [m["sample_index"] for m in msgs]
+    assert idx == sorted(idx) and len(set(idx)) == len(idx)
+    assert codes == [0] and "rig fox1 -> /rig/{sample,command,event,stats}" in capsys.readouterr().out
+
+
+def test_bad_lab_input_gets_one_line_errors(router: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    nowhere = f"tcp/127.0.0.1:{free_port()}"
+    cases = [
+        (["monitor", "--connect", nowhere, "--no-live"], "cannot connect to " + nowhere),
+        (["record", "--from-zenoh", "lab-*", "--out", str(tmp_path), "--connect", nowhere, "--wait", "0.3"],
+         "cannot connect to " + nowhere),
+        (["record", "--from-zenoh", "nothing-*", "--out", str(tmp_path), "--connect", router, "--wait", "0.5"],
+         "no live rig matches 'nothing-*' within 0.5 s (live rigs: none)"),
+        (["record", "--from-zenoh", "a/b", "--out", str(tmp_path), "--connect", router], "rig pattern 'a/b' must"),
+        (["foxglove", "ghost", "--connect", router, "--wait", "0.3", "--ws-port", str(free_port())],
+         "rig(s) ghost not live within 0.3 s"),
+        (["router", "--listen", router], "cannot listen on " + router),
+        (["router", "--listen", "udp/nowhere"], "listen endpoint 'udp/nowhere' must look like"),
+    ]
+    for argv, text in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert text in err and "\n" not in err, (argv, err)
+    assert list(tmp_path.iterdir()) == []  # nothing written
