@@ -34,6 +34,7 @@ __all__ = [
     "EffectSpec",
     "EncoderSection",
     "Excitation",
+    "FitParameter",
     "ForceSensorSection",
     "Plant",
     "PlantConfig",
@@ -70,6 +71,18 @@ class Excitation:
     inputs: Callable[[np.ndarray, np.random.Generator], dict[str, np.ndarray]]
     mismatch: tuple[str, float]  # qualified parameter, factor
     noise: Mapping[str, float]  # channel -> standard deviation (its unit)
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """A nominal parameter the discrepancy workflow may find off (docs/discrepancy.md): its config
+    key, the diagram parameters (``"part.param"``) and external inputs scaled with it, and the
+    corrected config value for a factor (default: the config value times the factor)."""
+
+    config_key: str  # dotted key in the plant's TOML, e.g. "motor.kt_nm_per_a"
+    diagram: tuple[str, ...] = ()
+    inputs: tuple[str, ...] = ()
+    to_config: Callable[[Any, float], float] | None = None
 
 
 def multisine(t: np.ndarray, rng: np.random.Generator, amplitude: float, freqs_hz: tuple[float, ...],
@@ -182,6 +195,7 @@ class DeviceBinding:
     substeps: int
     encoder_source: str = ""  # what the simulated encoder reads (differs under a sensor effect)
     plant: str = ""
+    angle_output: str = ""  # the model's output for the encoder angle in degrees (the recorded column)
 
     def __post_init__(self) -> None:
         if not self.encoder_source and self.encoder_signal:
@@ -205,9 +219,9 @@ class DeviceBinding:
         return next((s for s in self.state_interfaces if s.kind == kind), None)
 
     @property
-    def angle_column(self) -> str | None:
-        """The recorded angle column in degrees (the model's encoder-angle output)."""
-        return self.encoder_signal.removesuffix("_rad") + "_deg" if self.encoder_signal else None
+    def reference_column(self) -> str:
+        """The recorded reference of the encoder angle, beside ``angle_output`` [deg]."""
+        return self.angle_output.removesuffix("_deg") + "_reference_deg"
 
 
 # --- the plant declaration and its registry -------------------------------------------------
@@ -226,6 +240,7 @@ class Plant:
     optional_inputs: ClassVar[tuple[str, ...]] = ()  # a recording may lack these (taken as zero)
     scenarios: ClassVar[Mapping[str, Callable[..., Scenario]]] = {}
     excitation: ClassVar[Excitation | None] = None
+    fit_parameters: ClassVar[tuple[FitParameter, ...]] = ()  # nominal parameters the discrepancy workflow fits
 
     def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -290,7 +305,7 @@ class Plant:
             encoder_signal=enc.wire.signal if enc and enc.wire else None,
             encoder_counts_per_rev=int(enc.counts_per_unit) if enc else 0,
             adc=adc, step_s=step_s, substeps=substeps,
-            encoder_source=source(enc) if enc else "", plant=cls.name,
+            encoder_source=source(enc) if enc else "", plant=cls.name, angle_output=enc.signal if enc else "",
         )
 
 

@@ -32,7 +32,7 @@ from rehab_hil.protocol import DUTY_FULL, Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State
 
-__all__ = ["Record", "Recorder", "csv_columns", "read_mcap"]
+__all__ = ["GENERIC_FIELDS", "Record", "Recorder", "csv_columns", "generic_fields", "read_mcap"]
 
 RAW_COLUMNS = (
     "host_time_s", "device_time_s", "sample_index", "raw_encoder_counts", "raw_adc0_counts",
@@ -56,18 +56,24 @@ class Record:
     temperature_c: float
 
 
-def _angle_base(binding: DeviceBinding) -> str:
-    s = binding.encoder_signal
-    return s[: -len("_rad")] if s.endswith("_rad") else s
-
-
 def csv_columns(binding: DeviceBinding) -> list[str]:
     """Plant signal names first (angle in rad and deg, reference, calibrated ADC, PWM-driven inputs),
     then the raw columns."""
-    base = _angle_base(binding)
-    plant = [binding.encoder_signal, f"{base}_deg", f"{base}_reference_deg",
+    plant = [binding.encoder_signal, binding.angle_output, binding.reference_column,
              *(ch.signal for ch in binding.adc), *binding.duty_inputs]
     return list(dict.fromkeys([*plant, *RAW_COLUMNS]))
+
+
+# plant-independent names in every MCAP sample message, so that one Foxglove layout
+# (docs/foxglove_layout.json) plots every plant; the plant's own names stay alongside
+GENERIC_FIELDS = ("angle_deg", "reference_deg", "analog0", "analog1")
+
+
+def generic_fields(r: Record) -> dict[str, float]:
+    """The plant-independent fields of a sample record: angle, reference, first two calibrated ADC signals."""
+    assert r.state is not None
+    a = [*r.state.analog.values(), math.nan, math.nan]
+    return {"angle_deg": r.state.angle_deg, "reference_deg": r.command.reference_deg, "analog0": a[0], "analog1": a[1]}
 
 
 def _schema(title: str, fields: list[str]) -> bytes:
@@ -105,7 +111,7 @@ class Recorder:
         self._mcap_fh = open(self.mcap_path, "wb")
         self._mcap = Writer(self._mcap_fh, compression=CompressionType.NONE)
         self._mcap.start(profile="", library="rehab-hil")
-        sample_fields = ["time_s", *self.columns]
+        sample_fields = ["time_s", *self.columns, *GENERIC_FIELDS]
         cmd_fields = ["host_time_s", "duty0_ratio", "duty1_ratio", "direction_bits", "enable_bool", "seq",
                       "reference_deg"]
         self._ch_sample = self._channel("/rig/sample", "rehab_hil.Sample", sample_fields)
@@ -203,9 +209,10 @@ class Recorder:
             return
         self._last_time_s = item.time_s
         row = self._row(item)
+        msg = {**row, **generic_fields(item)}
         self._mcap.add_message(self._ch_sample, log_time=lt, publish_time=lt,
                                sequence=item.sample.sample_index & 0xFFFFFFFF,
-                               data=json.dumps({k: _clean(v) for k, v in row.items()}).encode())
+                               data=json.dumps({k: _clean(v) for k, v in msg.items()}).encode())
         self.messages += 1
         self._pending.append(",".join(f"{row[k]:.10g}" for k in ["time_s", *self.columns]) + "\n")
         self.rows += 1
@@ -222,10 +229,8 @@ class Recorder:
     def _row(self, r: Record) -> dict[str, float]:
         s, st, c, b = r.sample, r.state, r.command, self.binding
         assert s is not None and st is not None
-        base = _angle_base(b)
-        row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad,
-                                 f"{base}_deg": st.angle_deg,
-                                 f"{base}_reference_deg": c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
+        row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad, b.angle_output: st.angle_deg,
+                                 b.reference_column: c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
         row.update(st.analog)
         applied = (s.duty0 / DUTY_FULL, s.duty1 / DUTY_FULL)
         for name, inp in b.duty_inputs.items():
