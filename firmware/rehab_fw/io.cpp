@@ -108,7 +108,7 @@ int32_t encoder_count() {
   return c;
 }
 
-bool estop_pin_active() { return (PIND & _BV(PD4)) == 0; }
+bool estop_pin_high() { return (PIND & _BV(PD4)) != 0; }
 
 void adc_start_pair() {
   if (adc_channel != 0xFF) return;  // previous pair still converting

@@ -19,7 +19,7 @@ enum Type : uint8_t {
   HELLO = 0x81, SAMPLE = 0x82, FAULT = 0x83, HEARTBEAT = 0x84, ACK = 0x85,
 };
 
-const uint8_t LEN_CONFIGURE = 21;
+const uint8_t LEN_CONFIGURE = 22;
 const uint8_t LEN_COMMAND = 6;
 const uint8_t LEN_HEARTBEAT = 4;
 const uint8_t LEN_HELLO = 14;

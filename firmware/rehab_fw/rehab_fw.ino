@@ -36,11 +36,13 @@ struct Config {
   uint32_t max_heating_ms;
   uint16_t force_limit;     // A0 counts; 1023 = off
   int32_t enc_min, enc_max;
-  uint8_t flags;            // bit0: e-stop input enabled
+  uint8_t flags;            // bit0: e-stop input enabled; bit1: normally-closed loop (pin high = stop)
+  uint8_t force_debounce;   // FORCE_LIMIT after this many consecutive ticks above the limit (0 = 1)
 };
+enum : uint8_t { FLAG_ESTOP_ENABLED = 1 << 0, FLAG_ESTOP_NC = 1 << 1 };
 
 // Until the host configures it the device is inert: max_duty 0 clamps every command to 0.
-static Config cfg = {0, 100, 0, 10000, 1023, INT32_MIN, INT32_MAX, 0};
+static Config cfg = {0, 100, 0, 10000, 1023, INT32_MIN, INT32_MAX, 0, 1};
 
 // State shared with the tick interrupt.
 static volatile uint16_t faults = 0;          // latched
@@ -48,6 +50,7 @@ static volatile uint16_t faults_unreported = 0;
 static volatile bool wd_armed = false;
 static volatile uint16_t ms_since_cmd = 0;
 static volatile uint32_t heating_ms = 0;
+static volatile uint8_t force_ticks = 0;       // consecutive ticks with A0 above the limit
 static volatile uint16_t duty[2] = {0, 0};    // applied
 static volatile uint8_t direction = 0;
 static volatile bool pwm_enabled = false;
@@ -95,19 +98,35 @@ static void latch(uint16_t bits) {
   outputs_off();
 }
 
+// The e-stop input with the configured wiring: a normally-closed loop holds D4 low through the
+// switch, so a pressed button or a broken wire lets the pull-up take it high (both a stop); a
+// normally-open button pulls it low when pressed (a broken wire then reads "released").
+static bool estop_active() {
+  bool high = io::estop_pin_high();
+  return (cfg.flags & FLAG_ESTOP_NC) ? high : !high;
+}
+
 // Causes that are still present (CLEAR refuses to clear these).
 static uint16_t present_causes() {
   uint16_t c = 0;
   if (io::adc_value[0] > cfg.force_limit) c |= F_FORCE_LIMIT;
   int32_t e = io::encoder_count();
   if (e < cfg.enc_min || e > cfg.enc_max) c |= F_RANGE_OF_MOTION;
-  if ((cfg.flags & 1) && io::estop_pin_active()) c |= F_ESTOP_INPUT;
+  if ((cfg.flags & FLAG_ESTOP_ENABLED) && estop_active()) c |= F_ESTOP_INPUT;
   return c;
 }
 
 // 1 kHz, interrupts disabled: safety first, then the sample snapshot.
 void io::on_tick() {
   uint16_t trip = present_causes();
+  // Force: only N consecutive ticks above the limit trip (a one-tick ADC spike from the PWM
+  // stage's switching noise does not; a real overload lasts far longer than a few ms).
+  if (trip & F_FORCE_LIMIT) {
+    if (force_ticks < 0xFF) ++force_ticks;
+    if (force_ticks < cfg.force_debounce) trip &= (uint16_t)~F_FORCE_LIMIT;
+  } else {
+    force_ticks = 0;
+  }
   if (wd_armed) {
     if (ms_since_cmd < 0xFFFF) ++ms_since_cmd;
     if (ms_since_cmd >= cfg.watchdog_ms) {
@@ -175,6 +194,7 @@ static void handle_configure(uint16_t seq, const uint8_t *p) {
   c.enc_min = (int32_t)proto::get_u32(p + 12);
   c.enc_max = (int32_t)proto::get_u32(p + 16);
   c.flags = p[20];
+  c.force_debounce = p[21];
   bool ok = c.watchdog_ms > 0 && c.max_duty <= io::DUTY_FULL && c.max_heating_ms > 0 && c.force_limit <= 1023 &&
             c.enc_min < c.enc_max;
   if (!ok) {
@@ -298,7 +318,7 @@ static void send_sample() {
     sample_due = false;
     d0 = duty[0]; d1 = duty[1]; dir = direction; f = faults;
     st = (cfg.divider ? ST_STREAMING : 0) | (pwm_enabled ? ST_PWM_ENABLED : 0) |
-         (faults ? ST_FAULT_LATCHED : 0) | (io::estop_pin_active() ? ST_ESTOP_INPUT_ACTIVE : 0) |
+         (faults ? ST_FAULT_LATCHED : 0) | (estop_active() ? ST_ESTOP_INPUT_ACTIVE : 0) |
          (duty_clamped ? ST_DUTY_CLAMPED : 0) | (wd_armed ? ST_WATCHDOG_ARMED : 0);
   }
   if (fresh) send_fault(fresh, f);
@@ -354,6 +374,6 @@ void loop() {
 #ifdef FW_TEST_HANG
   // Test builds only (firmware/Makefile TEST_HOOKS=1): the e-stop pin held low with the e-stop
   // input disabled makes the firmware hang, to prove the hardware watchdog resets the board.
-  if (!(cfg.flags & 1) && io::estop_pin_active() && cfg.divider) { for (;;) {} }
+  if (!(cfg.flags & FLAG_ESTOP_ENABLED) && !io::estop_pin_high() && cfg.divider) { for (;;) {} }
 #endif
 }

@@ -70,6 +70,8 @@ static size_t tx_len = 0;
 static uint64_t tx_dropped = 0, rx_dropped = 0;
 
 static int32_t enc_pos = 0, enc_target = 0;   /* x4 counts driven on D2/D3 */
+static uint32_t adc_mv[8];                    /* the level each ADC input is held at */
+static int pulse_ch = -1;                     /* an ADC pulse in progress (P): its channel */
 static uint8_t estop_level = 1;               /* D4, idle high (pull-up) */
 static uint32_t resets = 0;
 static struct timespec wall0;
@@ -120,6 +122,14 @@ static avr_cycle_count_t encoder_timer(avr_t *a, avr_cycle_count_t when, void *p
     enc_pos += enc_target > enc_pos ? 1 : -1;
     drive_inputs();
     return enc_pos == enc_target ? 0 : when + (avr_cycle_count_t)edge_us * CYC_PER_US;
+}
+
+/* The end of an ADC pulse (P): the input goes back to its held level. */
+static avr_cycle_count_t pulse_end(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a; (void)when; (void)param;
+    if (pulse_ch >= 0) avr_raise_irq(adc_irq + pulse_ch, adc_mv[pulse_ch]);
+    pulse_ch = -1;
+    return 0;
 }
 
 /* Starts the edge timer when the target moved (it does not run while the encoder is idle). */
@@ -222,7 +232,17 @@ static int handle_line(char *line) {
             if (sscanf(line + 1, "%ld", &a) == 1) { enc_pos = enc_target = (int32_t)a; drive_inputs(); }
             return 0;
         case 'A':
-            if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a >= 0 && a < 8) avr_raise_irq(adc_irq + a, (uint32_t)b);
+            if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a >= 0 && a < 8) {
+                adc_mv[a] = (uint32_t)b;
+                avr_raise_irq(adc_irq + a, (uint32_t)b);
+            }
+            return 0;
+        case 'P':  /* P ch mV us: hold the ADC input at mV for us of simulated time, then back (a noise burst) */
+            if (sscanf(line + 1, "%ld %ld %ld", &a, &b, &c) == 3 && a >= 0 && a < 8 && c > 0) {
+                pulse_ch = (int)a;
+                avr_raise_irq(adc_irq + a, (uint32_t)b);
+                avr_cycle_timer_register(avr, (avr_cycle_count_t)c * CYC_PER_US, pulse_end, NULL);
+            }
             return 0;
         case 'D':
             if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a == 4) { estop_level = b ? 1 : 0; drive_inputs(); }
@@ -241,8 +261,8 @@ static int handle_line(char *line) {
         case 'G': {
             int n = sscanf(line + 1, "%ld %ld %ld %ld", &a, &b, &c, &d);
             if (n >= 1) { enc_target = (int32_t)a; encoder_kick(); }
-            if (n >= 2) avr_raise_irq(adc_irq + 0, (uint32_t)b);
-            if (n >= 3) avr_raise_irq(adc_irq + 1, (uint32_t)c);
+            if (n >= 2) { adc_mv[0] = (uint32_t)b; avr_raise_irq(adc_irq + 0, (uint32_t)b); }
+            if (n >= 3) { adc_mv[1] = (uint32_t)c; avr_raise_irq(adc_irq + 1, (uint32_t)c); }
             if (n >= 4 && (d ? 1 : 0) != estop_level) { estop_level = d ? 1 : 0; drive_inputs(); }
             return 1;
         }

@@ -17,8 +17,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 __all__ = [
     "ConfigError",
     "Field",
+    "RigEstopSection",
     "RigHostSection",
     "RigLimitsSection",
+    "RigLinkSection",
     "RigSection",
     "RigSessionSection",
     "RigThermalSection",
@@ -67,6 +69,8 @@ class RigLimitsSection(Section):
     stuck_min_duty: float = Field(ge=0.0, le=1.0, description="duty at or above which the rig counts as driving")
     stuck_min_error_deg: float = Field(gt=0.0, le=360.0, description="tracking error that counts as far")
     stuck_min_motion_deg: float = Field(gt=0.0, le=360.0, description="encoder motion that counts as moving")
+    force_debounce_ms: int = Field(default=3, ge=1, le=255, description="the force limit trips after this many "
+                                   "consecutive 1 kHz ticks (firmware) / this long (host) above it [ms]")
 
     @model_validator(mode="after")
     def _range(self) -> RigLimitsSection:
@@ -85,17 +89,53 @@ class RigHostSection(Section):
 
 
 class RigThermalSection(Section):
-    """First-order actuator temperature from the PWM history (host supervisor): tau dT/dt = T0 + rise*duty - T."""
+    """First-order actuator temperature from the PWM history (host supervisor): tau dT/dt = T0 + rise*duty - T.
+
+    Where a thermistor is wired (an ADC channel whose signal ends in ``_c``), the supervisor trips
+    on the measured temperature too and on a disagreement with the estimate (broken sensor or
+    wrong model)."""
 
     ambient_c: float = Field(ge=-50.0, le=100.0)
     rise_at_full_duty_c: float = Field(ge=0.0, le=1000.0, description="equilibrium rise at duty 1 [C]")
     time_constant_s: float = Field(gt=0.0, le=3600.0)
+    max_disagreement_c: float = Field(default=25.0, gt=0.0, le=500.0, description="measured vs estimated "
+                                      "temperature beyond this is a fault (sensor or model) [C]")
+    disagreement_s: float = Field(default=1.0, gt=0.0, le=600.0, description="for this long [s]")
+
+
+class RigEstopSection(Section):
+    """The e-stop input (D4, INPUT_PULLUP). A normally-closed loop holds D4 low through the switch, so
+    a pressed button and a broken wire both read high, both a stop (IEC 60204-1 / ISO 13850:
+    emergency-stop circuits fail to the stopped state); a normally-open button cannot tell a
+    broken wire from "released"."""
+
+    enabled: bool = Field(description="the firmware trips ESTOP_INPUT and the host trips estop_input")
+    normally_closed: bool = Field(default=True, description="loop wiring: true = pin high is a stop")
+
+
+class RigLinkSection(Section):
+    """The simulated link between host and a simulated device (docs/loop.md, "The link"): an Uno's
+    ATmega16U2 running Arduino-usbserial forwards UART bytes to USB when its 4.096 ms Timer0 flush
+    fires or more than 96 bytes wait (Arduino-usbserial.c: BUFFER_NEARLY_FULL, TOV0 at 16 MHz/256/256);
+    USB bulk OUT reaches the 16U2 once per 1 ms full-speed frame; opening the port pulses DTR, which
+    resets the 328P into optiboot (silent, PWM pins floating) before the sketch says HELLO."""
+
+    usb_bridge: bool = Field(description="model the 16U2 bridge (false: bytes pass at once)")
+    to_host_flush_ms: float = Field(default=4.096, gt=0.0, le=100.0, description="16U2 UART->USB flush period [ms]")
+    to_host_flush_bytes: int = Field(default=96, ge=1, le=4096, description="16U2 flushes early above this [B]")
+    to_device_frame_ms: float = Field(default=1.0, gt=0.0, le=100.0, description="USB OUT delivery period [ms]")
+    jitter_ms: float = Field(default=0.0, ge=0.0, le=100.0, description="extra uniform 0..jitter delay per "
+                             "flush (host USB stack scheduling) [ms]")
+    auto_reset: bool = Field(default=True, description="opening the port resets the device (DTR, Uno auto-reset)")
+    bootloader_ms: float = Field(default=1000.0, ge=0.0, le=10_000.0, description="optiboot's wait after an "
+                                 "external reset before the sketch runs (WATCHDOG_1S in optiboot.c) [ms]")
 
 
 class RigSessionSection(Section):
     """What ``rehab-hil run`` does: open-close cycles (seed 000: 5 per minute) and its controllers."""
 
-    tracking: str = Field(pattern="^(pid|pwm_ratio)$", description="how the session follows its reference")
+    tracking: str = Field(pattern="^(pid|pwm_ratio|pulsed)$", description="how the session follows its "
+                          "reference (pulsed: the open_loop duty profile, seed 001's PIS)")
     cycles_per_minute: float = Field(gt=0.0, le=120.0)
     closed_deg: float = Field(ge=-360.0, le=360.0)
     open_deg: float = Field(ge=-360.0, le=360.0)
@@ -121,6 +161,20 @@ class RigSection(Section):
     host: RigHostSection | None = None
     thermal: RigThermalSection | None = None
     session: RigSessionSection | None = None
+    estop: RigEstopSection | None = None
+    link: RigLinkSection | None = None
+
+    def unreachable_temperature(self) -> str | None:
+        """Why ``limits.max_temperature_c`` can never fire (the estimate levels off below it), or None."""
+        th = self.thermal
+        if th is None:
+            return None
+        ceiling = th.ambient_c + th.rise_at_full_duty_c * self.limits.max_duty
+        if self.limits.max_temperature_c < ceiling:
+            return None
+        return (f"{self.limits.max_temperature_c} C is unreachable: the thermal estimate levels off at "
+                f"rig.thermal.ambient_c + rise_at_full_duty_c x rig.limits.max_duty = {ceiling:.1f} C, so the "
+                "temperature trip could never fire; set it below that")
 
 
 T = TypeVar("T", bound=BaseModel)
@@ -165,13 +219,17 @@ def validate(path: str | Path, data: dict[str, Any], schema: type[T]) -> T:
     """Validate ``data`` against ``schema``; the first error becomes a ``ConfigError``."""
     _reject_non_finite(path, data, ())
     try:
-        return schema.model_validate(data)
+        model = schema.model_validate(data)
     except ValidationError as e:
         errs = e.errors()
         first = errs[0]
         key = _dotted(first["loc"])
         more = f" (and {len(errs) - 1} more errors)" if len(errs) > 1 else ""
         raise ConfigError(path, key, _message(first) + more) from None
+    rig = getattr(model, "rig", None)
+    if isinstance(rig, RigSection) and (why := rig.unreachable_temperature()):
+        raise ConfigError(path, "rig.limits.max_temperature_c", why)
+    return model
 
 
 def _reject_non_finite(path: str | Path, data: Any, loc: tuple[Any, ...]) -> None:

@@ -159,7 +159,7 @@ class Configure(Message):
     """Sample rate (0 = stop streaming), watchdog and safety limits; answered by ACK."""
 
     TYPE: ClassVar[int] = 0x02
-    FMT: ClassVar[struct.Struct] = struct.Struct("<HHHIHiiB")
+    FMT: ClassVar[struct.Struct] = struct.Struct("<HHHIHiiBB")
     sample_rate_hz: int
     watchdog_ms: int
     max_duty: int  # duty units (DUTY_FULL = 1.0)
@@ -167,9 +167,11 @@ class Configure(Message):
     force_limit_counts: int  # A0 counts; 1023 = off
     enc_min: int
     enc_max: int
-    flags: int = 0  # bit0: e-stop input pin enabled
+    flags: int = 0  # bit0: e-stop input pin enabled; bit1: normally-closed loop (pin high = stop)
+    force_debounce_ms: int = 1  # FORCE_LIMIT needs this many consecutive ticks above the limit (0 and 1: one)
 
     FLAG_ESTOP_INPUT: ClassVar[int] = 1 << 0
+    FLAG_ESTOP_NORMALLY_CLOSED: ClassVar[int] = 1 << 1
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,12 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(180), pytest.mark.xdist_grou
 WIDE = 1 << 30
 
 
+NC = Configure.FLAG_ESTOP_NORMALLY_CLOSED  # the simulated rigs are wired as configs/*.toml say: a closed loop
+
+
 def _config(**kw: int) -> Configure:
     base = dict(sample_rate_hz=1000, watchdog_ms=200, max_duty=DUTY_FULL, max_heating_ms=60_000,
-                force_limit_counts=1023, enc_min=-WIDE, enc_max=WIDE, flags=0)
+                force_limit_counts=1023, enc_min=-WIDE, enc_max=WIDE, flags=NC)
     base.update(kw)
     return Configure(**base)
 
@@ -213,18 +216,24 @@ def test_heating_time_trips_after_max_heating_ms_of_continuous_drive(rig: tuple[
     assert hw.clear()
 
 
-def test_driving_into_the_force_limit_trips_and_cuts_pwm(stepped: Stepped) -> None:
+def test_a_force_above_the_limit_trips_and_cuts_pwm(stepped: Stepped) -> None:
     hw = stepped.hw
     _, rest = stepped.step(Command(0, 0, 0, 1))
-    hw.configure(_config(force_limit_counts=rest.adc0 + 40))
-    for _ in range(200):
-        _, s = stepped.step(Command(5000, 0, 0, 1))
-        if s.faults:
-            break
-    assert s.faults == Fault.FORCE_LIMIT and s.duty0 == 0 and not s.status & Status.PWM_ENABLED
-    echo = s.cmd_seq_echo
-    _, s = stepped.step(Command(5000, 0, 0, 1))
-    assert s.duty0 == 0 and s.cmd_seq_echo == echo  # ignored while latched
+    hw.configure(_config(force_limit_counts=rest.adc0 + 40, force_debounce_ms=3))
+    _, s = stepped.step(Command(2000, 0, 0, 1))
+    assert s.faults == 0 and s.duty0 == 2000
+    stepped.device.control("input patient_torque_nm 1.0")  # A0 (the torque sensor) +100 counts
+    try:
+        for _ in range(200):
+            _, s = stepped.step(Command(2000, 0, 0, 1))
+            if s.faults:
+                break
+        assert s.faults == Fault.FORCE_LIMIT and s.duty0 == 0 and not s.status & Status.PWM_ENABLED
+        echo = s.cmd_seq_echo
+        _, s = stepped.step(Command(2000, 0, 0, 1))
+        assert s.duty0 == 0 and s.cmd_seq_echo == echo  # ignored while latched
+    finally:
+        stepped.device.control("input patient_torque_nm 0.0")
 
 
 def test_driving_out_of_the_range_of_motion_trips(stepped: Stepped) -> None:
@@ -260,7 +269,7 @@ def test_estop_input_pin_trips_and_holds_until_released(rig: tuple[Any, SerialHa
     device, hw = rig
     if not hasattr(device, "set_estop_input"):
         pytest.skip("this backend cannot drive the e-stop pin")
-    hw.configure(_config(flags=Configure.FLAG_ESTOP_INPUT))
+    hw.configure(_config(flags=Configure.FLAG_ESTOP_INPUT | NC))
     hw.write_command(0.1)
     try:
         device.set_estop_input(True)
@@ -269,6 +278,22 @@ def test_estop_input_pin_trips_and_holds_until_released(rig: tuple[Any, SerialHa
         assert not hw.clear()
     finally:
         device.set_estop_input(False)
+    _until(hw, lambda s: not s.status & Status.ESTOP_INPUT_ACTIVE)
+    assert hw.clear()
+
+
+def test_a_broken_estop_wire_is_a_stop_with_the_normally_closed_loop(rig: tuple[Any, SerialHardware]) -> None:
+    device, hw = rig
+    hw.configure(_config(flags=Configure.FLAG_ESTOP_INPUT | NC, watchdog_ms=1000))
+    hw.write_command(0.1)
+    _until(hw, lambda s: s.duty0 > 0)
+    try:
+        device.control("estop_wire broken")
+        s = _until(hw, lambda s: s.faults & Fault.ESTOP_INPUT)
+        assert s.duty0 == 0 and not s.status & Status.PWM_ENABLED
+        assert not hw.clear()
+    finally:
+        device.control("estop_wire ok")
     _until(hw, lambda s: not s.status & Status.ESTOP_INPUT_ACTIVE)
     assert hw.clear()
 

@@ -150,6 +150,38 @@ def test_estop_pin_is_ignored_unless_enabled_but_always_reported() -> None:
     assert s.faults == 0 and s.status & Status.ESTOP_INPUT_ACTIVE
 
 
+NC = Configure.FLAG_ESTOP_INPUT | Configure.FLAG_ESTOP_NORMALLY_CLOSED
+
+
+@pytest.mark.parametrize(("flags", "readings", "trips"), [
+    (NC, Readings(0, 500, 0), False),  # loop closed: released
+    (NC, Readings(0, 500, 0, estop_pin=True), True),  # button opens the loop
+    (NC, Readings(0, 500, 0, estop_wire_broken=True), True),  # a broken wire is a stop
+    (Configure.FLAG_ESTOP_INPUT, Readings(0, 500, 0, estop_wire_broken=True), False),  # normally open: the hazard
+])
+def test_a_normally_closed_estop_loop_trips_on_a_press_and_on_a_broken_wire(flags: int, readings: Readings,
+                                                                            trips: bool) -> None:
+    core = _configured(flags=flags, watchdog_ms=1000)
+    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    out = core.tick(readings)
+    assert bool(_faults(out)) is trips and (core.duty == [0, 0]) is trips
+    (s,) = _samples(out)
+    assert bool(s.status & Status.ESTOP_INPUT_ACTIVE) is trips
+
+
+def test_force_limit_is_debounced_a_noise_burst_does_not_trip_a_real_overload_does() -> None:
+    core = _configured(watchdog_ms=1000, force_debounce_ms=3)
+    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    high = Readings(0, 1000, 0)
+    for _ in range(5):  # bursts of 2 ticks above the limit, separated by one normal tick
+        assert not _faults(core.tick(high)) and not _faults(core.tick(high))
+        assert not _faults(core.tick(OK))
+    assert core.duty == [3000, 0]
+    assert not _faults(core.tick(high)) and not _faults(core.tick(high))
+    assert _faults(core.tick(high)) == [FaultReport(Fault.FORCE_LIMIT, Fault.FORCE_LIMIT)]  # the 3rd in a row
+    assert core.duty == [0, 0]
+
+
 def test_estop_command_latches_and_clear_releases_it() -> None:
     core = _configured()
     core.on_frame(Frame(1, Command(3000, 0, 0, 1)))

@@ -197,6 +197,44 @@ def test_estop_input_pin(rig: tuple[Harness, SerialHardware]) -> None:
     assert hw.clear()
 
 
+def test_a_normally_closed_estop_loop_trips_when_opened_by_the_button_or_a_broken_wire(
+        rig: tuple[Harness, SerialHardware]) -> None:
+    harness, hw = rig
+    harness.send("D 4 0")  # the NC loop intact holds D4 low: released
+    hw.configure(config(flags=Configure.FLAG_ESTOP_INPUT | Configure.FLAG_ESTOP_NORMALLY_CLOSED))
+    s = _applied(hw, Command(3000, 0, 0, 1))
+    assert s.faults == 0 and not s.status & Status.ESTOP_INPUT_ACTIVE and s.duty0 > 0
+    harness.send("D 4 1")  # loop opened (pressed, or the wire cut): the pull-up reads high
+    s = _until(hw, lambda s: s.faults != 0)
+    assert s.faults == Fault.ESTOP_INPUT and s.status & Status.ESTOP_INPUT_ACTIVE and harness.state()["duty0"] == 0
+    assert not hw.clear()
+    harness.send("D 4 0")
+    _until(hw, lambda s: not s.status & Status.ESTOP_INPUT_ACTIVE)
+    assert hw.clear()
+    harness.send("D 4 1")  # leave the pin pulled up for the next test
+
+
+def test_force_limit_is_debounced_noise_bursts_pass_a_real_overload_trips(
+        rig: tuple[Harness, SerialHardware]) -> None:
+    harness, hw = rig
+    harness.send(f"A 0 {mv(500)}")
+    hw.configure(config(force_limit_counts=600, force_debounce_ms=3))
+    assert _applied(hw, Command(3000, 0, 0, 1)).adc0 == 500
+    for _ in range(5):  # 1.5 ms bursts: above the limit for at most 2 ticks, never 3 in a row
+        harness.send(f"P 0 {mv(900)} 1500")
+        _until(hw, lambda s: s.adc0 == 900, max_samples=50)  # one burst at a time, each seen
+        _until(hw, lambda s: s.adc0 == 500, max_samples=50)
+    for _ in range(20):
+        s = _next(hw)
+    assert s.faults == 0 and s.duty0 > 0
+    harness.send(f"A 0 {mv(900)}")  # a real overload
+    s = _until(hw, lambda s: s.faults != 0)
+    assert s.faults == Fault.FORCE_LIMIT and harness.state()["duty0"] == 0
+    harness.send(f"A 0 {mv(500)}")
+    _until(hw, lambda s: s.adc0 == 500)
+    assert hw.clear()
+
+
 def test_estop_command_latches_until_clear(rig: tuple[Harness, SerialHardware]) -> None:
     harness, hw = rig
     on = _applied(hw, Command(3000, 2000, 0, 1))

@@ -107,7 +107,7 @@ def test_supervisor_clamps_duty_and_latches_pwm_off_after_a_trip():
     ("range_of_motion", lambda s: s.observe(0.0, state(121.0), 0)),
     ("device_fault", lambda s: s.observe(0.0, state(0.0), Fault.WATCHDOG)),
     ("link_loss", lambda s: [s.no_sample(0.0) for _ in range(5)]),
-    ("heating_time", lambda s: [s.filter(0.0, Command((0.1, 0.0), 0, True)) for _ in range(1001)]),
+    ("heating_time", lambda s: [s.filter(k * 0.001, Command((0.1, 0.0), 0, True)) for k in range(1001)]),
 ])
 def test_supervisor_trips_on_each_check(reason, act):
     sup = Supervisor(limits(), 0.001)

@@ -12,7 +12,8 @@ firmware's millisecond timeouts and the host's agree. The pty the host opens bel
 harness; the driver prints its path as its first stdout line.
 
 Control channel (stdin, one command per line, each answered by ``ok ...`` or ``error ...``), the
-subset of the Python device's that a real firmware allows: ``estop 0|1``, ``input NAME VALUE``,
+subset of the Python device's that a real firmware allows: ``estop 0|1``, ``estop_wire ok|broken``,
+``input NAME VALUE``,
 ``reboot [external]`` (an external reset of the AVR), ``status``. Stdin closing ends the driver
 and with it the harness.
 """
@@ -28,6 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
+from rehab_hil.devices.core import Readings
 from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
 from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess
 
@@ -86,9 +88,11 @@ def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_
 class _Driver(ControlChannel):
     """Closes the loop between the harness (lockstep lines on a pipe) and the plant."""
 
-    def __init__(self, plant: PlantIO, harness_argv: list[str]) -> None:
+    def __init__(self, plant: PlantIO, harness_argv: list[str], estop_normally_closed: bool = False) -> None:
         self.plant = plant
         self.estop_pin = False
+        self.estop_wire_broken = False
+        self.estop_nc = estop_normally_closed
         self.ticks = 0
         self.last_t = ""
         self.proc = subprocess.Popen(harness_argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
@@ -122,7 +126,8 @@ class _Driver(ControlChannel):
         enc, a0, a1 = self.plant.tick((duty0, duty1), direction)
         self.ticks += 1
         self.last_t = line
-        estop_level = 0 if self.estop_pin else 1  # active low
+        estop_level = int(Readings(estop_pin=self.estop_pin, estop_wire_broken=self.estop_wire_broken)
+                          .pin_high(self.estop_nc))  # D4 as the rig's loop is wired
         self._send(f"G {enc} {adc_counts_to_mv(a0)} {adc_counts_to_mv(a1)} {estop_level}")
 
     def _control(self, cmd: str, args: list[str]) -> str | object | None:
@@ -215,7 +220,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_h = [str(harness), "-l", "1000", "-e", str(args.edge_us)]
     if args.clock == "free":
         argv_h.append("-f")
-    driver = _Driver(plant, [*argv_h, str(elf)])
+    estop = cfg.rig.estop
+    driver = _Driver(plant, [*argv_h, str(elf)], estop.normally_closed if estop is not None else False)
     print(driver.port, flush=True)
     try:
         driver.run(sys.stdin.fileno())

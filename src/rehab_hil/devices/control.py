@@ -1,6 +1,6 @@
 """The control channel every simulated device serves on stdin: one command per line, one reply.
 
-The knobs all devices share (the e-stop input pin and a plant input) live here; each device adds
+The knobs all devices share (the e-stop button, its wire, and a plant input) live here; each device adds
 its own in ``_control`` (fault knobs, reboot, status). Replies: ``ok <command>``, ``ok <details>``
 or ``error <why>``.
 """
@@ -15,10 +15,12 @@ UNKNOWN = object()  # returned by ``_control`` for a command the device does not
 
 
 class ControlChannel:
-    """Mixin: ``control(line) -> reply``. Needs ``plant`` (PlantIO) and ``estop_pin`` (bool)."""
+    """Mixin: ``control(line) -> reply``. Needs ``plant`` (PlantIO) and ``estop_pin`` (bool: the
+    button pressed); ``estop_wire_broken`` is the e-stop loop's wire cut."""
 
     plant: PlantIO
     estop_pin: bool
+    estop_wire_broken: bool = False
 
     def control(self, line: str) -> str:
         """Apply one control command; returns the reply line."""
@@ -29,6 +31,9 @@ class ControlChannel:
         try:
             if cmd == "estop" and len(args) == 1 and args[0] in ("0", "1"):
                 self.estop_pin = args[0] == "1"
+                reply = None
+            elif cmd == "estop_wire" and len(args) == 1 and args[0] in ("ok", "broken"):
+                self.estop_wire_broken = args[0] == "broken"
                 reply = None
             elif cmd == "input" and len(args) == 2:
                 self.plant.set_input(args[0], float(args[1]))

@@ -44,20 +44,33 @@ _CONDITIONAL = Fault.FORCE_LIMIT | Fault.RANGE_OF_MOTION | Fault.ESTOP_INPUT
 
 @dataclass
 class Readings:
-    """Sensor values at a base tick: encoder count, ADC counts, e-stop pin (True = active)."""
+    """Sensor values at a base tick: encoder count, ADC counts, the e-stop button (True = pressed)
+    and whether its wire to D4 is broken; with the rig's wiring they give the pin level (``pin_high``)."""
 
     encoder_count: int = 0
     adc0: int = 0
     adc1: int = 0
     estop_pin: bool = False
+    estop_wire_broken: bool = False
+
+    def pin_high(self, normally_closed: bool) -> bool:
+        """D4's level (INPUT_PULLUP): an open circuit reads high. A normally-closed loop holds it low
+        until the button opens it; a normally-open button pulls it low when pressed."""
+        if self.estop_wire_broken:
+            return True
+        return self.estop_pin if normally_closed else not self.estop_pin
 
 
 class DeviceCore:
     """Protocol v1 device behaviour; ``duty`` / ``direction`` are the applied outputs."""
 
-    def __init__(self, encoder_counts_per_rev: int, reset_cause: int = ResetCause.POWER_ON) -> None:
+    def __init__(self, encoder_counts_per_rev: int, reset_cause: int = ResetCause.POWER_ON,
+                 estop_normally_closed: bool | None = None) -> None:
+        """``estop_normally_closed``: how the simulated rig's e-stop is wired (from its config's
+        ``[rig.estop]``); None = wired as the host configures it (CONFIGURE flags bit1)."""
         self.encoder_counts_per_rev = encoder_counts_per_rev
         self.reset_cause = reset_cause
+        self.estop_wiring_nc = estop_normally_closed
         self.ticks = 0
         self.sample_index = 0
         self.config: Configure | None = None
@@ -70,6 +83,7 @@ class DeviceCore:
         self.armed = False
         self.since_cmd = 0  # base ticks since the last valid COMMAND
         self.heating = 0  # consecutive base ticks with any applied duty > 0
+        self.force_ticks = 0  # consecutive base ticks with A0 above the force limit
         self.cmd_seq_echo = 0
         self.rx_bad_frames = 0
         self.readings = Readings()
@@ -177,7 +191,14 @@ class DeviceCore:
                     out += self._trip(Fault.HEATING_TIME)
             else:
                 self.heating = 0
-            present = self._present_causes() & ~self.faults
+            present = self._present_causes()
+            if present & Fault.FORCE_LIMIT:  # debounced: N consecutive ticks above the limit
+                self.force_ticks += 1
+                if self.force_ticks < c.force_debounce_ms:
+                    present &= ~Fault.FORCE_LIMIT
+            else:
+                self.force_ticks = 0
+            present &= ~self.faults
             if present:
                 out += self._trip(present)
         if self.divider and self.ticks % self.divider == 0:
@@ -202,7 +223,7 @@ class DeviceCore:
             bits |= Status.PWM_ENABLED
         if self.faults:
             bits |= Status.FAULT_LATCHED
-        if self.readings.estop_pin:
+        if self.estop_active:
             bits |= Status.ESTOP_INPUT_ACTIVE
         if self.clamped:
             bits |= Status.DUTY_CLAMPED
@@ -211,6 +232,14 @@ class DeviceCore:
         return bits
 
     # ---- safety -------------------------------------------------------------------------------
+
+    @property
+    def estop_active(self) -> bool:
+        """The e-stop input per the configured polarity (before CONFIGURE: active low, as the firmware)."""
+        nc = bool(self.config and self.config.flags & Configure.FLAG_ESTOP_NORMALLY_CLOSED)
+        wiring = nc if self.estop_wiring_nc is None else self.estop_wiring_nc
+        high = self.readings.pin_high(wiring)
+        return high if nc else not high
 
     def _present_causes(self) -> int:
         """Conditional faults whose condition holds now."""
@@ -222,7 +251,7 @@ class DeviceCore:
             bits |= Fault.FORCE_LIMIT
         if r.encoder_count < c.enc_min or r.encoder_count > c.enc_max:
             bits |= Fault.RANGE_OF_MOTION
-        if c.flags & Configure.FLAG_ESTOP_INPUT and r.estop_pin:
+        if c.flags & Configure.FLAG_ESTOP_INPUT and self.estop_active:
             bits |= Fault.ESTOP_INPUT
         return bits & _CONDITIONAL
 

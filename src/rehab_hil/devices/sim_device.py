@@ -11,7 +11,8 @@ streaming, deterministic and as fast as the host goes.
 Control channel (stdin, one command per line; each answered by one stdout line ``ok ...`` or
 ``error ...``); stdin closing ends the process:
 
-  estop 0|1          e-stop input pin inactive/active
+  estop 0|1          e-stop button released/pressed (the pin level follows the config's [rig.estop] wiring)
+  estop_wire ok|broken  the e-stop loop's wire intact / cut (a cut loop reads high: a stop when normally closed)
   input NAME VALUE   set a constant plant input (e.g. patient_torque_nm 0.5)
   drop P             drop each outgoing frame with probability P
   corrupt P          flip one byte of each outgoing frame with probability P
@@ -54,7 +55,8 @@ MAX_TICKS_PER_WAKE = 20  # catch-up ticks between two looks at the pty and the c
 class SimDevice(ControlChannel):
     """One simulated device: the firmware core, the plant, a pty master and the fault knobs."""
 
-    def __init__(self, plant: PlantIO, counts_per_rev: int, clock: str = "realtime", seed: int = 0) -> None:
+    def __init__(self, plant: PlantIO, counts_per_rev: int, clock: str = "realtime", seed: int = 0,
+                 estop_normally_closed: bool | None = None) -> None:
         if clock not in ("realtime", "lockstep"):
             raise ValueError(f"clock must be 'realtime' or 'lockstep', got {clock!r}")
         self.plant, self.counts_per_rev, self.clock = plant, counts_per_rev, clock
@@ -65,6 +67,8 @@ class SimDevice(ControlChannel):
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
         self.estop_pin = False
+        self.estop_wire_broken = False
+        self.estop_nc = estop_normally_closed
         self.drop = self.corrupt = 0.0
         self.delay_s = 0.0
         self.truncate_next = False
@@ -76,7 +80,7 @@ class SimDevice(ControlChannel):
         self._boot(ResetCause.POWER_ON)
 
     def _boot(self, cause: int) -> None:
-        self.core = DeviceCore(self.counts_per_rev, reset_cause=cause)
+        self.core = DeviceCore(self.counts_per_rev, reset_cause=cause, estop_normally_closed=self.estop_nc)
         self.decoder = FrameDecoder()
         self._tx_seq = 0
         self._send(self.core.boot())
@@ -146,7 +150,7 @@ class SimDevice(ControlChannel):
         """One base tick: read the plant at this instant, run the firmware tick, advance the plant."""
         core = self.core
         enc, a0, a1 = self.plant.tick(core.duty, core.direction)
-        self._send(core.tick(Readings(enc, a0, a1, self.estop_pin)))
+        self._send(core.tick(Readings(enc, a0, a1, self.estop_pin, self.estop_wire_broken)))
 
     # ---- control channel ----------------------------------------------------------------------
 
@@ -271,7 +275,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
         plant.tick([0, 0], 0)  # compile the kernels before announcing the port
         plant.stepper.reset()
-        device = SimDevice(plant, binding.encoder_counts_per_rev, clock=args.clock, seed=args.seed)
+        estop = cfg.rig.estop
+        device = SimDevice(plant, binding.encoder_counts_per_rev, clock=args.clock, seed=args.seed,
+                           estop_normally_closed=estop.normally_closed if estop is not None else False)
         for knob in ("drop", "corrupt"):
             device.control(f"{knob} {getattr(args, knob)}")
         reply = device.control(f"delay {args.delay_ms}")

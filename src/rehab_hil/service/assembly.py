@@ -5,6 +5,7 @@ margin (``[rig.host]``) inside them, so it acts first and the firmware is the ba
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -67,6 +68,8 @@ def build_controller(cfg: Any, binding: DeviceBinding, name: str) -> Controller:
         return PWMRatio(act, reference, ses.pwm_duty_min, ses.pwm_duty_max, ses.pwm_angle_at_duty_min_deg,
                         ses.pwm_angle_at_duty_max_deg)
 
+    if name == "session" and ses.tracking == "pulsed":
+        return OpenLoopPWM(act, ses.open_loop_duty, ses.open_loop_on_s, ses.open_loop_off_s)
     if name == "session":
         ref = cycle_reference(ses.closed_deg, ses.open_deg, ses.cycles_per_minute, ses.move_fraction)
         return pid(ref) if ses.tracking == "pid" else pwm(ref)
@@ -84,6 +87,17 @@ def build_estimator(cfg: Any, binding: DeviceBinding) -> Estimator:
     return Estimator(binding, host.velocity_filter_hz if host else 30.0)
 
 
+def temperature_channel(binding: DeviceBinding) -> str | None:
+    """The ADC channel of a wired thermistor (a temperature signal, ``*_c``), or None."""
+    return next((ch.signal for ch in binding.adc if ch.kind == "temperature" or ch.signal.endswith("_c")), None)
+
+
+def estop_enabled(cfg: Any) -> bool:
+    """``[rig.estop] enabled``; without the table: on for a real serial port, off for simulated rigs."""
+    es = cfg.rig.estop
+    return es.enabled if es is not None else cfg.rig.port.startswith("/")
+
+
 def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
     """Host limits = ``[rig.limits]`` tightened by the ``[rig.host]`` margins."""
     lim, host, th = cfg.rig.limits, cfg.rig.host, cfg.rig.thermal
@@ -96,16 +110,24 @@ def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
         max_temperature_c=lim.max_temperature_c, link_loss_periods=lim.link_loss_periods, max_duty=lim.max_duty,
         stuck_sensor_s=lim.stuck_sensor_s, stuck_min_duty=lim.stuck_min_duty,
         stuck_min_error_deg=lim.stuck_min_error_deg, stuck_min_motion_deg=lim.stuck_min_motion_deg,
+        force_debounce_s=lim.force_debounce_ms / 1000.0,
+        max_disagreement_c=th.max_disagreement_c if th else 25.0, disagreement_s=th.disagreement_s if th else 1.0,
     )
     thermal = FirstOrderThermal(th.ambient_c, th.rise_at_full_duty_c, th.time_constant_s) if th else None
-    return Supervisor(limits, period_s(cfg), force_channels(binding), thermal)
+    return Supervisor(limits, period_s(cfg), force_channels(binding), thermal, estop_input=estop_enabled(cfg),
+                      temperature_signal=temperature_channel(binding))
 
 
 def firmware_configure(cfg: Any, binding: DeviceBinding) -> Configure:
-    """The firmware's copy of the limits: range of motion, heating time, max duty and, when A0 is a
-    contact force, its limit in ADC counts (the firmware checks A0 only)."""
+    """The firmware's copy of the limits: range of motion, heating time, max duty, the e-stop input
+    (enabled, wiring) and, when A0 is a contact force, its limit in ADC counts and debounce (the
+    firmware checks A0 only)."""
     limit_counts = 1023
     if binding.adc and binding.adc[0].kind == "force":
         ch = binding.adc[0]
         limit_counts = int(min(1023, math.floor(ch.offset_counts + ch.counts_per_unit * cfg.rig.limits.max_force_n)))
-    return configure_from_config(cfg, binding.encoder_counts_per_rev, force_limit_counts=limit_counts)
+    msg = configure_from_config(cfg, binding.encoder_counts_per_rev, force_limit_counts=limit_counts,
+                                estop_input=estop_enabled(cfg))
+    es = cfg.rig.estop
+    nc = Configure.FLAG_ESTOP_NORMALLY_CLOSED if es is not None and es.normally_closed else 0
+    return dataclasses.replace(msg, flags=msg.flags | nc, force_debounce_ms=cfg.rig.limits.force_debounce_ms)

@@ -146,7 +146,7 @@ class LoopService:
                     self._reboots_seen = self.hw.stats.reboots
                     self.supervisor.reboot(t_s, "unsolicited HELLO (device restarted)")
                 if got == 0:
-                    self.supervisor.no_sample(t_s)
+                    self.supervisor.no_sample(t_s, time.perf_counter())
                 else:
                     timer.stats.missed += got - 1 if pacing == "device" else 0
                 if self.supervisor.tripped:
@@ -240,7 +240,7 @@ class LoopService:
         self._cont_index += 1
         t_s = self._cont_index * self.period_s
         self._state = self.estimator.update(s.encoder_count, s.device_time_us, (s.adc0, s.adc1))
-        self.supervisor.observe(t_s, self._state, s.faults)
+        self.supervisor.observe(t_s, self._state, s.faults, s.status, self.hw.last_sample_time)
         rec = Record(time.perf_counter(), t_s, s, self._state, SAFE_COMMAND if self.supervisor.tripped
                      else self._last_cmd(), self._seq, self.supervisor.temperature_c)
         if self.recorder is not None:

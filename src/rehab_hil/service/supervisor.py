@@ -1,11 +1,13 @@
 """Host safety supervisor: mirrors the firmware's limits a margin inside them, adds what the
 firmware cannot know (estimated actuator temperature), and watches the device and the link.
 
-Checks each cycle: range of motion, contact force, estimated temperature, continuous heating
-time, device fault bits, link loss (N cycles in a row without a sample), device reboot, and a
-stuck sensor (driving hard, far from the reference, and the encoder does not move: a frozen
-encoder would otherwise defeat the range-of-motion limits). Any trip
-latches the safe state: every later command is PWM 0 / disabled, and the reason is logged.
+Checks: range of motion, contact force (debounced), the e-stop input (status bit), estimated and
+measured temperature (and their agreement), continuous heating time, device fault bits, link
+loss, device reboot, and a stuck sensor (driving hard, far from the reference, and the encoder
+does not move). Every timer runs on device time (``t_s`` = sample index x period), never on
+loop cycles: over a USB bridge samples arrive 2-4 at a time and the loop runs once per burst.
+Only link loss is on the host clock (no samples means no device time). Any trip latches the
+safe state: every later command is PWM 0 / disabled, and the reason is logged.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import logging
 import math
 from dataclasses import dataclass
 
-from rehab_hil.protocol import Fault
+from rehab_hil.protocol import Fault, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command
 from rehab_hil.service.estimation import State
 from rehab_hil.service.thermal import FirstOrderThermal
@@ -48,18 +50,29 @@ class SupervisorLimits:
     stuck_min_duty: float = 1.0
     stuck_min_error_deg: float = 10.0
     stuck_min_motion_deg: float = 1.0
+    force_debounce_s: float = 0.0  # force above the limit this long (device time) trips; 0 = first sample
+    max_disagreement_c: float = 25.0  # measured vs estimated temperature
+    disagreement_s: float = 1.0
 
 
 class Supervisor:
     """Judges every cycle; ``filter`` turns a controller's command into what may be sent."""
 
     def __init__(self, limits: SupervisorLimits, dt_s: float, force_signals: tuple[str, ...] = (),
-                 thermal: FirstOrderThermal | None = None) -> None:
+                 thermal: FirstOrderThermal | None = None, *, estop_input: bool = False,
+                 temperature_signal: str | None = None) -> None:
         self.limits, self.dt_s, self.force_signals, self.thermal = limits, dt_s, force_signals, thermal
+        self.estop_input, self.temperature_signal = estop_input, temperature_signal
         self.events: list[SafetyEvent] = []
         self.heating_s = 0.0
         self.missing = 0
         self.max_temperature_c = thermal.temperature_c if thermal else math.nan
+        self.measured_temperature_c = math.nan
+        self._t_filter: float | None = None  # device time of the last filter() call
+        self._heating_since: float | None = None  # device time the drive went on
+        self._force_since: dict[str, float] = {}
+        self._disagree_since: float | None = None
+        self._last_arrival: float | None = None  # host clock of the last sample (link loss only)
         self._sent_duty = 0.0
         self._sent_reference_deg = math.nan
         self._still_since: tuple[float, float] | None = None  # (t_s, angle_deg) when driving began
@@ -79,17 +92,30 @@ class Supervisor:
         self.events.append(SafetyEvent(t_s, reason, detail))
         log.error("safety trip at t=%.3f s: %s %s", t_s, reason, detail)
 
-    def observe(self, t_s: float, state: State, faults: int) -> None:
-        """Check one received sample's estimate and the device's fault bits."""
+    def observe(self, t_s: float, state: State, faults: int, status: int = 0,
+                arrival_s: float | None = None) -> None:
+        """Check one received sample (device time ``t_s``): its estimate, the e-stop status bit and
+        the device's fault bits. ``arrival_s`` (host clock) restarts the link-loss timer."""
         self.missing = 0
+        if arrival_s is not None:
+            self._last_arrival = arrival_s
         lim = self.limits
         a = state.angle_deg
         if not lim.min_angle_deg <= a <= lim.max_angle_deg:
             self.trip(t_s, "range_of_motion", f"angle {a:.2f} deg outside [{lim.min_angle_deg}, {lim.max_angle_deg}]")
         for name in self.force_signals:
             f = state.analog.get(name, 0.0)
-            if f > lim.max_force_n:
-                self.trip(t_s, "contact_force", f"{name} {f:.2f} N > {lim.max_force_n} N")
+            if f <= lim.max_force_n:
+                self._force_since.pop(name, None)
+                continue
+            since = self._force_since.setdefault(name, t_s)
+            if t_s - since + self.dt_s >= lim.force_debounce_s - 1e-9:  # N samples of device time
+                self.trip(t_s, "contact_force", f"{name} {f:.2f} N > {lim.max_force_n} N for "
+                          f"{(t_s - since) * 1e3 + self.dt_s * 1e3:.0f} ms")
+        if self.estop_input and status & Status.ESTOP_INPUT_ACTIVE:
+            self.trip(t_s, "estop_input", "e-stop input active (button pressed or its loop broken)")
+        if self.temperature_signal is not None and self.temperature_signal in state.analog:
+            self._check_measured_temperature(t_s, state.analog[self.temperature_signal])
         if faults:
             self.trip(t_s, "device_fault", "+".join(Fault.names(faults)) or f"bits 0x{faults:04x}")
         self._check_stuck(t_s, a)
@@ -109,10 +135,40 @@ class Supervisor:
             self.trip(t_s, "stuck_sensor", f"duty {self._sent_duty:.2f}, {error:.1f} deg from the reference, "
                       f"angle within {lim.stuck_min_motion_deg} deg for {t_s - self._still_since[0]:.2f} s")
 
-    def no_sample(self, t_s: float) -> None:
-        """A cycle passed without a sample; ``link_loss_periods`` in a row is a lost link."""
+    def _check_measured_temperature(self, t_s: float, measured_c: float) -> None:
+        """A thermistor (A1) where one is wired: its reading trips the limit like the estimate, and a
+        lasting disagreement with the estimate is a fault (a broken sensor or a wrong model)."""
+        lim = self.limits
+        self.measured_temperature_c = measured_c
+        self.max_temperature_c = max(self.max_temperature_c, measured_c) if math.isfinite(
+            self.max_temperature_c) else measured_c
+        if measured_c > lim.max_temperature_c:
+            self.trip(t_s, "temperature", f"measured {measured_c:.1f} C > {lim.max_temperature_c} C")
+        if self.thermal is None:
+            return
+        diff = measured_c - self.thermal.temperature_c
+        if abs(diff) <= lim.max_disagreement_c:
+            self._disagree_since = None
+            return
+        if self._disagree_since is None:
+            self._disagree_since = t_s
+        elif t_s - self._disagree_since >= lim.disagreement_s:
+            self.trip(t_s, "temperature_disagreement",
+                      f"measured {measured_c:.1f} C vs estimated {self.thermal.temperature_c:.1f} C for "
+                      f"{t_s - self._disagree_since:.2f} s (sensor broken or thermal model wrong)")
+
+    def no_sample(self, t_s: float, now_s: float | None = None) -> None:
+        """A wait for a sample ended empty. With ``now_s`` (host clock) the link counts as lost once
+        no sample has arrived for ``link_loss_periods`` x the period and at least two waits in a row
+        came back empty (one unanswered request to a lockstep device is a lost frame, not a lost
+        link); without it, after ``link_loss_periods`` empty waits in a row."""
         self.missing += 1
-        if self.missing >= self.limits.link_loss_periods:
+        budget_s = self.limits.link_loss_periods * self.dt_s
+        if now_s is not None and self._last_arrival is not None:
+            silent = now_s - self._last_arrival
+            if silent >= budget_s and self.missing >= 2:
+                self.trip(t_s, "link_loss", f"no sample for {silent * 1e3:.1f} ms (budget {budget_s * 1e3:.0f} ms)")
+        elif self.missing >= self.limits.link_loss_periods:
             self.trip(t_s, "link_loss", f"no sample for {self.missing} periods")
 
     def reboot(self, t_s: float, detail: str) -> None:
@@ -120,7 +176,8 @@ class Supervisor:
 
     def filter(self, t_s: float, cmd: Command) -> Command:
         """Clamp duties to ``max_duty``; zero everything once tripped. Advances the thermal model
-        and the heating-time count with the duty that will actually be sent."""
+        and the heating time by the device time since the last call (``t_s`` is the newest
+        sample's device time), with the duty sent then, and counts the duty sent now."""
         if not self.tripped:
             d0 = min(max(cmd.duty[0], 0.0), self.limits.max_duty)
             d1 = min(max(cmd.duty[1], 0.0), self.limits.max_duty)
@@ -128,10 +185,19 @@ class Supervisor:
                 cmd = Command((d0, d1), cmd.direction, cmd.enable, cmd.reference_deg)
         out = SAFE_COMMAND if self.tripped else cmd
         duty = max(out.duty) if out.enable else 0.0
+        elapsed = self.dt_s if self._t_filter is None else max(t_s - self._t_filter, 0.0)
+        held = self._sent_duty  # on the device since the last call
+        self._t_filter = t_s
         self._sent_duty, self._sent_reference_deg = duty, out.reference_deg
-        self.heating_s = self.heating_s + self.dt_s if duty > 0.0 else 0.0
+        if duty > 0.0:  # on-time to the end of this period, as the firmware counts its ticks
+            if self._heating_since is None:
+                self._heating_since = t_s
+            self.heating_s = t_s - self._heating_since + self.dt_s
+        else:
+            self._heating_since, self.heating_s = None, 0.0
         if self.thermal is not None:
-            temp = self.thermal.step(duty, self.dt_s)
+            self.thermal.step(held, max(elapsed - self.dt_s, 0.0))  # the periods the burst skipped
+            temp = self.thermal.step(duty, min(elapsed, self.dt_s))
             self.max_temperature_c = max(self.max_temperature_c, temp)
             if temp > self.limits.max_temperature_c and not self.tripped:
                 self.trip(t_s, "temperature", f"estimated {temp:.1f} C > {self.limits.max_temperature_c} C")
