@@ -15,7 +15,7 @@ __all__ = ["SUBCOMMANDS", "UserError", "main"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record", "ports",
-               "flash", "router", "foxglove"]
+               "flash", "router", "foxglove", "doctor"]
 
 
 class UserError(Exception):
