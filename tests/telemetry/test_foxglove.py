@@ -6,15 +6,16 @@ import json
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from rehab_hil.cli import main
 from rehab_hil.config import ConfigError
 from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.recorder import Recorder, read_mcap
+from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, read_mcap
 from rehab_hil.service.runner import LoopService
-from rehab_hil.telemetry.foxglove import GENERIC, FoxgloveError, FoxgloveLive, schemas, topics
+from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, schemas, topics
 from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths
 
 from .fake_rig import LockstepRig, RampController
@@ -63,11 +64,18 @@ def test_a_websocket_client_sees_the_channels_and_the_samples_of_the_local_recor
     assert feed.dropped == 0
     live_samples = client.messages[t["sample"]]
     local_samples = [msg for topic, msg in recorded if topic == "/rig/sample"]
-    # every recorded field, value for value; the live view adds the plant-independent fields
-    assert [{k: v for k, v in m.items() if k not in GENERIC} for m in live_samples] == \
-        [{k: v for k, v in m.items() if k not in GENERIC} for m in local_samples]
-    assert all(m["angle_deg"] == m["iris_angle_deg"] for m in live_samples)
+    assert live_samples == local_samples  # every field, value for value
+    assert set(GENERIC_FIELDS) <= set(live_samples[0])
     assert client.messages[t["command"]] == [msg for topic, msg in recorded if topic == "/rig/command"]
+    # the recording opens with the same layout: its channels are JSON with JSON schemas naming every field
+    with open(tmp_path / "run.mcap", "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    mcap_fields = {ch.topic: set(json.loads(summary.schemas[ch.schema_id].data)["properties"])
+                   for ch in summary.channels.values()
+                   if ch.message_encoding == "json" and summary.schemas[ch.schema_id].encoding == "jsonschema"}
+    for topic, field in message_paths(json.loads(LAYOUT.read_text())):
+        assert field is None or field in mcap_fields[topic], f"{topic}.{field}"
 
 
 @pytest.mark.parametrize("config", sorted((ROOT / "configs").glob("*.toml")), ids=lambda p: p.stem)
@@ -96,8 +104,8 @@ def test_a_port_in_use_is_one_line_and_the_first_server_keeps_serving(tmp_path: 
             FoxgloveLive(port=first.port)
         code = main(["run", "--config", str(CONFIG), "--device", "inprocess", "--duration", "0.1", "--no-display",
                      "--foxglove", str(first.port)])
-        err = capsys.readouterr().err.strip()
-        assert code == 2 and err.startswith("rehab-hil run: error: --foxglove: cannot serve") and "\n" not in err
+        errors = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln]  # run also names its device
+        assert code == 2 and len(errors) == 1 and errors[0].startswith("rehab-hil run: error: --foxglove: cannot serve")
         client = FoxgloveClient(first.port, [])
         try:
             assert client.wait_subscribed() and client.error is None

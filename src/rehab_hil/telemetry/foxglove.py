@@ -22,7 +22,7 @@ from typing import Any
 import foxglove
 
 from rehab_hil.plants.base import DeviceBinding
-from rehab_hil.service.recorder import Recorder, csv_columns
+from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
 
 __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "FoxgloveError", "FoxgloveLive", "LiveView", "RigFeed", "rig_prefix",
            "topics"]
@@ -33,31 +33,24 @@ KINDS = ("sample", "command", "event", "stats")
 _NUMBER = {"type": "number"}
 
 
-GENERIC = ("angle_deg", "reference_deg", "analog0", "analog1")
-
-
 def sample_fields(binding: DeviceBinding) -> list[str]:
-    """Fields of a sample message: the recorder's row, then plant-independent names for layouts."""
-    return ["time_s", *csv_columns(binding), *GENERIC]
+    """Fields of a sample message: the recorder's row, then the plant-independent names layouts plot."""
+    return ["time_s", *csv_columns(binding), *GENERIC_FIELDS]
 
 
 def _clean(v: Any) -> Any:
     return v if not isinstance(v, float) or math.isfinite(v) else None
 
 
-class _Binding:
+class _Binding:  # what Recorder._row reads of a recorder
     def __init__(self, binding: DeviceBinding) -> None:
         self.binding = binding
 
 
 def sample_message(binding: DeviceBinding, rec: Any) -> dict[str, Any]:
-    """The recorder's MCAP sample message for ``rec`` plus the plant-independent fields."""
+    """The recorder's MCAP sample message for ``rec`` (same fields, same values)."""
     row = Recorder._row(_Binding(binding), rec)  # type: ignore[arg-type]
-    st = rec.state
-    analog = [*st.analog.values(), math.nan, math.nan]
-    row.update({"angle_deg": st.angle_deg, "reference_deg": rec.command.reference_deg,
-                "analog0": analog[0], "analog1": analog[1]})
-    return {k: _clean(v) for k, v in row.items()}
+    return {k: _clean(v) for k, v in {**row, **generic_fields(rec)}.items()}
 
 
 def command_message(rec: Any) -> dict[str, Any]:
