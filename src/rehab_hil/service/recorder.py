@@ -56,16 +56,10 @@ class Record:
     temperature_c: float
 
 
-def _angle_base(binding: DeviceBinding) -> str:
-    s = binding.encoder_signal
-    return s[: -len("_rad")] if s.endswith("_rad") else s
-
-
 def csv_columns(binding: DeviceBinding) -> list[str]:
     """Plant signal names first (angle in rad and deg, reference, calibrated ADC, PWM-driven inputs),
     then the raw columns."""
-    base = _angle_base(binding)
-    plant = [binding.encoder_signal, f"{base}_deg", f"{base}_reference_deg",
+    plant = [binding.encoder_signal, binding.angle_output, binding.reference_column,
              *(ch.signal for ch in binding.adc), *binding.duty_inputs]
     return list(dict.fromkeys([*plant, *RAW_COLUMNS]))
 
@@ -235,10 +229,8 @@ class Recorder:
     def _row(self, r: Record) -> dict[str, float]:
         s, st, c, b = r.sample, r.state, r.command, self.binding
         assert s is not None and st is not None
-        base = _angle_base(b)
-        row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad,
-                                 f"{base}_deg": st.angle_deg,
-                                 f"{base}_reference_deg": c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
+        row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad, b.angle_output: st.angle_deg,
+                                 b.reference_column: c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
         row.update(st.analog)
         applied = (s.duty0 / DUTY_FULL, s.duty1 / DUTY_FULL)
         for name, inp in b.duty_inputs.items():
