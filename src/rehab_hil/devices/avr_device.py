@@ -31,7 +31,7 @@ from pathlib import Path
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import Readings
 from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
-from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess
+from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess, maybe_bridged
 
 __all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spawn_avr_device", "unavailable_reason"]
 
@@ -69,11 +69,12 @@ class AvrDeviceProcess(SimDeviceProcess):
 
 
 def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_args: list[str] | None = None,
-                     ready_timeout_s: float = 120.0) -> AvrDeviceProcess:
+                     ready_timeout_s: float = 120.0, usb_bridge: bool | None = None) -> AvrDeviceProcess:
     """Start the firmware in simavr behind the plant of ``config_path``; returns once its pty is ready.
 
     ``clock``: "realtime" (simulated time throttled to the wall clock) or "free" (as fast as the
-    simulator runs). Build first: ``make firmware harness``."""
+    simulator runs). ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge
+    model between. Build first: ``make firmware harness``."""
     if clock not in CLOCKS:
         raise ValueError(f"the avr device supports clock {CLOCKS}, not {clock!r}")
     harness, elf = default_paths()
@@ -82,7 +83,7 @@ def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_
             raise DeviceProcessError(f"{p} is missing: run `make firmware harness`")
     argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.avr_device import main; sys.exit(main())",
             "--config", str(config_path), "--clock", clock, *(extra_args or [])]
-    return AvrDeviceProcess(argv, ready_timeout_s)
+    return AvrDeviceProcess(maybe_bridged(config_path, argv, usb_bridge), ready_timeout_s)
 
 
 class _Driver(ControlChannel):

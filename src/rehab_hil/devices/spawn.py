@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from types import TracebackType
 
-__all__ = ["DeviceProcessError", "SimDeviceProcess", "spawn_sim_device"]
+__all__ = ["DeviceProcessError", "SimDeviceProcess", "maybe_bridged", "spawn_sim_device", "usb_bridge_wanted"]
 
 
 class DeviceProcessError(RuntimeError):
@@ -117,9 +117,29 @@ class SimDeviceProcess:
         self.close()
 
 
+def usb_bridge_wanted(config_path: str | Path, usb_bridge: bool | None) -> bool:
+    """``usb_bridge`` if given, else the config's ``[rig.link] usb_bridge`` (absent: off)."""
+    if usb_bridge is not None:
+        return usb_bridge
+    from rehab_hil.config import load_toml
+
+    link = load_toml(config_path).get("rig", {}).get("link", {})
+    return bool(link.get("usb_bridge", False)) if isinstance(link, dict) else False
+
+
+def maybe_bridged(config_path: str | Path, argv: list[str], usb_bridge: bool | None, seed: int = 0) -> list[str]:
+    """``argv`` behind the Uno's USB bridge model (``devices/usb_bridge.py``) when wanted."""
+    if not usb_bridge_wanted(config_path, usb_bridge):
+        return argv
+    from rehab_hil.devices.usb_bridge import bridged_argv
+
+    return bridged_argv(str(config_path), argv, seed)
+
+
 def spawn_sim_device(config_path: str | Path, clock: str = "realtime", *, extra_args: list[str] | None = None,
-                     ready_timeout_s: float = 120.0) -> SimDeviceProcess:
-    """Start ``rehab_hil.devices.sim_device`` on ``config_path``; returns once its pty is ready."""
+                     ready_timeout_s: float = 120.0, usb_bridge: bool | None = None) -> SimDeviceProcess:
+    """Start ``rehab_hil.devices.sim_device`` on ``config_path``; returns once its pty is ready.
+    ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge model between."""
     argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.sim_device import main; sys.exit(main())",
             "--config", str(config_path), "--clock", clock, *(extra_args or [])]
-    return SimDeviceProcess(argv, ready_timeout_s)
+    return SimDeviceProcess(maybe_bridged(config_path, argv, usb_bridge), ready_timeout_s)

@@ -1,0 +1,114 @@
+"""The Uno's USB bridge model (devices/usb_bridge.py): the 16U2's batching as a pure queue, and
+both simulated devices behind it on a real pty: DTR auto-reset on open (silent for the bootloader,
+then a HELLO with reset cause external, PWM off), samples arriving in bursts, times checked in
+device time."""
+
+from __future__ import annotations
+
+import itertools
+import random
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from rehab_hil.devices.usb_bridge import Batcher
+from rehab_hil.hardware import SerialHardware
+from rehab_hil.protocol import DUTY_FULL, Configure, ResetCause, Status
+
+from .conftest import CONFIG, avr_skip_reason
+
+BOOT_MS = 300.0  # shorter than optiboot's ~1 s: keeps the tests short, the behaviour is the same
+
+
+def test_bytes_wait_for_the_next_4096_us_tick() -> None:
+    b = Batcher(0.004096, 96, t0=0.0)
+    b.push(0.0005, b"a" * 37)
+    assert b.due(0.004) == b"" and b.next_time() == pytest.approx(0.004096)
+    b.push(0.0015, b"b" * 37)
+    assert b.due(0.0041) == b"a" * 37 + b"b" * 37  # one USB packet at the tick
+    b.push(0.0050, b"c")
+    assert b.next_time() == pytest.approx(0.008192)
+
+
+def test_more_than_96_bytes_go_at_once() -> None:
+    b = Batcher(0.004096, 96, t0=0.0)
+    b.push(0.0001, b"x" * 37)
+    b.push(0.0011, b"x" * 37)
+    assert b.due(0.0021) == b""
+    b.push(0.0021, b"x" * 37)  # 111 B > 96: flushed on arrival
+    assert b.due(0.0021) == b"x" * 111
+
+
+def test_jitter_delays_flushes_but_never_reorders_them() -> None:
+    b = Batcher(0.001, 1000, jitter_s=0.003, t0=0.0, rng=random.Random(4))
+    for k in range(200):  # two bytes between two 1 ms ticks
+        b.push(k * 0.0005 + 0.0002, bytes([k % 251]))
+    out = b.due(1.0)
+    assert out == bytes(k % 251 for k in range(200))
+    assert b.flushes == 100
+
+
+def bridged_config(tmp_path: Path) -> Path:
+    text = CONFIG.read_text()
+    text = text.replace("usb_bridge = false", "usb_bridge = true").replace("bootloader_ms = 1000.0",
+                                                                          f"bootloader_ms = {BOOT_MS}")
+    assert "usb_bridge = true" in text
+    path = tmp_path / "bridged.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture(params=["sim", "avr"])
+def bridged(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Any]:
+    if request.param == "avr" and (reason := avr_skip_reason()):
+        pytest.skip(reason)
+    from rehab_hil.devices import spawn_device
+
+    dev = spawn_device(request.param, bridged_config(tmp_path), clock="realtime")
+    try:
+        yield dev
+    finally:
+        dev.close()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+@pytest.mark.xdist_group("sim_devices")
+def test_opening_the_port_resets_the_device_silent_for_the_bootloader_then_hello_and_samples_in_bursts(
+        bridged: Any) -> None:
+    wide = Configure(1000, 1000, DUTY_FULL, 60_000, 1023, -(1 << 30), 1 << 30, 0)
+    hw = SerialHardware(bridged.port, write_timeout_s=2.0)
+    t_open = time.perf_counter()
+    try:
+        hello = hw.connect(timeout=15.0)
+        assert time.perf_counter() - t_open >= BOOT_MS / 1e3 * 0.95  # nothing answers during the bootloader
+        assert hello.reset_cause & ResetCause.EXTERNAL
+        hw.configure(wide, timeout=5.0)
+        hw.write_command(0.3)
+        arrivals, samples = [], []
+        while len(samples) < 300:
+            s = hw.read_sample(timeout=2.0)
+            assert s is not None
+            samples.append(s)
+            arrivals.append(hw.last_sample_time)
+            if len(samples) % 4 == 0:
+                hw.write_command(0.3)  # keep the watchdog fed
+        assert any(s.duty0 > 0 for s in samples)
+        # bursts: the device samples every 1 ms but most samples arrive right behind another one
+        gaps = [b - a for a, b in itertools.pairwise(arrivals)]
+        assert sum(g < 0.0003 for g in gaps) > 0.4 * len(gaps)
+        # a reopen is a DTR pulse: the board resets, the drive it had is gone (the bridge polls the
+        # port's hang-up every <= 10 ms: a close and reopen within that is not seen)
+        hw.close()
+        time.sleep(0.1)
+        hw = SerialHardware(bridged.port, write_timeout_s=2.0)
+        hello = hw.connect(timeout=15.0)
+        assert hello.reset_cause & ResetCause.EXTERNAL
+        hw.configure(wide, timeout=5.0)
+        s = hw.read_sample(timeout=2.0)
+        assert s is not None and s.sample_index < 50 and s.duty0 == 0 and not s.status & Status.PWM_ENABLED
+    finally:
+        hw.close()
