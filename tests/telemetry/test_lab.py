@@ -218,3 +218,21 @@ def test_bad_lab_input_gets_one_line_errors(router: str, tmp_path: Path, capsys:
         err = capsys.readouterr().err.strip()
         assert text in err and "\n" not in err, (argv, err)
     assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_rehab_hil_run_publishes_as_a_client_of_the_lab_router(router: str, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    codes: list[int] = []
+    rec = threading.Thread(target=lambda: codes.append(main(
+        ["record", "--from-zenoh", "labrun", "--out", str(tmp_path), "--connect", router])))
+    rec.start()
+    try:
+        assert main(["run", "--config", str(CONFIG), "--device", "inprocess", "--duration", "2", "--no-display",
+                     "--telemetry", "labrun", "--telemetry-connect", router]) == 0
+    finally:
+        rec.join(60)
+    assert codes == [0]
+    (run_dir,) = tmp_path.iterdir()
+    meta = read_metadata(run_dir)
+    assert meta["rig_id"] == "labrun" and meta["records"] > 0 and meta["stop_reason"] == "rig stopped"
+    assert "rig stopped: rig labrun:" in capsys.readouterr().out

@@ -52,6 +52,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--telemetry", metavar="RIG", default=None,
                    help="publish telemetry over zenoh as rig RIG on loopback (docs/telemetry.md)")
     p.add_argument("--telemetry-port", type=int, default=7447, help="loopback zenoh hub port (default 7447)")
+    p.add_argument("--telemetry-connect", action="append", default=None, metavar="ENDPOINT",
+                   help="publish as a client of the lab's zenoh router, e.g. tcp/10.0.0.2:7447 (repeatable)")
+    p.add_argument("--telemetry-user", default=None,
+                   help="zenoh user for the lab router (password from REHAB_ZENOH_PASSWORD)")
     p.add_argument("--foxglove", metavar="PORT", type=int, nargs="?", const=8765, default=None,
                    help="serve the session live to Foxglove over its WebSocket protocol (default port 8765)")
     p.add_argument("--foxglove-host", default="127.0.0.1", help="address the Foxglove server binds (default 127.0.0.1)")
@@ -60,14 +64,29 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: HardwareInterface) -> Any:
     """The zenoh publisher for ``--telemetry RIG`` (rehab_hil.telemetry.rig)."""
-    from rehab_hil.telemetry import NetworkConfig, RigIdError, TelemetryConfigError
+    from rehab_hil.telemetry import RigIdError, TelemetryConfigError
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
 
     info = rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), hw.info)
     try:
-        return RigTelemetry(args.telemetry, info, NetworkConfig(port=args.telemetry_port), queue_size=20_000)
+        return RigTelemetry(args.telemetry, info, _telemetry_network(args), queue_size=20_000)
     except (RigIdError, TelemetryConfigError, ValueError) as e:
         raise UserError(f"--telemetry: {e}") from None
+
+
+def _telemetry_network(args: argparse.Namespace) -> Any:
+    """Loopback hub on --telemetry-port, or a client of the lab router(s) given by --telemetry-connect."""
+    import os
+
+    from rehab_hil.telemetry import NetworkConfig, TelemetryConfigError
+    from rehab_hil.telemetry.cliargs import PASSWORD_ENV
+
+    if not args.telemetry_connect:
+        return NetworkConfig(port=args.telemetry_port)
+    password = os.environ.get(PASSWORD_ENV) if args.telemetry_user else None
+    if args.telemetry_user and password is None:
+        raise TelemetryConfigError(f"--telemetry-user needs the {PASSWORD_ENV} environment variable")
+    return NetworkConfig(mode="lab", router=tuple(args.telemetry_connect), user=args.telemetry_user, password=password)
 
 
 def _foxglove(args: argparse.Namespace, binding: Any, telemetry: Any) -> Any:
