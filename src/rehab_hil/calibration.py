@@ -29,7 +29,7 @@ from pydantic import Field, model_validator
 
 from rehab_hil.config import ConfigError, Section, load_toml, validate
 
-__all__ = ["ADC_MAX", "CIRCUITS", "REFERENCE_KEY", "Calibration", "CalibrationFile", "CalibrationPoint",
+__all__ = ["ADC_MAX", "CIRCUITS", "G0", "REFERENCE_KEY", "Calibration", "CalibrationFile", "CalibrationPoint",
            "ForceLimitError", "calibration_for", "calibration_summary", "fit_calibration", "force_limit_counts",
            "load_calibration", "write_calibration"]
 

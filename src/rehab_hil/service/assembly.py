@@ -6,9 +6,9 @@ margin (``[rig.host]``) inside them, so it acts first and the firmware is the ba
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
+from rehab_hil.calibration import force_limit_counts
 from rehab_hil.hardware.interface import configure_from_config
 from rehab_hil.plants.base import DeviceBinding, get_plant
 from rehab_hil.protocol import Configure
@@ -122,10 +122,7 @@ def firmware_configure(cfg: Any, binding: DeviceBinding) -> Configure:
     """The firmware's copy of the limits: range of motion, heating time, max duty, the e-stop input
     (enabled, wiring) and, when A0 is a contact force, its limit in ADC counts and debounce (the
     firmware checks A0 only)."""
-    limit_counts = 1023
-    if binding.adc and binding.adc[0].kind == "force":
-        ch = binding.adc[0]
-        limit_counts = int(min(1023, math.floor(ch.offset_counts + ch.counts_per_unit * cfg.rig.limits.max_force_n)))
+    limit_counts = force_limit_counts(cfg, binding)  # 1023 (off) unless A0 is a force; unrepresentable: refused
     msg = configure_from_config(cfg, binding.encoder_counts_per_rev, force_limit_counts=limit_counts,
                                 estop_input=estop_enabled(cfg))
     es = cfg.rig.estop
