@@ -49,11 +49,14 @@ def device_pool() -> Iterator[Callable[[str], Any]]:
     running: dict[str, Any] = {}
 
     def get(kind: str) -> Any:
+        """``kind``: "python" or "avr", "+bridge" puts the Uno's USB bridge model (devices/usb_bridge.py)
+        between (batching, DTR auto-reset and bootloader silence on every open)."""
         dev = running.get(kind)
         if dev is None or not dev.alive() or not os.path.exists(dev.port):  # ended by a test (disconnect)
             if dev is not None:
                 dev.close()
-            running[kind] = dev = spawn_device(kind, CONFIG, clock="realtime")
+            base, _, bridge = kind.partition("+")
+            running[kind] = dev = spawn_device(base, CONFIG, clock="realtime", usb_bridge=bridge == "bridge")
         return dev
 
     try:
@@ -71,13 +74,13 @@ def link(device_pool: Callable[[str], Any], request: pytest.FixtureRequest) -> I
     host connected through it."""
     callspec = getattr(request.node, "callspec", None)
     kind = callspec.params.get("backend", "python") if callspec is not None else "python"
-    if kind == "avr" and (reason := avr_skip_reason()):
+    if kind.startswith("avr") and (reason := avr_skip_reason()):
         pytest.skip(reason)
     dev = device_pool(kind)
     proxy = LinkProxy(dev.port, seed=zlib.crc32(request.node.name.encode()))
     hw = SerialHardware(proxy.port)
     try:
-        hw.connect(timeout=10.0)
+        hw.connect(timeout=15.0)  # behind the bridge: the bootloader's 1 s first
         yield dev, proxy, hw
     finally:
         hw.close()
