@@ -33,6 +33,8 @@ from rehab_hil.service.runner import LoopService, Progress, RunResult
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a session on the rig (sim, avr, inprocess or a serial port) and summarise it")
     p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--profile", type=Path, default=None, help="per-patient profile (profiles/*.toml): session "
+                   "and tighter limits (rehab_hil.profiles)")
     p.add_argument("--device", default=None,
                    help=f"{', '.join(repr(k) for k in RIG_KINDS)} or a serial path (default: [rig].port)")
     p.add_argument("--duration", type=float, default=30.0, help="session length [s]")
@@ -161,6 +163,10 @@ def _device_config(args: argparse.Namespace, cfg: Any, device: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
+    if args.profile is not None:  # the patient's session and limits over the rig's (tighten only)
+        from rehab_hil.profiles import apply_profile, load_profile
+
+        cfg = apply_profile(cfg, load_profile(args.profile), args.config, args.profile)
     if not 0 < args.duration <= 24 * 3600:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
     binding = get_plant(cfg.plant).device(cfg)
