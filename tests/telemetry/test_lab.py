@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from mcap.reader import make_reader
 
 from rehab_hil.cli import main
 from rehab_hil.plants import get_plant, load_config
@@ -129,6 +130,10 @@ def test_three_rigs_on_one_router_monitor_and_a_multi_rig_recording(router: str,
         meta = read_metadata(d)
         assert meta["rig_id"] == rig and meta["plant"] == "finger_extensor" and meta["records"] > 400
         assert meta["lost"] == {"batches_in_transit": 0, "publisher_dropped": 0, "writer_dropped": 0}
+        with open(d / "run.mcap", "rb") as fh:  # the same metadata as MCAP metadata records
+            records = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}
+        assert records["rehab_hil.session"]["rig_id"] == rig and records["rehab_hil.summary"]["records"] == str(
+            meta["records"])
     assert capsys.readouterr().out.count("rig stopped: rig lab-") == 3
 
 
@@ -236,3 +241,22 @@ def test_rehab_hil_run_publishes_as_a_client_of_the_lab_router(router: str, tmp_
     meta = read_metadata(run_dir)
     assert meta["rig_id"] == "labrun" and meta["records"] > 0 and meta["stop_reason"] == "rig stopped"
     assert "rig stopped: rig labrun:" in capsys.readouterr().out
+
+
+def test_two_meshed_routers_carry_a_rig_on_one_to_a_viewer_on_the_other(router: str, wait) -> None:
+    proc, second = start_router("--mesh", router)  # router B connects to router A
+    try:
+        rig, viewer = lab_client(router), lab_client(second)
+        seen: list[int] = []
+        with TelemetryPublisher(rig, "far1", batch=1) as pub, \
+                subscribe("far1", lambda s: seen.append(s.sample_index), session=viewer):
+            assert wait(pub.has_subscribers)
+            assert wait(lambda: list_rigs(viewer, timeout_s=0.5) == ["far1"])
+            for i in range(10):
+                pub.offer(Sample(i, i, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+            assert wait(lambda: len(seen) == 10)
+        assert seen == list(range(10))
+        rig.close()
+        viewer.close()
+    finally:
+        stop_router(proc)

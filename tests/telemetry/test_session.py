@@ -59,7 +59,10 @@ def test_user_password_and_tls_files_are_passed_through(tmp_path: Path) -> None:
     ({"mode": "lab", "router": ("10.0.0.1:7447",)}, "must look like"),
     ({"mode": "lab", "router": ("tcp/10.0.0.1:99999",)}, "must look like"),
     ({"mode": "lab", "router": ("tls/r:7447",)}, "tls_root_ca"),
-    ({"mode": "lab", "role": "hub", "router": ("tcp/r:7447",)}, "clients"),
+    ({"mode": "lab", "role": "hub", "router": ("tcp/r:7447",)}, "lab router needs at least one listen endpoint"),
+    ({"mode": "lab", "role": "hub", "listen": ("tcp/0.0.0.0:7447",), "router": ("r:7447",)}, "must look like"),
+    ({"mode": "lab", "role": "hub", "listen": ("tls/0.0.0.0:7447",)}, "tls_certificate"),
+    ({"listen": ("tcp/127.0.0.1:7447",)}, "listen endpoints are for the lab router"),
     ({"user": "u"}, "together"),
     ({"tls_root_ca": Path("/nonexistent/ca.pem")}, "file not found"),
     ({"access_control": {"enabled": True}}, "hub settings"),
@@ -72,3 +75,12 @@ def test_settings_that_cannot_work_are_refused_with_the_setting_named(kw: dict, 
 def test_a_client_without_a_hub_fails_fast_with_a_clear_error(unused_port: int) -> None:
     with pytest.raises(TelemetryConfigError, match=r"cannot connect to tcp/127\.0\.0\.1"):
         open_session(NetworkConfig(port=unused_port))
+
+
+def test_a_lab_router_listens_where_told_and_connects_to_its_mesh() -> None:
+    cfg = build_zenoh_config(NetworkConfig(mode="lab", role="hub", listen=("tcp/10.0.0.2:7447",),
+                                           router=("tcp/10.0.0.3:7447",)))
+    assert json.loads(cfg.get_json("mode")) == "router"
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/10.0.0.2:7447"]
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["tcp/10.0.0.3:7447"]
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False

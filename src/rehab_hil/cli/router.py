@@ -21,6 +21,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("router", help="run the lab's zenoh router (clients: run/monitor/record/foxglove --connect)")
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to listen on, e.g. tcp/10.0.0.2:7447 (repeatable; default tcp/127.0.0.1:7447)")
+    p.add_argument("--mesh", action="append", default=None, metavar="ENDPOINT",
+                   help="another router of the lab to connect to (router mesh; repeatable)")
     p.add_argument("--access-control", type=Path, default=None, metavar="FILE",
                    help="JSON file with zenoh's access_control object (see telemetry.access)")
     p.add_argument("--users", type=Path, default=None, metavar="FILE",
@@ -58,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be positive, got {args.duration}")
     acl = load_access_control(args.access_control) if args.access_control else None
     net = NetworkConfig(mode="lab", role="hub", listen=tuple(args.listen or ["tcp/127.0.0.1:7447"]),
+                        router=tuple(args.mesh or ()),
                         usrpwd_dictionary=args.users, access_control=acl, tls_root_ca=args.tls_ca,
                         tls_certificate=args.tls_cert, tls_private_key=args.tls_key)
     try:
@@ -69,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     t0, cpu0 = time.monotonic(), _cpu_s()
     try:
         print(f"zenoh router listening on {', '.join(net.endpoints())}"
+              f"{' meshed with ' + ', '.join(net.router) if net.router else ''}"
               f"{' with access control' if acl else ''}{' and user/password' if args.users else ''}", flush=True)
         stop.wait(args.duration)
     finally:

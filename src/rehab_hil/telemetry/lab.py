@@ -93,10 +93,23 @@ class RigWatch:
         self._sub.undeclare()
 
 
+def _identity(rig: str, info: dict[str, Any], started: dt.datetime) -> dict[str, Any]:
+    """What a zenoh recording knows of its rig: the ``info`` answer (plant, config, versions)."""
+    text = info.get("config_toml") or ""
+    return {
+        "rig_id": rig, "source": "zenoh", "recorded_by": "rehab-hil record --from-zenoh",
+        "plant": info.get("plant"), "config_path": info.get("config_path"),
+        "config_sha256": hashlib.sha256(text.encode()).hexdigest() if text else None, "config_text": text or None,
+        "firmware_version": info.get("firmware_version"),
+        "device_protocol_version": info.get("device_protocol_version"),
+        "host_protocol_version": info.get("host_protocol_version"), "period_s": info.get("period_s"),
+        "start_utc": started.isoformat(),
+    }
+
+
 class _Run:
-    def __init__(self, rig: str, run_dir: Path, zrec: ZenohRecorder, info: dict[str, Any]) -> None:
-        self.rig, self.run_dir, self.zrec, self.info = rig, run_dir, zrec, info
-        self.started = dt.datetime.now(dt.UTC)
+    def __init__(self, rig: str, run_dir: Path, zrec: ZenohRecorder, meta: dict[str, Any]) -> None:
+        self.rig, self.run_dir, self.zrec, self.meta = rig, run_dir, zrec, meta
         self.t0 = time.monotonic()
 
 
@@ -134,30 +147,22 @@ class LabRecorder:
             raise LabError(f"did not answer on rehab/{rig}/info within {self.info_timeout_s} s")
         binding = binding_from_info(info, rig, self.config)
         run_dir = new_run_dir(self.out_root, rig)
-        run = _Run(rig, run_dir, ZenohRecorder(self.session, rig, run_dir, binding), dict(info or {}))
+        meta = _identity(rig, dict(info or {}), dt.datetime.now(dt.UTC))
+        run = _Run(rig, run_dir, ZenohRecorder(self.session, rig, run_dir, binding, metadata=meta), meta)
         self.runs[rig] = run
         return run
 
     def _finish(self, rig: str, why: str) -> str:
         run = self.runs.pop(rig)
         time.sleep(0.2)  # the last batches travel behind the liveliness change
-        run.zrec.close()
-        self.finished.append(run)
         z, sub = run.zrec, run.zrec.subscription
-        text = run.info.get("config_toml") or ""
-        write_metadata(run.run_dir, {
-            "rig_id": rig, "source": "zenoh", "recorded_by": "rehab-hil record --from-zenoh",
-            "plant": run.info.get("plant"), "config_path": run.info.get("config_path"),
-            "config_sha256": hashlib.sha256(text.encode()).hexdigest() if text else None, "config_text": text or None,
-            "firmware_version": run.info.get("firmware_version"),
-            "device_protocol_version": run.info.get("device_protocol_version"),
-            "host_protocol_version": run.info.get("host_protocol_version"),
-            "period_s": run.info.get("period_s"), "start_utc": run.started.isoformat(),
-            "duration_s": round(time.monotonic() - run.t0, 3), "stop_reason": why,
-            "records": z.samples, "csv_rows": z.recorder.rows,
-            "lost": {"batches_in_transit": sub.missing_batches, "publisher_dropped": sub.publisher_dropped,
-                     "writer_dropped": z.recorder.dropped},
-        })
+        sub.close()  # counters final from here on
+        summary = {"duration_s": round(time.monotonic() - run.t0, 3), "stop_reason": why, "records": z.samples,
+                   "lost": {"batches_in_transit": sub.missing_batches, "publisher_dropped": sub.publisher_dropped,
+                            "writer_dropped": z.recorder.dropped}}
+        z.close(summary)  # also the MCAP metadata record rehab_hil.summary
+        self.finished.append(run)
+        write_metadata(run.run_dir, {**run.meta, **summary, "csv_rows": z.recorder.rows})
         return (f"{why}: rig {rig}: {z.samples} records, {z.recorder.rows} CSV rows in {run.run_dir}; lost: "
                 f"{sub.missing_batches} batches in transit, {sub.publisher_dropped} samples at the publisher, "
                 f"{z.recorder.dropped} in the writer")

@@ -32,7 +32,8 @@ class NetworkConfig:
     ``mode="loopback"`` (default): only 127.0.0.1; a ``hub`` listens on ``port``, a ``client`` connects
     to it, over TLS when ``tls`` (hub: certificate and key; client: root CA). ``mode="lab"``: a client
     that connects to ``router`` endpoints (e.g. ``tls/lab-router:7447``), or the lab's router itself
-    (``role="hub"``) listening on ``listen`` endpoints (``rehab-hil router``).
+    (``role="hub"``) listening on ``listen`` endpoints and connecting to the other routers of a mesh
+    in ``router`` (``rehab-hil router``).
     ``user``/``password`` and the TLS files are passed through to zenoh unchanged.
     """
 
@@ -76,8 +77,6 @@ class NetworkConfig:
         if self.mode == "loopback" and self.listen:
             raise TelemetryConfigError("listen endpoints are for the lab router (mode='lab', role='hub')")
         if self.mode == "lab" and self.role == "hub":
-            if self.router:
-                raise TelemetryConfigError("a lab router listens (listen=...); it does not connect to a router")
             if not self.listen:
                 raise TelemetryConfigError("the lab router needs at least one listen endpoint, e.g. tcp/0.0.0.0:7447")
             for ep in self.listen:
@@ -86,6 +85,10 @@ class NetworkConfig:
                     raise TelemetryConfigError(f"listen endpoint {ep!r} must look like tcp/HOST:PORT or tls/HOST:PORT")
                 if m.group(1) == "tls" and self.tls_certificate is None:
                     raise TelemetryConfigError(f"listen endpoint {ep!r} uses TLS: set tls_certificate and key")
+            for ep in self.router:  # other routers of a mesh
+                m = _ENDPOINT.match(ep) if isinstance(ep, str) else None
+                if not m or not 1 <= int(m.group(3)) <= 65535:
+                    raise TelemetryConfigError(f"router endpoint {ep!r} must look like tcp/HOST:PORT or tls/HOST:PORT")
         elif self.mode == "lab":
             if self.listen:
                 raise TelemetryConfigError("listen endpoints are for the lab router (role='hub')")
@@ -125,7 +128,7 @@ def build_zenoh_config(net: NetworkConfig) -> zenoh.Config:
         _put(cfg, "mode", "router")
         _put(cfg, "scouting/delay", 0)  # nothing to scout for with scouting off; saves 500 ms at open
         _put(cfg, "listen/endpoints", net.endpoints())
-        _put(cfg, "connect/endpoints", [])
+        _put(cfg, "connect/endpoints", list(net.router) if net.mode == "lab" else [])  # a lab router's mesh
     else:
         _put(cfg, "mode", "client")
         _put(cfg, "listen/endpoints", [])

@@ -6,6 +6,7 @@ loop engineer's ``Recorder`` unchanged, so both paths share one writer (docs/tel
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from pathlib import Path
@@ -45,8 +46,8 @@ class ZenohRecorder:
     ``done`` is set when the rig's liveliness token goes away (its run ended)."""
 
     def __init__(self, session: zenoh.Session, rig: str, out_dir: str | Path, binding: DeviceBinding,
-                 name: str = "run") -> None:
-        self.recorder = Recorder(out_dir, binding, name=name)
+                 name: str = "run", metadata: dict[str, Any] | None = None) -> None:
+        self.recorder = Recorder(out_dir, binding, name=name, metadata=metadata)
         self._names = [ch.signal for ch in binding.adc]
         self.samples = 0
         self.bad = 0
@@ -83,13 +84,14 @@ class ZenohRecorder:
         """Samples lost on the way: publisher drops, missing batches (as reported) and recorder drops."""
         return self.subscription.publisher_dropped + self.subscription.missing_batches + self.recorder.dropped
 
-    def close(self) -> None:
-        """Stop listening and finish both files; idempotent."""
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        """Stop listening and finish both files (``summary``: an MCAP metadata record); idempotent."""
         self.subscription.close()
-        self._watch.undeclare()
+        with contextlib.suppress(zenoh.ZError):
+            self._watch.undeclare()
         with self._lock:
             self._closed = True
-        self.recorder.close()
+        self.recorder.close(summary)
 
     def __enter__(self) -> ZenohRecorder:
         return self
