@@ -122,3 +122,13 @@ def test_bad_calibration_files_name_the_file_and_key(tmp_path: Path) -> None:
         load_calibration(other)
     with pytest.raises(ValueError, match="sensor id"):
         fit_calibration([CalibrationPoint(f, 20 + 30 * f) for f in (0.0, 1.0, 2.0)], 20.0, "../etc")
+
+
+def test_calibration_summary_records_the_linear_map_and_the_firmware_limit() -> None:
+    from rehab_hil.calibration import calibration_summary
+
+    sma = calibration_summary(load_config(ROOT / "configs" / "sma_exoskeleton.toml"))
+    assert sma["calibration"] is None and sma["linear_map"] == {"counts_per_n": 9.3, "offset_counts": 0.0}
+    assert sma["firmware_force_limit_counts"] == 186  # floor(9.3 counts/N x 20 N)
+    fe = calibration_summary(load_config(FE))
+    assert fe["force_sensor"] is None and fe["firmware_force_limit_counts"] == 1023
