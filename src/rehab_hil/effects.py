@@ -18,10 +18,12 @@ from typing import Any
 
 from rehab_hil.models.effect_parts import (
     DELAY_SLOTS,
+    ActuatorDeadZone,
     Backlash,
     ContactSpringDamper,
     NonlinearConvection,
     PassiveMuscle,
+    SensorGainOffset,
     SmaHysteresis,
     TransportDelay,
 )
@@ -57,7 +59,10 @@ class Attachment:
     connect: the effect's inputs from plant signals; output_to: plant signal its output is summed
     onto (None: a signal of its own); insert: the effect goes on this wire (its consumers read the
     effect's output, the effect reads the wire's signal); sum_into: (part, port) pairs the effect's
-    own output is added to; fixed: part parameters that are not fitted; xd0: discrete state."""
+    own output is added to; fixed: part parameters that are not fitted; xd0: discrete state;
+    sense: a measured signal the effect takes over (a sensor's calibration): the plant's producers
+    of it are renamed ``<signal>_true`` (and every reader follows), the effect reads that and
+    produces the signal under its own name, so the recorded column carries the effect."""
 
     connect: Mapping[str, Any] = field(default_factory=dict)
     output_to: str | None = None
@@ -65,6 +70,10 @@ class Attachment:
     sum_into: tuple[tuple[str, str], ...] = ()
     fixed: Mapping[str, float] = field(default_factory=dict)
     xd0: Sequence[float] | None = None
+    sense: str | None = None
+
+
+TRUE_SUFFIX = "_true"  # a sensed signal's true value, once a sensor effect takes the name over
 
 
 @dataclass(frozen=True)
@@ -133,6 +142,15 @@ def _delay(port: ActuatorPort, step_s: float) -> Attachment:
     return Attachment(insert=port.wire, fixed={"step_s": step_s})
 
 
+def _dead_zone(port: ActuatorPort, step_s: float) -> Attachment:
+    return Attachment(insert=port.wire, fixed={"scale": port.duty_scale})
+
+
+def _sensor_gain(port: MeasuredPort, step_s: float) -> Attachment:
+    assert port.wire is not None
+    return Attachment(sense=port.wire.signal, fixed={"counts_per_unit": port.counts_per_unit or 1.0})
+
+
 def _hysteresis(port: TemperatureWire, step_s: float) -> Attachment:
     return Attachment(insert=port.wire, xd0=[port.initial_c])
 
@@ -169,7 +187,7 @@ EFFECTS: dict[str, Effect] = {
         Effect(
             "time_delay", TransportDelay,
             (EffectParam("delay_s", 0.0, 0.05, 0.01, linear=False,
-                         grid=(0.002, 0.005, 0.01, 0.02, 0.035)),),
+                         grid=tuple(round(0.0025 * k, 4) for k in range(1, 20))),),
             "seed 002 sec 4.2 (the hardware lags the simulation)",
             f"transport delay on the actuator input (FIFO of {DELAY_SLOTS - 1} steps)",
             "actuator", _delay,
@@ -206,6 +224,21 @@ EFFECTS: dict[str, Effect] = {
             "seed 000 eq 13 (h = h1 + h2 T^2); seed 001 sec 4 (error grows with power)",
             "heat loss growing with the cube of the temperature rise",
             "heat", _convection,
+        ),
+        Effect(
+            "actuator_dead_zone", ActuatorDeadZone,
+            (EffectParam("width_duty", 0.0, 0.3, 0.02),),
+            "Tao & Kokotovic 1996 (dead-zone model); H-bridge dead time and MOSFET threshold of the PWM driver",
+            "dead zone of the PWM power stage, both signs: |command| below width x full scale gives nothing",
+            "actuator", _dead_zone,
+        ),
+        Effect(
+            "sensor_gain_offset", SensorGainOffset,
+            (EffectParam("gain_error_fraction", -0.5, 0.5, 0.05),
+             EffectParam("offset_counts", -300.0, 300.0, 5.0)),
+            "Tekscan FlexiForce manual (sensitivity drift, zero offset); seed 000 sec III.A (Flexiforce A201)",
+            "calibration drift of the ADC sensor: gain error and zero offset (in ADC counts)",
+            "adc", _sensor_gain,
         ),
     ]
 }
@@ -270,6 +303,8 @@ def attach(plant: str, ports: Ports, step_s: float, parts: list[Part],
     parts = list(parts)
     by_name = {p.name: p for p in parts}
     used: set[str] = set(by_name)
+    # sensor effects take a signal's name over: everything that sums onto it must be in place first
+    effects = sorted(effects, key=lambda e: e[0] in EFFECTS and EFFECTS[e[0]].wire is _sensor_gain)
     for name, given in effects:
         try:
             values = check_spec(name, given)
@@ -287,21 +322,51 @@ def attach(plant: str, ports: Ports, step_s: float, parts: list[Part],
             pname = f"{prefix}_{name}_{i}"
         used.add(pname)
         own_out = f"{pname}_{eff.part.outputs[0]}"
+        sensed = _sensed(parts)  # signals a sensor effect took over: plant terms go to the true value
         connect: dict[str, Any] = {}
         for k, v in att.connect.items():  # "@applied": the terms that feed the axis's integrating port
-            connect[k] = list(_port(by_name, att.sum_into[0], name)) if v == "@applied" else v
+            connect[k] = list(_port(by_name, att.sum_into[0], name)) if v == "@applied" else sensed.get(v, v)
+        fixed = dict(att.fixed)
+        if att.sense is not None:
+            produced = any(att.sense in p.signal_names for p in parts)
+            fixed["invert"] = 0.0 if produced else 1.0
+            if produced:  # the model computes the true value: the effect makes the recorded one
+                connect[eff.part.inputs[0]] = _take_over(parts, att.sense)
+            else:  # a recorded input: the model's readers see the true value the effect recovers
+                connect[eff.part.inputs[0]] = att.sense
+                for p in parts:
+                    for terms in p.connections.values():
+                        terms[:] = [(own_out if s == att.sense else s, w) for s, w in terms]
         if att.insert is not None:
             feeds = [_port(by_name, c, name) for c in att.insert.consumers]
             connect[eff.part.inputs[0]] = list(feeds[0])
             for terms in feeds:
                 terms[:] = [(own_out, 1.0)]
-        rename = {eff.part.outputs[0]: att.output_to or own_out}
+        out = (att.sense if fixed.get("invert") == 0.0 else None) or \
+            (sensed.get(att.output_to, att.output_to) if att.output_to else None)
+        rename = {eff.part.outputs[0]: out or own_out}
         for target in att.sum_into:
             _port(by_name, target, name).append((own_out, 1.0))
-        part = eff.part(pname, connect=connect, rename=rename, xd0=att.xd0, **att.fixed, **values)
+        part = eff.part(pname, connect=connect, rename=rename, xd0=att.xd0, **fixed, **values)
         parts.append(part)
         by_name[pname] = part
     return parts
+
+
+def _sensed(parts: Sequence[Part]) -> dict[str, str]:
+    """Signals already taken over by a sensor effect -> the name their true value now has."""
+    return {p.signal_names[0]: p.connections["u"][0][0] for p in parts
+            if isinstance(p, SensorGainOffset) and p.param_values[3] < 0.5}
+
+
+def _take_over(parts: Sequence[Part], signal: str) -> str:
+    """Rename every producer and reader of ``signal`` to ``<signal>_true``; returns that name."""
+    true = signal + TRUE_SUFFIX
+    for p in parts:
+        p.signal_names = tuple(true if s == signal else s for s in p.signal_names)
+        for terms in p.connections.values():
+            terms[:] = [(true if s == signal else s, w) for s, w in terms]
+    return true
 
 
 def _port(by_name: Mapping[str, Part], where: tuple[str, str], effect: str) -> list[tuple[str, float]]:

@@ -16,3 +16,16 @@ FE_CONFIG = ROOT / "configs" / "finger_extensor.toml"
 def fe():
     """(spec, cfg) of the Finger Extensor."""
     return get_plant("finger_extensor"), load_config(FE_CONFIG)
+
+
+@pytest.fixture(scope="session")
+def independent():
+    """The benchmark's independent Finger Extensor simulator (bench/discrepancy.py), which shares no
+    code with the plant models: records the code under test did not make."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_discrepancy", ROOT / "bench" / "discrepancy.py")
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

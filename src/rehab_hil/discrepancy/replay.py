@@ -9,7 +9,7 @@ an edit of the parameter vector of one compiled system (``with_effects``), never
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,7 +55,13 @@ def check_recording(spec: type[Plant], rec: Recording, path: str | Path) -> list
 
 @dataclass
 class Replay:
-    """Measured data bound to the plant's augmented compiled system."""
+    """Measured data bound to the plant's augmented compiled system.
+
+    A parameter vector here is the diagram's (``Diagram.param_index``) followed by one scale per
+    external input (1 nominally): a fit parameter may scale an input the record does not measure
+    (a supply voltage taken from the config). ``x0``/``xd0`` is the state at the record's start
+    (``initial_state``); ``mode`` is ``"open"`` (simulation error: one run over the record) or
+    ``"shooting"`` (segments of ``segment_steps`` re-anchored to the measured state, ``shooting``)."""
 
     spec: type[Plant]
     cfg: Any
@@ -69,6 +75,13 @@ class Replay:
     scale: np.ndarray  # per channel: residuals are divided by it (dimensionless, comparable)
     _idx: np.ndarray
     _w: np.ndarray
+    U: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # external inputs, model grid x inputs
+    measured_grid: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # channels x model steps
+    x0: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    xd0: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mode: str = "open"
+    segment_steps: int = 0
+    anchor_gain: np.ndarray | None = None  # states x channels: scaled output error -> state correction
 
     @classmethod
     def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>") -> Replay:
@@ -88,11 +101,22 @@ class Replay:
         idx = np.minimum(np.floor(pos).astype(np.int64), n - 2)
         measured = {c: np.asarray(rec.signals[c], float) for c in channels}
         scale = np.array([max(float(np.std(measured[c])), 1e-9) for c in channels])
-        return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx)
+        U = system.input_matrix(n, inputs)
+        mgrid = np.vstack([np.interp(grid, t, measured[c]) for c in channels])
+        return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx,
+                   U, mgrid, system.x0.copy(), system.xd0.copy())
 
     @property
     def n_steps(self) -> int:
-        return len(next(iter(self.inputs.values()))) if self.inputs else int(self._idx[-1]) + 2
+        return self.U.shape[0]
+
+    @property
+    def n_diagram_params(self) -> int:
+        return self.system.params.size
+
+    def input_scale_index(self, name: str) -> int:
+        """Position of an input's scale in the parameter vector."""
+        return self.n_diagram_params + self.system.input_names.index(name)
 
     def index(self, effect: str, param: str) -> int:
         """Position of a candidate effect's parameter in the parameter vector."""
@@ -110,13 +134,43 @@ class Replay:
         """Model steps needed to cover the first ``n_meas`` measured samples."""
         return int(self._idx[n_meas - 1]) + 2
 
-    def simulate(self, P: np.ndarray, n_meas: int | None = None) -> dict[str, np.ndarray]:
+    def run(self, P: np.ndarray, start: int, n: int, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
+        """Channel outputs (steps x channels) of ``n`` model steps from step ``start``; ``x`` and
+        ``xd`` are advanced in place to the state after the last step."""
+        s = self.system
+        npar = self.n_diagram_params
+        U = self.U[start:start + n]
+        scales = P[npar:]
+        if scales.size and np.any(scales != 1.0):
+            U = U * scales
+        _, Y = s.engine.simulate(x, xd, np.ascontiguousarray(U), np.ascontiguousarray(P[:npar]), s.dt, s.substeps,
+                                 self._slots(), *s.workspace())
+        return Y
+
+    def _slots(self) -> np.ndarray:
+        if not hasattr(self, "_out_slots"):
+            self._out_slots = self.system.out_slots(self.channels)
+        return self._out_slots
+
+    def simulate_grid(self, P: np.ndarray, n: int, mode: str | None = None,
+                      x0: np.ndarray | None = None, xd0: np.ndarray | None = None) -> np.ndarray:
+        """Channel outputs on the model grid (steps x channels), open loop or by shooting."""
+        mode = mode or self.mode
+        x = (self.x0 if x0 is None else x0).copy()
+        xd = (self.xd0 if xd0 is None else xd0).copy()
+        if mode == "open" or self.anchor_gain is None or self.segment_steps <= 0:
+            return self.run(P, 0, n, x, xd)
+        from rehab_hil.discrepancy.shooting import shoot
+
+        return shoot(self, P, n, x, xd)
+
+    def simulate(self, P: np.ndarray, n_meas: int | None = None, mode: str | None = None) -> dict[str, np.ndarray]:
         """Model outputs at the first ``n_meas`` measured time stamps (all by default)."""
         n_meas = self.t.size if n_meas is None else n_meas
         n = self.steps_for(n_meas)
-        res = self.system.simulate(n, {k: v[:n] for k, v in self.inputs.items()}, outputs=self.channels, params=P)
+        Y = self.simulate_grid(P, n, mode)
         i, w = self._idx[:n_meas], self._w[:n_meas]
-        return {c: res.signals[c][i] * (1.0 - w) + res.signals[c][i + 1] * w for c in self.channels}
+        return {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(self.channels)}
 
     def residual(self, sim: Mapping[str, np.ndarray], sl: slice = slice(None)) -> np.ndarray:
         """Scaled residual (model - measured) / scale, shape (channels, samples)."""
@@ -124,7 +178,8 @@ class Replay:
                           for c, s in zip(self.channels, self.scale, strict=True)])
 
     def nominal_params(self) -> np.ndarray:
-        return self.system.params.copy()
+        """The diagram's parameters followed by the input scales (all 1)."""
+        return np.concatenate([self.system.params, np.ones(len(self.system.input_names))])
 
 
 def channel_metrics(measured: Sequence[float] | np.ndarray, model: Sequence[float] | np.ndarray) -> dict[str, float]:

@@ -11,9 +11,11 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy import localise
-from rehab_hil.discrepancy.result import Result
+from rehab_hil.discrepancy.parameters import corrected_config_text
+from rehab_hil.discrepancy.result import Result, parameter_sentence
+from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.effects import EFFECTS
-from rehab_hil.plants import load_config
+from rehab_hil.plants import get_plant, load_config
 
 __all__ = ["SCHEMA", "augmented_toml", "report_dict", "write_report"]
 
@@ -57,7 +59,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
                 "significant": c.significant, "n_params": c.score.n_params, "n_simulations": c.fit.n_simulations,
             } for c in rd.candidates],
         })
-    named = res.named
+    init = res.initial_state
     return _clean({
         "schema": SCHEMA,
         "plant": res.plant,
@@ -68,11 +70,20 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         "holdout_start_s": res.split_s,
         "channels": res.channels,
         "channel_scale": res.scale,
-        "conclusion": f"missing effect found: {', '.join(named)}" if named else "no missing effect found",
+        "conclusion": res.conclusion,
         "chosen": [{
-            "effect": f.effect, "params": f.params, "stderr": f.stderr,
-            "seed": EFFECTS[f.effect].seed, "description": EFFECTS[f.effect].description,
+            "effect": f.effect, "kind": f.kind, "params": f.params, "stderr": f.stderr,
+            **({"seed": EFFECTS[f.effect].seed, "description": EFFECTS[f.effect].description} if f.kind == "effect"
+               else {"sentence": parameter_sentence(f)}),
         } for f in res.chosen],
+        "initial_state": {
+            "set_from_data": init.set_from_data if init else {}, "estimated": init.estimated if init else {},
+            "summary": init.describe() if init else [],
+        },
+        "replay": {"mode": res.mode, "segment_s": SEGMENT_S if res.mode == "shooting" else None, **res.drift},
+        "aliases": [{"round": a.round, "chosen": a.chosen, "other": a.other, "delta_bic": a.delta_bic,
+                     "experiment": a.experiment, "sentence": a.sentence()} for a in res.aliases],
+        "unexplained": {"channels": res.unexplained, "where": res.unexplained_where},
         "metrics": {
             "nominal": before, "augmented": after,
             "nominal_holdout": res.metrics("nominal", "holdout"),
@@ -92,9 +103,16 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
 
 
 def augmented_toml(res: Result, config_path: Path) -> str:
-    """The input config's text with one ``[[effects]]`` table per chosen effect appended."""
+    """The input config's text with each parameter found off corrected in place and one
+    ``[[effects]]`` table per chosen effect appended."""
     text = config_path.read_text(encoding="utf-8").rstrip("\n") + "\n"
+    if res.parameters:
+        declared = {fp.config_key: fp for fp in get_plant(res.plant).fit_parameters}
+        fixes = {declared[f.effect]: 1.0 + f.params["error_fraction"] for f in res.parameters}
+        text = corrected_config_text(text, load_config(config_path), fixes)
     for f in res.chosen:
+        if f.kind != "effect":
+            continue
         params = ", ".join(f"{k} = {float(v)!r}" for k, v in f.params.items())
         text += (f"\n# added by rehab-hil discrepancy ({EFFECTS[f.effect].seed})\n"
                  f"[[effects]]\nname = \"{f.effect}\"\nparams = {{ {params} }}\n")
@@ -161,9 +179,17 @@ def _markdown(rep: dict[str, Any]) -> str:
          f"{rep['holdout_start_s']:.2f} s), config `{rep['config']}`.", "",
          f"**{rep['conclusion']}**", ""]
     for c in rep["chosen"]:
+        if c["kind"] == "parameter":
+            L.append(f"- {c['sentence']} (corrected in augmented.toml)")
+            continue
         ps = ", ".join(f"{k} = {v:.4g} ± {rep_se:.2g}" if rep_se is not None else f"{k} = {v:.4g}"
                        for (k, v), rep_se in zip(c["params"].items(), c["stderr"].values(), strict=True))
         L.append(f"- `{c['effect']}`: {ps} ({c['description']}; {c['seed']})")
+    for a in rep["aliases"]:
+        L.append(f"- round {a['round']}: {a['sentence']}")
+    L += ["", f"Replay: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
+              f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
+              + ("; ".join(rep["initial_state"]["summary"]) or "the config's rest state") + "."]
     L += ["", "| channel | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut |",
           "|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:

@@ -1,5 +1,6 @@
-"""What the discrepancy workflow found: candidates per round, the chosen effects, the model outputs
-before and after; written out by ``report.py``."""
+"""What the discrepancy workflow found: candidates per round, the chosen terms (effects and nominal
+parameters), near-aliases, an unexplained residual, the start state and the replay mode; written
+out by ``report.py``."""
 
 from __future__ import annotations
 
@@ -9,10 +10,13 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy.fitting import Fit
+from rehab_hil.discrepancy.initial_state import InitialState
 from rehab_hil.discrepancy.replay import channel_metrics
 from rehab_hil.discrepancy.selection import Score
 
-__all__ = ["Candidate", "Result", "Round"]
+__all__ = ["Alias", "Candidate", "Result", "Round", "parameter_sentence"]
+
+Z95 = 1.96
 
 
 @dataclass
@@ -33,6 +37,30 @@ class Round:
 
 
 @dataclass
+class Alias:
+    """Two candidates this record cannot tell apart, and the experiment that would."""
+
+    round: int
+    chosen: str
+    other: str
+    delta_bic: float
+    experiment: str
+
+    def sentence(self) -> str:
+        return (f"{self.chosen} and {self.other} explain the residual about equally (held-out scores within the "
+                f"alias margin, delta BIC {self.delta_bic:+.1f}): not distinguishable from this record; to tell "
+                f"them apart: {self.experiment}")
+
+
+def parameter_sentence(fit: Fit) -> str:
+    """'parameter X is off by N % (95 % CI a .. b %)'."""
+    e, se = fit.params["error_fraction"], fit.stderr.get("error_fraction", float("nan"))
+    ci = (f"95 % CI {100 * (e - Z95 * se):+.1f} .. {100 * (e + Z95 * se):+.1f} %" if np.isfinite(se)
+          else "CI not available")
+    return f"parameter {fit.effect} is off by {100 * e:+.1f} % ({ci})"
+
+
+@dataclass
 class Result:
     plant: str
     channels: list[str]
@@ -41,16 +69,46 @@ class Result:
     measured: dict[str, np.ndarray]
     nominal: dict[str, np.ndarray]
     augmented: dict[str, np.ndarray]
-    chosen: list[Fit]
+    chosen: list[Fit]  # effects and nominal parameters, after the last joint refit
     rounds: list[Round]
     split_s: float
     scale: dict[str, float]
     wall_s: float = 0.0
     extras: dict[str, Any] = field(default_factory=dict)
+    initial_state: InitialState | None = None
+    mode: str = "open"
+    drift: dict[str, float] = field(default_factory=dict)  # open-loop and shooting RMS of the nominal
+    aliases: list[Alias] = field(default_factory=list)
+    unexplained: dict[str, dict[str, float]] = field(default_factory=dict)  # channel -> rms, floor, ...
+    unexplained_where: dict[str, Any] = field(default_factory=dict)
 
     @property
     def named(self) -> list[str]:
-        return [f.effect for f in self.chosen]
+        """Library effects chosen (parameters are not effects)."""
+        return [f.effect for f in self.chosen if f.kind == "effect"]
+
+    @property
+    def parameters(self) -> list[Fit]:
+        return [f for f in self.chosen if f.kind == "parameter"]
+
+    @property
+    def conclusion(self) -> str:
+        """One line: effects, parameters off, near-aliases, an unexplained residual, or a fit."""
+        parts = []
+        if self.named:
+            parts.append(f"missing effect found: {', '.join(self.named)}")
+        parts += [parameter_sentence(f) for f in self.parameters]
+        parts += [a.sentence() for a in self.aliases]
+        if self.unexplained:
+            where = self.unexplained_where
+            chans = ", ".join(self.unexplained)
+            loc = (f" (largest in {where['region']} and at {where['window_start_s']:.1f}-{where['window_end_s']:.1f} s)"
+                   if where else "")
+            parts.append(("unexplained residual" if not self.chosen else "unexplained residual remains")
+                         + f" on {chans}{loc}")
+        if not parts:
+            parts.append("no missing effect found: the model fits within the noise")
+        return "; ".join(parts)
 
     def metrics(self, which: str, part: str = "all") -> dict[str, dict[str, float]]:
         """Per-channel RMSE/MAE/max error of the nominal or augmented model (all or held-out)."""

@@ -40,7 +40,7 @@ def hidden_effect_recording(spec: type[Plant], cfg: Any, effects: Mapping[str, M
     if replay is None or replay.spec.name != spec.name:
         dummy = {**u, **{c: np.zeros(n) for c in spec.outputs}}
         replay = Replay.build(spec, cfg, Recording(t, dummy))
-    P = replay.with_effects(replay.nominal_params(), effects)
+    P = replay.with_effects(replay.nominal_params(), effects)[:replay.n_diagram_params]
     if mismatch:
         name, factor = plan.mismatch
         P[replay.system.diagram.param_index(name)] *= factor

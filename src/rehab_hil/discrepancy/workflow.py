@@ -1,8 +1,16 @@
-"""The discrepancy workflow: replay, localise, fit every candidate, select, repeat.
+"""The discrepancy workflow: start state, replay mode, fit every candidate, select, refit, repeat.
 
-The first ``1 - holdout_fraction`` of the record fits the parameters; the rest is held out and
-scores the candidates (``selection``). A chosen effect stays in the model (its parameters fixed)
-and the search repeats for the next while a candidate is still significantly better.
+1. The start state comes from the data (``initial_state``); the replay is open loop unless drift
+   dominates (``shooting``).
+2. Candidates are the library effects that attach to the plant's ports and the plant's declared
+   nominal parameters (``parameters``). The first ``1 - holdout_fraction`` of the record fits;
+   the rest is held out and scores them (``selection``). The best significant one is chosen (a
+   parameter before an effect when the two are near-aliases, ``verdict``), then every chosen term
+   is refitted jointly, and the search repeats while a candidate is significant (at most
+   ``max_effects`` rounds). A parameter must be off by at least ``MIN_PARAMETER_ERROR``. After
+   each choice the start state is re-estimated and the replay mode chosen again.
+3. A channel whose final held-out error the noise cannot account for is reported as an
+   unexplained residual, with where it sits (``verdict``).
 """
 
 from __future__ import annotations
@@ -14,14 +22,24 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.discrepancy.fitting import Fit, fit_effect
+from rehab_hil.discrepancy import localise
+from rehab_hil.discrepancy.fitting import Fit, Term, effect_term, fit_joint, fit_term, parameter_term
+from rehab_hil.discrepancy.initial_state import estimate_initial_state
+from rehab_hil.discrepancy.parameters import parameter_terms
 from rehab_hil.discrepancy.replay import Replay
-from rehab_hil.discrepancy.result import Candidate, Result, Round
+from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
 from rehab_hil.discrepancy.selection import bic, effective_fraction, improvement, is_significant
+from rehab_hil.discrepancy.shooting import choose_mode
+from rehab_hil.discrepancy.verdict import experiment, is_alias, unexplained_channels
+from rehab_hil.effects import EFFECTS
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
-__all__ = ["Candidate", "Options", "Progress", "Result", "Round", "find_missing_effects"]
+__all__ = ["MIN_PARAMETER_ERROR", "Candidate", "Options", "Progress", "Result", "Round", "find_missing_effects"]
+
+# A nominal parameter off by less than this is within a config's accuracy: not reported as off
+# (an open-loop replay can trade a 0.5 % spring change against a slow drift).
+MIN_PARAMETER_ERROR = 0.03
 
 
 class Progress:
@@ -38,7 +56,13 @@ class Progress:
 class Options:
     holdout_fraction: float = 0.4  # final share of the record kept out of the fit
     fit_max_s: float = 20.0  # longer records fit on their first fit_max_s only (the rest is held out)
-    max_effects: int = 2
+    max_effects: int = 3  # rounds of the search (effects and parameters chosen)
+    mode: str = "auto"  # "auto", "open" or "shooting" (docs/discrepancy.md)
+    parameters: bool = True  # the plant's declared nominal parameters are candidates too
+
+
+def _score(replay: Replay, sim: dict[str, np.ndarray], hold: slice, n_params: int, frac: float):
+    return bic(replay.residual(sim, hold), n_params, frac)
 
 
 def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<data>",
@@ -54,37 +78,82 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     n_train = max(2, min(round((1.0 - options.holdout_fraction) * N),
                          int(np.searchsorted(replay.t, options.fit_max_s))))
     hold = slice(n_train, N)
-    P = replay.nominal_params()
-    nominal = replay.simulate(P)
+    P0 = replay.nominal_params()
+    initial = estimate_initial_state(replay, P0, n_train)
+    mode, open_rms, shoot_rms = choose_mode(replay, P0, n_train)
+    replay.mode = mode if options.mode == "auto" else options.mode
+    nominal = replay.simulate(P0)
     progress.advance()
-    current, n_params = nominal, 0
+    kinds = {c: replay.ports.measured_kind(c) or "" for c in replay.channels}
+    lag = localise.signatures(replay.t, replay.measured, nominal, replay.channels[:1], kinds)[replay.channels[0]]
+    seeds = {"delay_s": [lag["lag_s"]]} if lag["lag_s"] > 0 else {}
+    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates]
+    if options.parameters:
+        terms += [parameter_term(p) for p in parameter_terms(replay)]
+    descriptions = {e.name: e.description for e in EFFECTS.values()}
+    P, current, n_params = P0, nominal, 0
+    chosen_terms: list[Term] = []
     chosen: list[Fit] = []
     rounds: list[Round] = []
+    aliases: list[Alias] = []
     for _ in range(options.max_effects):
         r_cur = replay.residual(current, hold)
         frac = effective_fraction(r_cur)
         base = bic(r_cur, n_params, frac)
         cands: list[Candidate] = []
-        todo = [e for e in replay.candidates if e.name not in {f.effect for f in chosen}]
-        for eff in todo:
-            progress.start(f"round {len(rounds) + 1}: fitting {eff.name}", None)
-            fit = fit_effect(replay, P, eff, n_train, progress.advance)
+        for term in [t for t in terms if t.name not in {c.name for c in chosen_terms}]:
+            progress.start(f"round {len(rounds) + 1}: fitting {term.name}", None)
+            fit = fit_term(replay, P, term, n_train, progress.advance, seeds)
             sim = replay.simulate(fit.P)
-            sc = bic(replay.residual(sim, hold), n_params + len(eff.params), frac)
-            cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), is_significant(sc, base), sim))
+            sc = _score(replay, sim, hold, n_params + len(term.params), frac)
+            sig = is_significant(sc, base) and (term.kind == "effect" or
+                                                abs(fit.params["error_fraction"]) >= MIN_PARAMETER_ERROR)
+            cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim))
         cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
         pick = cands[0] if cands and cands[0].significant else None
+        if pick is not None:
+            j = int(np.argmax(np.array(base.channel_rms) - np.array(pick.score.channel_rms)))
+            near = [c for c in cands[1:] if c.significant
+                    and is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])]
+            param = next((c for c in near if c.fit.kind == "parameter"), None)
+            if pick.fit.kind == "effect" and param is not None:  # a known parameter before new structure
+                pick, near = param, [pick, *[c for c in near if c is not param]]
+            for c in near:
+                aliases.append(Alias(len(rounds) + 1, pick.fit.effect, c.fit.effect, c.score.bic - pick.score.bic,
+                                     experiment(pick.fit.effect, c.fit.effect, descriptions)))
         rounds.append(Round(base, cands, pick.fit.effect if pick else None))
         if pick is None:
             break
-        chosen.append(pick.fit)
-        assert pick.sim is not None
-        P, current, n_params = pick.fit.P, pick.sim, pick.score.n_params
+        chosen_terms.append(next(t for t in terms if t.name == pick.fit.effect))
+        if len(chosen_terms) > 1:
+            progress.start(f"round {len(rounds)}: joint refit of {len(chosen_terms)} terms", None)
+            chosen = fit_joint(replay, P0, chosen_terms, [*(f.params for f in chosen), pick.fit.params], n_train,
+                               progress.advance)
+        else:
+            chosen = [pick.fit]
+        P = chosen[-1].P
+        estimate_initial_state(replay, P, n_train)  # the start state under the augmented model
+        if options.mode == "auto":  # drift may dominate once the largest discrepancy is explained
+            replay.mode = choose_mode(replay, P, n_train)[0]
+        current = replay.simulate(P)
+        n_params = sum(len(t.params) for t in chosen_terms)
     for rd in rounds:
         for c in rd.candidates:
             c.sim = None
-    kinds = {c: replay.ports.measured_kind(c) or "" for c in replay.channels}
+    split_s = float(replay.t[n_train]) if n_train < N else float(replay.t[-1])
+    hm = replay.t >= split_s
+    rms = {c: float(np.sqrt(np.mean((current[c][hm] - replay.measured[c][hm]) ** 2))) for c in replay.channels}
+    unexplained = unexplained_channels(replay.channels, {c: replay.measured[c] for c in replay.channels}, rms)
+    where: dict[str, Any] = {}
+    if unexplained:
+        r = replay.residual(current)
+        combined = np.sqrt(np.mean(r**2, axis=0))
+        win = max(localise.time_windows(replay.t, combined), key=lambda w: w["rms"])
+        regs = [g for g in localise.regions(replay.t, replay.measured, r, replay.channels, kinds)
+                if g["ratio"] == g["ratio"]]
+        top = max(regs, key=lambda g: float(g["ratio"])) if regs else {"region": "everywhere"}  # type: ignore[arg-type]
+        where = {"window_start_s": win["start_s"], "window_end_s": win["end_s"], "region": top["region"]}
     return Result(spec.name, replay.channels, kinds, replay.t, replay.measured, nominal, current, chosen, rounds,
-                  float(replay.t[n_train]) if n_train < N else float(replay.t[-1]),
-                  dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
-                  time.perf_counter() - t_start, {"replay": replay, "P": P})
+                  split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
+                  time.perf_counter() - t_start, {"replay": replay, "P": P}, initial, replay.mode,
+                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, aliases, unexplained, where)

@@ -11,8 +11,8 @@ import math
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["DELAY_SLOTS", "Backlash", "ContactSpringDamper", "NonlinearConvection", "PassiveMuscle",
-           "SmaHysteresis", "TransportDelay"]
+__all__ = ["DELAY_SLOTS", "ActuatorDeadZone", "Backlash", "ContactSpringDamper", "NonlinearConvection",
+           "PassiveMuscle", "SensorGainOffset", "SmaHysteresis", "TransportDelay"]
 
 DELAY_SLOTS = 64  # FIFO length of TransportDelay: the longest delay is (DELAY_SLOTS - 1) steps
 
@@ -138,3 +138,48 @@ class NonlinearConvection(Part):
     @njit
     def update(t, x, xd, u, p, xd_next):
         xd_next[0] = u[0]
+
+
+class ActuatorDeadZone(Part):
+    """Dead zone of a PWM power stage, both signs: commands within ``width_duty`` (a fraction of
+    full-scale duty, times ``scale`` in the actuator's unit) give nothing, larger ones lose it,
+    y = u - w sgn(u) for |u| > w (the classic dead-zone model of Tao & Kokotovic, "Adaptive control
+    of systems with actuator and sensor nonlinearities", 1996; an H-bridge's dead time and a
+    MOSFET's threshold make one, and a geared motor's brush friction adds to it)."""
+
+    inputs = ("u",)
+    outputs = ("y",)
+    params = ("width_duty", "scale")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        w = p[0] * p[1]
+        if u[0] > w:
+            y[0] = u[0] - w
+        elif u[0] < -w:
+            y[0] = u[0] + w
+        else:
+            y[0] = 0.0
+
+
+class SensorGainOffset(Part):
+    """Calibration drift of an ADC sensor: measured = (1 + gain_error_fraction) true + offset,
+    the offset in ADC counts (``counts_per_unit`` converts). On a sensor that measures a plant
+    input (a torque the patient applies, recorded and replayed), ``invert`` = 1 gives the true
+    input the model must see: true = (measured - offset) / (1 + gain error). A Flexiforce's sensitivity drifts
+    with temperature and load time and its zero with the mounting preload (Tekscan FlexiForce
+    user manual: linearity, drift and repeatability; seed 000 sec III.A reads its contact force
+    from one); a strain-gauge torque sensor's zero drifts with temperature."""
+
+    inputs = ("u",)
+    outputs = ("y",)
+    params = ("gain_error_fraction", "offset_counts", "counts_per_unit", "invert")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        if p[3] > 0.5:
+            y[0] = (u[0] - p[1] / p[2]) / (1.0 + p[0])
+        else:
+            y[0] = (1.0 + p[0]) * u[0] + p[1] / p[2]

@@ -38,7 +38,7 @@ from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSp
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import EncoderSection, Excitation, Plant, PlantConfig, Scenario, multisine
+from rehab_hil.plants.base import EncoderSection, Excitation, FitParameter, Plant, PlantConfig, Scenario, multisine
 
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control
@@ -281,6 +281,14 @@ class FingerExtensor(Plant):
     build = staticmethod(build)
     ports = staticmethod(ports)
     scenarios = MappingProxyType({"step": step_scenario, "cycle": cycle_scenario})
+    fit_parameters = (  # seed 002 eq 8-11 (motor), eq 6 (spring, inertia): candidates of the discrepancy workflow
+        FitParameter("motor.kt_nm_per_a", diagram=("motor.kt_nm_per_a",)),
+        FitParameter("motor.resistance_ohm", diagram=("motor.resistance_ohm",)),
+        FitParameter("iris.spring_nm_per_rad", diagram=("spring.stiffness_nm_per_rad",)),
+        FitParameter("motor.rotor_inertia_kg_m2", diagram=("iris.inertia_kg_m2",),  # the rotor dominates J
+                     to_config=lambda cfg, f: (f * total_inertia_kg_m2(cfg) - iris_inertia_kg_m2(cfg))
+                     / cfg.motor.gear_ratio**2),
+    )
 
     @classmethod
     def pid_gains(cls, cfg: FingerExtensorConfig) -> tuple[float, float, float, float]:

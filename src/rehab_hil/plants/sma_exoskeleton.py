@@ -31,6 +31,7 @@ from rehab_hil.models.system import Part, SimulationResult
 from rehab_hil.plants.base import (
     EncoderSection,
     Excitation,
+    FitParameter,
     ForceSensorSection,
     Plant,
     PlantConfig,
@@ -394,6 +395,11 @@ class SMAExoskeleton(Plant):
     ports = staticmethod(ports)
     scenarios = MappingProxyType({"pwm-step": pwm_step_scenario, "pwm-sweep": pwm_sweep_scenario,
                                   "session": session_scenario})
+    fit_parameters = (  # seed 000 Table 5 (supply, h1), Table 1 (F_o): candidates of the discrepancy workflow
+        FitParameter("drive.supply_voltage_v", inputs=("supply_voltage_v",)),
+        FitParameter("sma.h1_w_per_m2_c", diagram=("sma_thermal.h1_w_per_m2_c",)),
+        FitParameter("muscle.max_isometric_force_n", diagram=("muscle.max_isometric_force_n",)),
+    )
     excitation = Excitation(
         inputs=lambda t, rng: {"pwm_duty": random_levels(t, rng, (0.4, 0.6, 0.8, 1.0), (1.5, 4.0), 0.4),
                                "supply_voltage_v": np.full_like(t, 32.0)},

@@ -1,0 +1,146 @@
+"""The state at the record's start, from the data, for any plant.
+
+1. Measured outputs set their matching states: the output Jacobian at the start (finite
+   differences of one-step simulations) says which state each measured channel is (an encoder
+   angle is the joint angle times a gain, a measured current is the armature current); a channel
+   whose output is one state (>= ``MATCH_SHARE`` of its row) is matched, and the matched states
+   are solved (Gauss-Newton, a few steps) so the model's outputs equal the first measured samples.
+2. The other states (velocity, a wire temperature nobody measures, a pad angle) and the material
+   memory of the nominal parts (an SMA's martensite fraction) are nuisance parameters: fitted by
+   least squares on the first ``WINDOW_S`` of the record, open loop, from the config's rest state.
+
+The result says which states were set from which channel and which were estimated; the matched
+channel-state pairs also give the anchor gain that multiple shooting re-anchors with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
+
+if TYPE_CHECKING:
+    from rehab_hil.discrepancy.replay import Replay
+
+__all__ = ["MATCH_SHARE", "WINDOW_S", "InitialState", "estimate_initial_state"]
+
+MATCH_SHARE = 0.95  # a channel "is" a state when that state carries this share of its sensitivity
+WINDOW_S = 1.5  # nuisance states are fitted on this much of the record's start
+FD_SHARE = 0.05  # finite-difference step: this share of a state's spread over the nominal replay
+
+
+@dataclass
+class InitialState:
+    """The start state and what it came from."""
+
+    x0: np.ndarray
+    xd0: np.ndarray
+    set_from_data: dict[str, str] = field(default_factory=dict)  # state -> channel
+    estimated: dict[str, float] = field(default_factory=dict)  # state -> value (nuisance fit)
+    config_rest: dict[str, float] = field(default_factory=dict)  # state -> config value (moved ones)
+
+    def describe(self) -> list[str]:
+        """One line per state that did not come from the config's rest state."""
+        out = [f"{s} = {self.x0_of(s):.4g} set from the first sample of {c}" for s, c in self.set_from_data.items()]
+        out += [f"{s} = {v:.4g} estimated (nuisance parameter, first {WINDOW_S:g} s)"
+                for s, v in self.estimated.items()]
+        return out
+
+    def x0_of(self, state: str) -> float:
+        return float(self._values.get(state, float("nan")))
+
+    _values: dict[str, float] = field(default_factory=dict, repr=False)
+
+
+def _state_scales(replay: Replay, P: np.ndarray) -> np.ndarray:
+    s = replay.system
+    X, _ = s.engine.simulate(s.x0.copy(), s.xd0.copy(), replay.U, P[:replay.n_diagram_params], s.dt, s.substeps,
+                             s.out_slots(replay.channels[:1]), *s.workspace())
+    X = np.nan_to_num(X)
+    return np.maximum(np.maximum(np.std(X, axis=0), 0.1 * np.abs(s.x0)), 1e-3)
+
+
+def _outputs(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
+    return replay.run(P, 0, 1, x.copy(), xd.copy())[0] / replay.scale
+
+
+def _jacobian(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, h: np.ndarray) -> np.ndarray:
+    C = np.zeros((len(replay.channels), x.size))
+    for i in range(x.size):
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h[i]
+        xm[i] -= h[i]
+        C[:, i] = (_outputs(replay, P, xp, xd) - _outputs(replay, P, xm, xd)) / (2 * h[i])
+    return C
+
+
+def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> InitialState:
+    """Set ``replay.x0``, ``xd0`` and ``anchor_gain`` from the data; returns what was done."""
+    s = replay.system
+    names = s.diagram.state_names
+    x, xd = s.x0.copy(), s.xd0.copy()
+    scales = _state_scales(replay, P)
+    h = FD_SHARE * scales
+    C = _jacobian(replay, P, x, xd, h)
+    target = replay.measured_grid[:, 0] / replay.scale
+    matched: dict[int, int] = {}  # channel -> state
+    for c in range(C.shape[0]):
+        row = np.abs(C[c])
+        norm = float(np.linalg.norm(row))
+        if norm > 1e-9 and row.max() >= MATCH_SHARE * norm and np.isfinite(target[c]):
+            matched[c] = int(np.argmax(row))
+    states = sorted(set(matched.values()))
+    chans = sorted(matched)
+    K = np.zeros((x.size, C.shape[0]))
+    if states:
+        for _ in range(3):  # Gauss-Newton on the matched channels
+            C = _jacobian(replay, P, x, xd, h)
+            err = target[chans] - _outputs(replay, P, x, xd)[chans]
+            dx, *_ = np.linalg.lstsq(C[np.ix_(chans, states)], err, rcond=None)
+            x[states] += dx
+        K[np.ix_(states, chans)] = np.linalg.pinv(C[np.ix_(chans, states)])
+    replay.anchor_gain = K if states else None
+    # nuisance: unmatched states and the nominal parts' discrete memory
+    free_x = [i for i in range(x.size) if i not in states]
+    dnames = s.diagram.discrete_state_names
+    free_xd = [i for i, n in enumerate(dnames) if not n.startswith(CANDIDATE_PREFIX + "_")]
+    n_win = max(2, min(int(np.searchsorted(replay.t, WINDOW_S)), n_train))
+    estimated: dict[str, float] = {}
+    if free_x or free_xd:
+        sc = np.concatenate([scales[free_x], np.ones(len(free_xd))])
+        base_x, base_xd = x.copy(), xd.copy()
+
+        def fun(z: np.ndarray) -> np.ndarray:
+            xx, dd = base_x.copy(), base_xd.copy()
+            xx[free_x] += z[:len(free_x)] * sc[:len(free_x)]
+            dd[free_xd] += z[len(free_x):] * sc[len(free_x):]
+            r = replay.residual(_sim(replay, P, n_win, xx, dd), slice(0, n_win)).ravel()
+            return np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
+
+        z0 = np.zeros(sc.size)
+        r0 = fun(z0)
+        sol = least_squares(fun, z0, diff_step=FD_SHARE, max_nfev=12 * sc.size, xtol=1e-3, ftol=1e-4)
+        if float(np.mean(sol.fun**2)) < float(np.mean(r0**2)):
+            x[free_x] += sol.x[:len(free_x)] * sc[:len(free_x)]
+            xd[free_xd] += sol.x[len(free_x):] * sc[len(free_x):]
+        estimated = {names[i]: float(x[i]) for i in free_x}
+        estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
+    replay.x0, replay.xd0 = x, xd
+    from_data: dict[str, str] = {}
+    for c, st in sorted(matched.items()):
+        from_data[names[st]] = ", ".join(filter(None, [from_data.get(names[st], ""), replay.channels[c]]))
+    out = InitialState(x, xd, from_data, estimated,
+                       {names[i]: float(s.x0[i]) for i in range(x.size)})
+    out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
+    return out
+
+
+def _sim(replay: Replay, P: np.ndarray, n_meas: int, x: np.ndarray, xd: np.ndarray) -> dict[str, np.ndarray]:
+    n = replay.steps_for(n_meas)
+    Y = replay.simulate_grid(P, n, "open", x, xd)
+    i, w = replay._idx[:n_meas], replay._w[:n_meas]
+    return {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(replay.channels)}

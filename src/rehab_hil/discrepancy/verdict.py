@@ -1,0 +1,81 @@
+"""What the workflow may conclude: near-aliases said plainly, and a residual nothing explains.
+
+Near-aliases: two significant candidates of a round whose held-out BIC lie within
+``ALIAS_DELTA_BIC`` of each other, or whose held-out RMS errors on the channel the chosen one cuts
+most differ by less than ``ALIAS_RMS_SHARE`` (relative), explain the residual about equally. The
+verdict names both, says this record cannot tell them apart, and suggests the experiment that
+would (``EXPERIMENTS``; a generic hint otherwise). Within that margin a nominal parameter ranks
+before a new effect (no new structure when a known one explains it).
+
+Unexplained residual: after the search, a channel whose held-out RMS error exceeds both
+``NOISE_FACTOR`` times its noise floor (the measured signal's sample-to-sample scatter, which
+includes quantisation) and ``SPREAD_SHARE`` of its spread is not explained by the model; the
+verdict says so, with the channel, the time window and the state region where it sits, instead
+of calling the model a fit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "experiment",
+           "is_alias", "noise_floor", "unexplained_channels"]
+
+ALIAS_DELTA_BIC = 10.0  # the significance margin (selection.MIN_DELTA_BIC): less is not "very strong"
+ALIAS_RMS_SHARE = 0.10  # held-out RMS on the decisive channel within 10 % of each other
+NOISE_FACTOR = 4.0
+SPREAD_SHARE = 0.05
+
+EXPERIMENTS: dict[frozenset[str], str] = {
+    frozenset({"contact_spring_damper", "passive_muscle"}):
+        "a slow ramp through the contact angle: a contact engages at an angle, a passive muscle stiffens "
+        "smoothly from rest",
+    frozenset({"coulomb_friction", "viscous_friction"}):
+        "moves at several constant speeds: Coulomb friction does not grow with speed, viscous does",
+    frozenset({"backlash", "time_delay"}):
+        "reversals at two different speeds: a play costs a fixed angle, a delay a fixed time",
+    frozenset({"coulomb_friction", "actuator_dead_zone"}):
+        "slow moves against a known load (the patient torque): friction opposes motion, a dead zone "
+        "removes a fixed part of the command whatever the load",
+    frozenset({"motor.kt_nm_per_a", "motor.resistance_ohm"}):
+        "log the motor current through a stall: the current fixes R, the torque per ampere fixes k_t",
+    frozenset({"drive.supply_voltage_v", "sma.h1_w_per_m2_c"}):
+        "measure the supply under load, or log the wire temperature while cooling (h1 sets the cooling rate)",
+}
+
+
+def experiment(a: str, b: str, descriptions: Mapping[str, str]) -> str:
+    """The experiment that would tell ``a`` from ``b``."""
+    known = EXPERIMENTS.get(frozenset({a, b}))
+    if known:
+        return known
+    return (f"an excitation where the two act differently ({a}: {descriptions.get(a, a)}; "
+            f"{b}: {descriptions.get(b, b)})")
+
+
+def is_alias(bic_a: float, bic_b: float, rms_a: float, rms_b: float) -> bool:
+    """Do two candidates explain the held-out residual about equally? ``rms_*``: their held-out RMS
+    on the channel the chosen one cuts most."""
+    return abs(bic_a - bic_b) < ALIAS_DELTA_BIC or abs(rms_a - rms_b) <= ALIAS_RMS_SHARE * max(rms_a, rms_b)
+
+
+def noise_floor(y: np.ndarray) -> float:
+    """Sample-to-sample scatter of a measured channel: std of the first difference / sqrt 2."""
+    d = np.diff(np.asarray(y, float))
+    return float(np.std(d) / np.sqrt(2.0)) if d.size else 0.0
+
+
+def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndarray],
+                         residual_rms: Mapping[str, float]) -> dict[str, dict[str, float]]:
+    """Channels whose held-out RMS error the noise and a small share of the spread cannot account
+    for: channel -> {rms, noise_floor, spread, threshold} in the channel's unit."""
+    out = {}
+    for c in channels:
+        y = measured[c]
+        floor, spread = noise_floor(y), float(np.std(y))
+        thr = max(NOISE_FACTOR * floor, SPREAD_SHARE * spread)
+        if residual_rms[c] > thr:
+            out[c] = {"rms": float(residual_rms[c]), "noise_floor": floor, "spread": spread, "threshold": thr}
+    return out
