@@ -3,6 +3,7 @@ putting a real-time session into the safe state before the exit."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -47,10 +48,11 @@ def test_sigterm_trips_the_safe_state_and_exits_after_the_summary(tmp_path):
                              "--lockstep", "--duration", "600", "--record", str(tmp_path), "--no-display"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
-        csv = tmp_path / "run.csv"
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # the loop runs once rows appear (flushed every 100 ms)
-            if csv.exists() and csv.stat().st_size > 5000:
+            found = list(tmp_path.glob("*/run.csv"))  # the run's own directory under --record
+            if found and found[0].stat().st_size > 5000:
+                csv = found[0]
                 break
             assert proc.poll() is None, proc.communicate()
             time.sleep(0.1)
@@ -64,3 +66,5 @@ def test_sigterm_trips_the_safe_state_and_exits_after_the_summary(tmp_path):
     assert "stop_request" in out and "SIGTERM" in out
     assert "device PWM off at end" in out and "yes" in out.split("device PWM off at end")[1].splitlines()[0]
     read_csv(csv)  # the recording is complete and readable
+    meta = json.loads((csv.parent / "metadata.json").read_text())
+    assert meta["safety_events"][0]["reason"] == "stop_request" and meta["pwm_off_at_end"]  # written at the end
