@@ -19,7 +19,7 @@ from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import GENERIC_FIELDS, Record, Recorder, read_mcap
 from rehab_hil.service.runner import LoopService
-from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, schemas, topics
+from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, rig_prefix, schemas, topics
 from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths
 from rehab_hil.testing import free_port
 
@@ -194,3 +194,13 @@ def test_run_foxglove_serves_the_session_samples_and_stats() -> None:
     assert stats["loop"]["duration_s"] == 3.0 and stats["telemetry"]["dropped"] == 0
     idx = [m["sample_index"] for m in client.messages["/rig/sample"]]
     assert idx == sorted(idx)
+
+
+def test_a_lab_layout_has_one_tab_per_rig_naming_only_that_rigs_channels() -> None:
+    _, binding = binding_of(CONFIG)
+    rigs = [(rig_prefix(r, several=True), r) for r in ("a", "b")]
+    doc = json.loads(layout_json(rigs))
+    assert [tab["title"] for tab in doc["content"]["tabs"]] == ["a", "b"]
+    fields = {topics(p)[k]: set(json.loads(s.data)["properties"]) for p, _ in rigs for k, s in schemas(binding).items()}
+    for topic, field in message_paths(doc):
+        assert topic.startswith(("/rigs/a/", "/rigs/b/")) and (field is None or field in fields[topic])
