@@ -126,3 +126,86 @@ def test_every_applicable_effect_at_zero_magnitude_leaves_the_nominal_response_u
     for name in spec.outputs:
         if name in nominal.signals:
             np.testing.assert_allclose(res[name], nominal[name], rtol=0, atol=1e-9, err_msg=name)
+
+
+def _kernel_out(part_cls, u, **params):
+    y = np.zeros(1)
+    part_cls.output(0.0, np.zeros(0), np.zeros(0), np.array(u, float), np.array(list(params.values()), float), y)
+    return float(y[0])
+
+
+def test_actuator_dead_zone_removes_the_band_on_both_signs():
+    from rehab_hil.models.effect_parts import ActuatorDeadZone
+
+    w = dict(width_duty=0.04, scale=24.0)  # 0.96 V of a 24 V H-bridge
+    assert [_kernel_out(ActuatorDeadZone, [u], **w) for u in (-5.0, -0.9, 0.0, 0.9, 5.0)] == pytest.approx(
+        [-4.04, 0.0, 0.0, 0.0, 4.04])
+    assert _kernel_out(ActuatorDeadZone, [3.0], width_duty=0.0, scale=24.0) == 3.0  # off: a wire
+    assert {e.name for e in _applicable("finger_extensor")} >= {"actuator_dead_zone", "sensor_gain_offset"}
+    assert EFFECTS["actuator_dead_zone"].needs == "actuator" and EFFECTS["sensor_gain_offset"].needs == "adc"
+
+
+def test_sensor_gain_offset_forward_and_inverse():
+    from rehab_hil.models.effect_parts import SensorGainOffset
+
+    p = dict(gain_error_fraction=0.1, offset_counts=20.0, counts_per_unit=100.0)
+    assert _kernel_out(SensorGainOffset, [2.0], **p, invert=0.0) == pytest.approx(1.1 * 2.0 + 0.2)
+    assert _kernel_out(SensorGainOffset, [1.1 * 2.0 + 0.2], **p, invert=1.0) == pytest.approx(2.0)
+
+
+def test_sensor_gain_on_a_recorded_input_feeds_the_model_the_true_value(fe):
+    """The Finger Extensor's torque sensor measures an input (patient_torque_nm): the effect sits
+    between the recorded column and the plant, and gives the plant the true torque."""
+    spec, cfg = fe
+    ports = spec.ports(cfg)
+    parts = attach(spec.name, ports, 0.001, spec.build(cfg),
+                   [("sensor_gain_offset", {"gain_error_fraction": 0.25, "offset_counts": 0.0})])
+    readers = [p for p in parts if any(s == "patient_torque_nm" for t in p.connections.values() for s, _ in t)]
+    assert [p.name for p in readers] == ["effect_sensor_gain_offset"]
+    assert parts[-1].param_values[-1] == 1.0  # invert
+
+
+def test_sensor_gain_on_a_modelled_signal_takes_its_name_over():
+    """On the SMA exoskeleton the Flexiforce reads the model's contact force: the plant's producer is
+    renamed ``contact_force_n_true`` and the effect produces the recorded ``contact_force_n``."""
+    spec, cfg = get_plant("sma_exoskeleton"), load_config(CONFIGS / "sma_exoskeleton.toml")
+    parts = attach(spec.name, spec.ports(cfg), 0.001, spec.build(cfg),
+                   [("sensor_gain_offset", {"gain_error_fraction": -0.1}), ("viscous_friction", {})])
+    producers = [p.name for p in parts if "contact_force_n" in p.signal_names]
+    assert producers == ["effect_sensor_gain_offset"]  # attached last although listed first
+    assert any("contact_force_n_true" in p.signal_names for p in parts if p.name == "contact")
+    assert parts[-1].connections["u"] == [("contact_force_n_true", 1.0)]
+
+
+def _bench():
+    import importlib.util
+
+    spec_ = importlib.util.spec_from_file_location("bench_discrepancy", CONFIGS.parent / "bench" / "discrepancy.py")
+    bench = importlib.util.module_from_spec(spec_)
+    spec_.loader.exec_module(bench)
+    return bench
+
+
+@pytest.mark.slow
+def test_sensor_gain_offset_is_found_on_an_independent_record(fe):
+    from rehab_hil.discrepancy.workflow import Options, find_missing_effects
+
+    _spec, cfg = fe
+    true = {"gain_error_fraction": -0.2, "offset_counts": -20.0}  # torque sensor 20 % low, zero 0.2 N m off
+    rec = _bench().fe_record({"sensor_gain_offset": true}, {}, 12, duration_s=10.0)
+    res = find_missing_effects(cfg, rec, "sensor.csv", options=Options(max_effects=1))
+    assert res.named == ["sensor_gain_offset"], res.conclusion
+    fit = res.chosen[0].params
+    assert fit["gain_error_fraction"] == pytest.approx(true["gain_error_fraction"], abs=0.05)
+    assert fit["offset_counts"] == pytest.approx(true["offset_counts"], abs=3.0)
+
+
+@pytest.mark.slow
+def test_actuator_dead_zone_is_found_on_an_independent_record(fe):
+    from rehab_hil.discrepancy.workflow import Options, find_missing_effects
+
+    _spec, cfg = fe
+    rec = _bench().fe_record({"actuator_dead_zone": {"width_duty": 1.0 / 24}}, {}, 11, duration_s=10.0)
+    res = find_missing_effects(cfg, rec, "dz.csv", options=Options(max_effects=1))
+    assert res.named == ["actuator_dead_zone"], res.conclusion
+    assert res.chosen[0].params["width_duty"] * 24 == pytest.approx(1.0, rel=0.15)

@@ -28,7 +28,7 @@ def test_closed_loop_drift_is_detected_and_shooting_does_not_drift(fe, low_kt):
     P = replay.nominal_params()
     n = replay.t.size * 6 // 10
     estimate_initial_state(replay, P, n)
-    mode, open_rms, shooting_rms = choose_mode(replay, P, n)
+    mode, _, _ = choose_mode(replay, P, n)
     assert mode == "shooting"
     angle = [np.sqrt(np.mean(replay.residual(replay.simulate(P, n, mode=m), slice(0, n))[0] ** 2))
              for m in ("open", "shooting")]
@@ -37,7 +37,7 @@ def test_closed_loop_drift_is_detected_and_shooting_does_not_drift(fe, low_kt):
 
 @pytest.mark.slow
 def test_a_parameter_error_is_reported_as_the_parameter_with_its_corrected_config(fe, low_kt, tmp_path):
-    spec, cfg = fe
+    _spec, cfg = fe
     res = find_missing_effects(cfg, low_kt, "kt.csv", options=Options(max_effects=2))
     assert res.named == [], res.conclusion
     kt = {f.effect: f for f in res.parameters}["motor.kt_nm_per_a"]
@@ -52,7 +52,7 @@ def test_a_parameter_error_is_reported_as_the_parameter_with_its_corrected_confi
 
 @pytest.mark.slow
 def test_two_effects_are_both_named_and_refitted_jointly(fe, independent):
-    spec, cfg = fe
+    _spec, cfg = fe
     rec = independent.fe_record({"coulomb_friction": {"level_nm": 0.03}, "time_delay": {"delay_s": 0.015}}, {}, 5,
                                 duration_s=15.0, rate_hz=1000.0)
     res = find_missing_effects(cfg, rec, "pair.csv", options=Options(max_effects=3))

@@ -1,0 +1,66 @@
+"""Issue 14 items 3-4: an unexplained residual is said so (never "fits"), and near-aliases are named
+together with the experiment that would separate them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rehab_hil.discrepancy.fitting import Fit
+from rehab_hil.discrepancy.result import Alias, Result
+from rehab_hil.discrepancy.verdict import experiment, is_alias, noise_floor, unexplained_channels
+from rehab_hil.discrepancy.workflow import Options, find_missing_effects
+from rehab_hil.interchange import Recording
+
+
+def test_noise_floor_and_the_unexplained_threshold():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 10, 5000)
+    y = 20 * np.sin(t) + rng.normal(0, 0.1, t.size)
+    assert noise_floor(y) == pytest.approx(0.1, rel=0.1)
+    assert unexplained_channels(["a"], {"a": y}, {"a": 0.2}) == {}  # at the noise: explained
+    out = unexplained_channels(["a"], {"a": y}, {"a": 3.0})  # 20 % of the spread: not
+    assert out["a"]["rms"] == 3.0 and out["a"]["threshold"] < 3.0
+
+
+def test_aliases_within_the_margin_and_the_suggested_experiment():
+    assert is_alias(-500.0, -495.0, 1.0, 1.5)  # BIC within the margin
+    assert is_alias(-500.0, -300.0, 1.0, 1.05)  # same error where it matters
+    assert not is_alias(-500.0, -300.0, 1.0, 2.0)
+    assert "slow ramp through the contact angle" in experiment("passive_muscle", "contact_spring_damper", {})
+    assert "a" in experiment("a", "b", {"a": "thing a", "b": "thing b"})
+
+
+def _result(chosen, aliases=(), unexplained=None) -> Result:
+    t = np.arange(3.0)
+    return Result("p", ["y"], {"y": "angle"}, t, {"y": t}, {"y": t}, {"y": t}, list(chosen), [], 1.0, {"y": 1.0},
+                  aliases=list(aliases), unexplained=unexplained or {},
+                  unexplained_where={"region": "rest", "window_start_s": 0.0, "window_end_s": 1.0}
+                  if unexplained else {})
+
+
+def test_conclusion_sentences():
+    par = Fit("motor.kt_nm_per_a", {"error_fraction": -0.15}, {"error_fraction": 0.01}, {}, 0.0, 1, np.zeros(1),
+              "parameter")
+    assert _result([par]).conclusion.startswith("parameter motor.kt_nm_per_a is off by -15.0 % (95 % CI -17.0 ..")
+    assert _result([par]).named == []
+    eff = Fit("passive_muscle", {"scale_nm": 0.01}, {"scale_nm": 0.001}, {}, 0.0, 1, np.zeros(1))
+    al = Alias(1, "passive_muscle", "contact_spring_damper", 3.0, "a slow ramp")
+    text = _result([eff], [al]).conclusion
+    assert "missing effect found: passive_muscle" in text and "not distinguishable" in text and "slow ramp" in text
+    text = _result([], unexplained={"y": {"rms": 3.0}}).conclusion
+    assert text.startswith("unexplained residual on y") and "rest" in text
+    assert "fits" in _result([]).conclusion
+
+
+@pytest.mark.slow
+def test_a_residual_nothing_explains_is_reported_unexplained_with_where_it_sits(fe, independent):
+    _spec, cfg = fe
+    rec = independent.fe_record({}, {}, 9, duration_s=10.0, rate_hz=1000.0)
+    ang = rec.signals["iris_angle_deg"]
+    # an out-of-library sensor fault: a slow wobble of the logged angle (a slipping encoder disc)
+    wobbled = {**rec.signals, "iris_angle_deg": ang + 4.0 * np.sin(2 * np.pi * 0.37 * rec.t)}
+    res = find_missing_effects(cfg, Recording(rec.t, wobbled), "wobble.csv", options=Options(max_effects=2))
+    assert "iris_angle_deg" in res.unexplained, res.conclusion
+    assert "unexplained residual" in res.conclusion and "fits" not in res.conclusion
+    assert {"region", "window_start_s", "window_end_s"} <= set(res.unexplained_where)
