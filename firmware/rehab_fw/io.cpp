@@ -135,4 +135,6 @@ ISR(ADC_vect) {
   }
 }
 
-ISR(TIMER2_COMPA_vect) { io::on_tick(); }
+// Interruptible (ISR_NOBLOCK): the safety checks take longer than two bytes at 1 Mbaud, and the
+// 328P holds only two received bytes; the UART receive interrupt must be able to preempt them.
+ISR(TIMER2_COMPA_vect, ISR_NOBLOCK) { io::on_tick(); }

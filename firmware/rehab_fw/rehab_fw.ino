@@ -75,12 +75,25 @@ static proto::Receiver rx;
 
 // MCUSR holds why the chip reset; it must be read and cleared, and the watchdog disabled,
 // before anything else: after a watchdog reset the WDT stays enabled at its shortest period.
+// Under the Uno's bootloader MCUSR is always 0 here: optiboot (4.4 in Debian's arduino-core-avr)
+// reads it into r24, clears it and overwrites r24 before jumping to the sketch, handing nothing
+// over. So a hang is also recorded by the watchdog itself: it runs in interrupt-then-reset mode,
+// its interrupt (first time-out) cuts the PWM and leaves hang_marker in SRAM, which every reset
+// but power-on keeps; the second time-out resets the chip (WDIE is cleared by hardware at the
+// first, so the reset comes even if interrupts stay disabled).
 uint8_t mcusr_at_boot __attribute__((section(".noinit")));
+static const uint32_t HANG_MAGIC = 0x57A7D06Eul;  // 32 bits: random SRAM after power-on matches 1 in 4e9
+volatile uint32_t hang_marker __attribute__((section(".noinit")));
 void early_init() __attribute__((naked, used, section(".init3")));
 void early_init() {
   mcusr_at_boot = MCUSR;
   MCUSR = 0;
   wdt_disable();
+}
+
+ISR(WDT_vect) {
+  io::pwm_all_off();  // a hung loop() loses the PWM now, the reset follows one period later
+  hang_marker = HANG_MAGIC;
 }
 
 // Everything off; called with interrupts disabled or from the tick interrupt.
@@ -340,6 +353,9 @@ static void send_sample() {
 
 void setup() {
   uint8_t m = mcusr_at_boot;
+  bool hung = hang_marker == HANG_MAGIC && !(m & _BV(PORF));  // SRAM is random after power-on
+  hang_marker = 0;
+  if (hung) m |= _BV(WDRF);  // our watchdog reset us (MCUSR itself was cleared by the bootloader)
   reset_cause = ((m & _BV(PORF)) ? 1 : 0) | ((m & _BV(EXTRF)) ? 2 : 0) | ((m & _BV(BORF)) ? 4 : 0) |
                 ((m & _BV(WDRF)) ? 8 : 0);
   io::begin();
@@ -353,10 +369,11 @@ void setup() {
   Serial.write((uint8_t)0);
   send_hello();  // unsolicited, once per boot: reset_cause tells the host why we booted
   wdt_enable(WDTO_60MS);
+  WDTCSR |= _BV(WDIE);  // interrupt first, then reset (WDIE needs no timed sequence)
 }
 
 void loop() {
-  wdt_reset();
+  wdt_reset();  // WDIE stays set until a time-out
   // Bounded so a flood cannot starve the samples; read() returns -1 when empty (one call per
   // byte instead of two: at 1 Mbaud a byte arrives every 160 CPU cycles).
   for (uint8_t i = 0; i < 64; ++i) {

@@ -5,8 +5,14 @@
  * stdout: line 1 is the pty path; every later line is a reply (see README.md). simavr's log
  * and stray printf()s go to stderr (fd 1 is redirected there; replies use a dup of the original).
  *
- * Usage: avr_harness [-f] [-l LOCKSTEP_US] [-e EDGE_US] [-v] firmware.elf
+ * Usage: avr_harness [-f] [-l LOCKSTEP_US] [-e EDGE_US] [-b BOOT.hex] [-r] [-u] [-v] firmware.elf
  *   -f  free-running: do not throttle simulated time to the wall clock
+ *   -b  load a bootloader (Intel hex, e.g. optiboot at 0x7E00) with the sketch and start there
+ *       (BOOTRST fuse programmed, as on an Uno)
+ *   -r  reset on port open (the Uno's DTR auto-reset): an external reset each time the host opens the pty
+ *   -u  real UART receive: host bytes enter the 328P one per byte time (10 bits at the baud rate the
+ *       firmware set in UBRR0/U2X0) into its 2-byte receive buffer; a byte completing while 2 are
+ *       unread is lost (data overrun, counted in rx_dropped), instead of simavr's 64-byte FIFO
  *   -l  lockstep: stop every LOCKSTEP_US of simulated time, print a T line, wait for G
  *   -e  simulated time between two generated encoder edges (default 50 us = 20,000 counts/s;
  *       closer edges can fall within one interrupt latency and be lost, see README.md)
@@ -34,6 +40,7 @@
 #include <avr_uart.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
+#include <sim_hex.h>
 #include <sim_irq.h>
 
 #define F_CPU 16000000UL
@@ -53,11 +60,21 @@
 #define R_OCR1BL 0x8A
 #define R_UCSR0B 0xC1
 #define R_MCUSR 0x54
+#define R_UCSR0A 0xC0
+#define R_UBRR0L 0xC4
+#define R_UBRR0H 0xC5
+#define R_UDR0 0xC6
 #define RXEN0_BIT 4
+#define U2X0_BIT 1
 
 static avr_t *avr;
 static int reply_fd = -1, pty_master = -1, pty_slave = -1;
-static int verbose = 0, free_running = 0;
+static int verbose = 0, free_running = 0, reset_on_open = 0, uart_real = 0;
+static int host_open = 0;
+static const char *boot_hex = NULL;
+static uint32_t boot_pc = 0;
+static avr_uart_t *uart0;                     /* for its receive FIFO's fill level (-u) */
+static uint64_t rx_overrun = 0, rx_fed = 0;
 static uint32_t lockstep_us = 0, edge_us = 50;
 static avr_irq_t *uart_in_irq, *pin_irq[8], *adc_irq;
 static volatile int xoff = 0;
@@ -180,6 +197,26 @@ static unsigned pwm_duty(int ch) {
     return (unsigned)(((uint64_t)(ocr + 1) * 10000u + (top + 1) / 2) / (top + 1));
 }
 
+/* -u: one received byte per byte time into the 328P's 2-byte buffer (see the usage). */
+static avr_cycle_count_t uart_byte_cycles(void) {
+    unsigned ubrr = avr->data[R_UBRR0L] | ((avr->data[R_UBRR0H] & 0x0F) << 8);
+    unsigned per_bit = (avr->data[R_UCSR0A] & (1 << U2X0_BIT)) ? 8 : 16;
+    /* 8N1 is 10 bit times a byte, but simavr 1.6 paces its receive-complete flag at 11 (it counts a
+     * parity bit that 8N1 does not have): fed faster than simavr hands bytes to the firmware, every
+     * frame longer than ~20 bytes would overrun in simulation only. So bytes come at simavr's pace
+     * (91 kB/s at 1 Mbaud instead of 100 kB/s). */
+    return (avr_cycle_count_t)11 * per_bit * (ubrr + 1);
+}
+static avr_cycle_count_t uart_feed(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a; (void)param;
+    if (!rx_len || !(avr->data[R_UCSR0B] & (1 << RXEN0_BIT))) return 0;  /* idle: pump_pty restarts it */
+    unsigned unread = (unsigned)(uart0->input.write - uart0->input.read) & (uart_fifo_fifo_size - 1);
+    if (unread >= 2) rx_overrun++;  /* DOR: the 328P holds 2 unread bytes, this one is lost */
+    else { avr_raise_irq(uart_in_irq, rx_buf[0]); rx_fed++; }
+    memmove(rx_buf, rx_buf + 1, --rx_len);
+    return rx_len ? when + uart_byte_cycles() : 0;
+}
+
 static void reply(const char *fmt, ...) {
     char line[256];
     va_list ap;
@@ -200,7 +237,7 @@ static void reply(const char *fmt, ...) {
 static void report_state(void) {
     uint8_t dir = (uint8_t)(((avr->data[R_PORTB] & 0x01) ? 1 : 0) | ((avr->data[R_PORTD] & 0x80) ? 2 : 0));
     reply("T %llu %u %u %u %ld %u %llu %llu\n", (unsigned long long)sim_us(), pwm_duty(0), pwm_duty(1), dir,
-          (long)enc_pos, resets, (unsigned long long)tx_dropped, (unsigned long long)rx_dropped);
+          (long)enc_pos, resets, (unsigned long long)tx_dropped, (unsigned long long)(rx_dropped + rx_overrun));
 }
 
 static void pump_pty(void) {
@@ -209,6 +246,7 @@ static void pump_pty(void) {
         ssize_t w = write(pty_master, tx_buf, tx_len);
         if (w > 0) { memmove(tx_buf, tx_buf + w, tx_len - (size_t)w); tx_len -= (size_t)w; }
         else if (w < 0 && errno == EAGAIN && tx_len > sizeof tx_buf / 2) { tx_dropped += tx_len; tx_len = 0; }
+        else if (w < 0 && errno == EIO) { tx_dropped += tx_len; tx_len = 0; }  /* -r: nobody has the port open */
     }
     /* pty -> AVR: read what the host wrote, feed the UART while its fifo has room. Bytes are
      * held while the firmware has not enabled its receiver yet (before Serial.begin). */
@@ -216,12 +254,19 @@ static void pump_pty(void) {
         ssize_t r = read(pty_master, rx_buf + rx_len, sizeof rx_buf - rx_len);
         if (r > 0) rx_len += (size_t)r;
     }
+    if (uart_real) {
+        if (rx_len && (avr->data[R_UCSR0B] & (1 << RXEN0_BIT)) && !avr_cycle_timer_status(avr, uart_feed, NULL))
+            avr_cycle_timer_register(avr, uart_byte_cycles(), uart_feed, NULL);
+        return;
+    }
     size_t fed = 0;
     if (avr->data[R_UCSR0B] & (1 << RXEN0_BIT)) {
         while (fed < rx_len && !xoff) avr_raise_irq(uart_in_irq, rx_buf[fed++]);
     }
     if (fed) { memmove(rx_buf, rx_buf + fed, rx_len - fed); rx_len -= fed; }
 }
+
+static void external_reset(void);
 
 /* Commands from the driver, one per line (README.md). Returns 1 when G was read. */
 static int handle_line(char *line) {
@@ -248,14 +293,16 @@ static int handle_line(char *line) {
             if (sscanf(line + 1, "%ld %ld", &a, &b) == 2 && a == 4) { estop_level = b ? 1 : 0; drive_inputs(); }
             return 0;
         case 'S': report_state(); return 0;
-        case 'U':  /* UART diagnostics: bytes waiting for the UART, XOFF, UCSR0A, UCSR0B */
-            reply("U %zu %d 0x%02x 0x%02x\n", rx_len, xoff, avr->data[R_UCSR0B - 1], avr->data[R_UCSR0B]);
+        case 'M':  /* M addr: peek one byte of the data space (registers, I/O, SRAM) */
+            if (sscanf(line + 1, "%li", &a) == 1 && a >= 0 && a <= (long)avr->ramend)
+                reply("M %ld %u\n", a, avr->data[a]);
+            return 0;
+        case 'U':  /* UART diagnostics: bytes waiting for the UART, XOFF, UCSR0A, UCSR0B (-u: bytes fed, overruns) */
+            reply("U %zu %d 0x%02x 0x%02x %llu %llu\n", rx_len, xoff, avr->data[R_UCSR0B - 1], avr->data[R_UCSR0B],
+                  (unsigned long long)rx_fed, (unsigned long long)rx_overrun);
             return 0;
         case 'R':  /* external reset (the RESET pin); never from a cycle timer: it crashed simavr */
-            avr_reset(avr);
-            avr->data[R_MCUSR] |= 0x02;  /* EXTRF */
-            resets++;
-            apply_workarounds();
+            external_reset();
             return 0;
         case 'Q': stop = 1; return 1;
         case 'G': {
@@ -271,6 +318,47 @@ static int handle_line(char *line) {
 }
 
 static char in_buf[8192];
+
+/* The RESET pin pulled low (R, or DTR on port open with -r): MCUSR says EXTRF; a loaded
+ * bootloader runs first (BOOTRST). */
+static void external_reset(void) {
+    avr_reset(avr);
+    if (boot_hex) avr->pc = boot_pc;
+    avr->data[R_MCUSR] |= 0x02;  /* EXTRF */
+    resets++;
+    apply_workarounds();
+}
+
+/* -r: the pty's hang-up state says whether a host has it open; an open is DTR going up. */
+static void watch_port_open(void) {
+    struct pollfd p = {.fd = pty_master, .events = POLLIN};
+    int open_now = poll(&p, 1, 0) >= 0 && !(p.revents & POLLHUP);
+    if (open_now && !host_open) { rx_len = 0; tx_len = 0; external_reset(); }
+    host_open = open_now;
+}
+
+/* -b: the bootloader image into flash (it must not overlap the sketch); the reset vector moves to it. */
+static int load_bootloader(const char *path) {
+    ihex_chunk_p chunks = NULL;
+    int n = read_ihex_chunks(path, &chunks);
+    if (n <= 0) { fprintf(stderr, "avr_harness: cannot read %s\n", path); return -1; }
+    uint32_t lowest = UINT32_MAX;
+    for (int i = 0; i < n; i++) {
+        if (chunks[i].baseaddr + chunks[i].size > avr->flashend + 1) {
+            fprintf(stderr, "avr_harness: %s: %u bytes at 0x%04x run past the end of flash (0x%04x)\n", path,
+                    chunks[i].size, chunks[i].baseaddr, avr->flashend);
+            free_ihex_chunks(chunks);
+            return -1;
+        }
+        memcpy(avr->flash + chunks[i].baseaddr, chunks[i].data, chunks[i].size);
+        if (chunks[i].size > 2 && chunks[i].baseaddr < lowest) lowest = chunks[i].baseaddr;  /* not the version word */
+    }
+    free_ihex_chunks(chunks);
+    boot_pc = lowest;
+    avr->reset_pc = lowest;
+    avr->pc = lowest;
+    return 0;
+}
 static size_t in_len = 0;
 
 /* Reads stdin; blocking until a G line when `wait_go`. EOF (the driver died) stops us. */
@@ -319,12 +407,15 @@ static void on_signal(int sig) { (void)sig; stop = 1; }
 
 int main(int argc, char **argv) {
     int opt;
-    while ((opt = getopt(argc, argv, "fl:e:v")) != -1) {
+    while ((opt = getopt(argc, argv, "fl:e:b:ruv")) != -1) {
         switch (opt) {
             case 'f': free_running = 1; break;
             case 'l': lockstep_us = (uint32_t)strtoul(optarg, NULL, 10); break;
             case 'e': edge_us = (uint32_t)strtoul(optarg, NULL, 10); if (!edge_us) edge_us = 1; break;
             case 'v': verbose = 1; break;
+            case 'b': boot_hex = optarg; break;
+            case 'r': reset_on_open = 1; break;
+            case 'u': uart_real = 1; break;
             default: fprintf(stderr, "usage: %s [-f] [-l lockstep_us] [-e edge_us] [-v] firmware.elf\n", argv[0]); return 2;
         }
     }
@@ -348,6 +439,9 @@ int main(int argc, char **argv) {
     avr_load_firmware(avr, &fw);
     avr->frequency = F_CPU;
     avr->vcc = avr->avcc = avr->aref = 5000;  /* else the ADC falls back to 3300 mV */
+    if (boot_hex && load_bootloader(boot_hex) != 0) return 1;
+    uart0 = (avr_uart_t *)avr->io[AVR_DATA_TO_IO(R_UDR0)].r.param;  /* the UART's own state (its read hook's param) */
+    if (uart_real && !uart0) { fprintf(stderr, "avr_harness: no UART0 read hook\n"); return 1; }
 
     uart_in_irq = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_out, NULL);
@@ -365,8 +459,10 @@ int main(int argc, char **argv) {
     tcsetattr(pty_slave, TCSANOW, &tio);
     fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
     fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
-    /* The slave stays open here too, so the master never sees EIO between host connections. */
+    /* The slave stays open here too, so the master never sees EIO between host connections; with
+     * -r it is closed, so the master's hang-up state shows when a host opens the port. */
     reply("%s\n", ttyname(pty_slave));
+    if (reset_on_open) { close(pty_slave); pty_slave = -1; }
 
     clock_gettime(CLOCK_MONOTONIC, &wall0);
     uint64_t next_step = lockstep_us;
@@ -386,6 +482,7 @@ int main(int argc, char **argv) {
             resets++;
             apply_workarounds();
         }
+        if (reset_on_open) watch_port_open();
         pump_pty();
         if (lockstep_us && sim_us() >= next_step) {
             report_state();
