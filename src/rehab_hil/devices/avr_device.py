@@ -31,7 +31,7 @@ from pathlib import Path
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import Readings
 from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
-from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess, maybe_bridged
+from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess, maybe_bridged, usb_bridge_wanted
 
 __all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spawn_avr_device", "unavailable_reason"]
 
@@ -43,6 +43,11 @@ CLOCKS = ("realtime", "free")
 def default_paths() -> tuple[Path, Path]:
     """(harness binary, firmware ELF) as built by ``make harness firmware``."""
     return ROOT / "sim_devices" / "build" / "avr_harness", ROOT / "firmware" / "build" / "rehab_fw.elf"
+
+
+def optiboot_path() -> Path:
+    """The Uno's bootloader as ``make firmware`` builds it (firmware/Makefile: Debian's optiboot source)."""
+    return ROOT / "firmware" / "build" / "optiboot" / "optiboot_atmega328.hex"
 
 
 def unavailable_reason() -> str | None:
@@ -81,9 +86,11 @@ def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_
     for p in (harness, elf):
         if not p.exists():
             raise DeviceProcessError(f"{p} is missing: run `make firmware harness`")
+    bridged = usb_bridge_wanted(config_path, usb_bridge)
+    uno = ["--uno"] if bridged and optiboot_path().exists() else []  # behind the bridge: the whole Uno
     argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.avr_device import main; sys.exit(main())",
-            "--config", str(config_path), "--clock", clock, *(extra_args or [])]
-    return AvrDeviceProcess(maybe_bridged(config_path, argv, usb_bridge), ready_timeout_s)
+            "--config", str(config_path), "--clock", clock, *uno, *(extra_args or [])]
+    return AvrDeviceProcess(maybe_bridged(config_path, argv, bridged, native_bootloader=bool(uno)), ready_timeout_s)
 
 
 class _Driver(ControlChannel):
@@ -196,6 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--edge-us", type=int, default=50, help="simulated time between two encoder edges [us]")
+    p.add_argument("--uno", action="store_true", help="the whole Uno: optiboot loaded with the sketch (harness -b) "
+                   "and the UART's real receive rate into its 2-byte buffer (-u)")
     return p
 
 
@@ -221,6 +230,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_h = [str(harness), "-l", "1000", "-e", str(args.edge_us)]
     if args.clock == "free":
         argv_h.append("-f")
+    if args.uno:
+        argv_h += ["-b", str(optiboot_path()), "-u"]
     estop = cfg.rig.estop
     driver = _Driver(plant, [*argv_h, str(elf)], estop.normally_closed if estop is not None else False)
     print(driver.port, flush=True)

@@ -127,13 +127,14 @@ def usb_bridge_wanted(config_path: str | Path, usb_bridge: bool | None) -> bool:
     return bool(link.get("usb_bridge", False)) if isinstance(link, dict) else False
 
 
-def maybe_bridged(config_path: str | Path, argv: list[str], usb_bridge: bool | None, seed: int = 0) -> list[str]:
+def maybe_bridged(config_path: str | Path, argv: list[str], usb_bridge: bool | None, seed: int = 0,
+                  native_bootloader: bool = False) -> list[str]:
     """``argv`` behind the Uno's USB bridge model (``devices/usb_bridge.py``) when wanted."""
     if not usb_bridge_wanted(config_path, usb_bridge):
         return argv
     from rehab_hil.devices.usb_bridge import bridged_argv
 
-    return bridged_argv(str(config_path), argv, seed)
+    return bridged_argv(str(config_path), argv, seed, native_bootloader)
 
 
 def spawn_sim_device(config_path: str | Path, clock: str = "realtime", *, extra_args: list[str] | None = None,

@@ -129,17 +129,20 @@ class Batcher:
         self.ready.clear()
 
 
-def bridged_argv(config_path: str, device_argv: list[str], seed: int = 0) -> list[str]:
-    """The argv that runs ``device_argv`` behind the bridge."""
+def bridged_argv(config_path: str, device_argv: list[str], seed: int = 0, native_bootloader: bool = False) -> list[str]:
+    """The argv that runs ``device_argv`` behind the bridge. ``native_bootloader``: the device runs
+    the real bootloader (the firmware in simavr with optiboot): DTR is one external reset, no
+    emulated silence."""
     return [sys.executable, "-c", "import sys; from rehab_hil.devices.usb_bridge import main; sys.exit(main())",
-            "--config", str(config_path), "--seed", str(seed), "--", *device_argv]
+            "--config", str(config_path), "--seed", str(seed), *(["--native-bootloader"] if native_bootloader else []),
+            "--", *device_argv]
 
 
 class _Relay:
     """The bridge process: the device child, the host pty, the two batchers and the control pass-through."""
 
-    def __init__(self, params: LinkParams, device_argv: list[str], seed: int) -> None:
-        self.p = params
+    def __init__(self, params: LinkParams, device_argv: list[str], seed: int, native_bootloader: bool = False) -> None:
+        self.p, self.native_bootloader = params, native_bootloader
         self.child = subprocess.Popen(device_argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
         self._child_out = b""
         dev_path = self._child_line(120.0)
@@ -186,11 +189,12 @@ class _Relay:
         """DTR went up: the 328P resets into the bootloader; silent until it hands over."""
         self._to_child("reboot external")
         self.internal_replies += 1
-        self.silent_until = now + self.p.bootloader_s
-        self.rebooting = True
         self.up.clear()
         self.down.clear()
         self.resets += 1
+        if not self.native_bootloader:  # the device has none: emulate its silence, then the sketch's start
+            self.silent_until = now + self.p.bootloader_s
+            self.rebooting = True
 
     def _host_is_open(self) -> bool:
         p = select.poll()
@@ -299,6 +303,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 description="The Uno's 16U2 USB bridge between a host and a simulated device.")
     p.add_argument("--config", required=True, help="plant config: its [rig.link] table")
     p.add_argument("--seed", type=int, default=0, help="seed of the jitter")
+    p.add_argument("--native-bootloader", action="store_true",
+                   help="the device runs its own bootloader (simavr + optiboot): DTR is one reset, nothing emulated")
     p.add_argument("device_argv", nargs=argparse.REMAINDER, help="-- then the device's command line")
     args = p.parse_args(argv)
     device_argv = args.device_argv[1:] if args.device_argv[:1] == ["--"] else args.device_argv
@@ -312,7 +318,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, ValueError) as e:
         print(f"usb bridge: error: {e}", file=sys.stderr)
         return 2
-    relay = _Relay(params, device_argv, args.seed)
+    relay = _Relay(params, device_argv, args.seed, args.native_bootloader)
     print(relay.path, flush=True)
     try:
         relay.run()
