@@ -71,3 +71,26 @@ def test_a_command_can_demand_a_plant(tmp_path):
     path = write(tmp_path, BASE)
     with pytest.raises(ConfigError, match="needs a 'tcp_finger' config"):
         load_config(path, expect="tcp_finger")
+
+
+def test_an_unreachable_temperature_limit_is_refused_naming_the_key(tmp_path):
+    # Finger Extensor: the estimate levels off at 23 + 120 x max_duty 1.0 = 143 C
+    p = write(tmp_path, edit(r"^max_temperature_c = 90.0.*$", "max_temperature_c = 150.0"))
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    assert e.value.key == "rig.limits.max_temperature_c"
+    assert "143.0 C" in str(e.value) and "unreachable" in str(e.value) and str(p) in str(e.value)
+    load_config(write(tmp_path, edit(r"^max_temperature_c = 90.0.*$", "max_temperature_c = 142.0")))
+
+
+@pytest.mark.parametrize(("old", "new", "key"), [
+    (r"^normally_closed = true.*$", 'normally_closed = "yes"', "rig.estop.normally_closed"),
+    (r"^enabled = true$", "", "rig.estop.enabled"),
+    (r"^force_debounce_ms = 3 .*$", "force_debounce_ms = 0", "rig.limits.force_debounce_ms"),
+    (r"^to_host_flush_bytes = 96 .*$", "to_host_flush_bytes = 0", "rig.link.to_host_flush_bytes"),
+    (r"^jitter_ms = 0.0 .*$", "jitter_s = 0.0", "rig.link.jitter_s"),
+])
+def test_estop_debounce_and_link_keys_are_validated(tmp_path, old, new, key):
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, edit(old, new)))
+    assert e.value.key == key
