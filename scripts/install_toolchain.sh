@@ -5,6 +5,9 @@
 set -eu
 
 # gcc, libc6-dev and make build the simavr harness (a fresh Debian image may lack them).
+# arduino-core-avr also carries optiboot's source (bootloaders/optiboot/optiboot.c), which
+# firmware/Makefile builds into the Uno bootloader the simavr harness loads (its prebuilt .hex
+# overflows the 512-byte boot section).
 PKGS="gcc-avr avr-libc arduino-core-avr avrdude simavr libsimavr-dev libelf-dev pkg-config gcc libc6-dev make"
 
 missing=""
