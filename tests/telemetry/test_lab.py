@@ -32,6 +32,7 @@ from rehab_hil.telemetry import (
     subscribe,
 )
 from rehab_hil.telemetry.access import command_access_control
+from rehab_hil.telemetry.foxglove import FoxgloveLive
 from rehab_hil.telemetry.rig import rig_info
 from rehab_hil.testing import free_port
 
@@ -204,7 +205,8 @@ def test_the_foxglove_bridge_serves_a_rig_from_zenoh(router: str, wait, capsys: 
     assert codes == [0] and "rig fox1 -> /rig/{sample,command,event,stats}" in capsys.readouterr().out
 
 
-def test_bad_lab_input_gets_one_line_errors(router: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_lab_input_gets_one_line_errors(router: str, tmp_path: Path, wait,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
     nowhere = f"tcp/127.0.0.1:{free_port()}"
     cases = [
         (["monitor", "--connect", nowhere, "--no-live"], "cannot connect to " + nowhere),
@@ -218,10 +220,18 @@ def test_bad_lab_input_gets_one_line_errors(router: str, tmp_path: Path, capsys:
         (["router", "--listen", router], "cannot listen on " + router),
         (["router", "--listen", "udp/nowhere"], "listen endpoint 'udp/nowhere' must look like"),
     ]
-    for argv, text in cases:
-        assert main(argv) == 2, argv
-        err = capsys.readouterr().err.strip()
-        assert text in err and "\n" not in err, (argv, err)
+    with FoxgloveLive(port=0) as busy:  # a Foxglove port in use: the bridge says so, the server keeps serving
+        cases.append((["foxglove", "x", "--connect", router, "--ws-port", str(busy.port)],
+                      f"cannot serve Foxglove on 127.0.0.1:{busy.port}: Failed to bind port"))
+        for argv, text in cases:
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err.strip()
+            assert text in err and "\n" not in err, (argv, err)
+        viewer = FoxgloveClient(busy.port, [])
+        try:
+            assert wait(lambda: viewer.server_info.get("op") == "serverInfo")
+        finally:
+            viewer.close()
     assert list(tmp_path.iterdir()) == []  # nothing written
 
 
