@@ -29,13 +29,19 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.selection import effective_fraction
 from rehab_hil.effects import Effect, EffectParam
 
-__all__ = ["Fit", "Term", "effect_term", "fit_joint", "fit_term", "parameter_term"]
+__all__ = ["MIN_MAGNITUDE_SHARE", "MIN_PARAMETER_ERROR", "Fit", "Term", "effect_term", "fit_joint", "fit_term",
+           "parameter_term"]
 
 # Finite-difference step on parameters scaled by their typical value: large enough to see through
 # encoder quantisation and stick-slip switching, which make the simulated error piecewise flat.
 DIFF_STEP = 0.05
 BLOWUP = 1e3  # scaled residual that stands for a diverged simulation
 MAX_NFEV = 8  # per fitted parameter beyond the first, 6 more (shape parameters start far off)
+# A fitted effect smaller than this share of its typical magnitude (a 0.02-count sensor offset) or a
+# parameter off by less than MIN_PARAMETER_ERROR (within a config's accuracy; an open-loop replay can
+# trade a 0.5 % spring change against a slow drift) is a rounding of "off", never reported.
+MIN_MAGNITUDE_SHARE = 0.5  # the smallest effect worth reporting: half its typical magnitude
+MIN_PARAMETER_ERROR = 0.03
 
 
 @dataclass(frozen=True)
@@ -50,6 +56,15 @@ class Term:
 
     def off(self) -> dict[str, float]:
         return {p.name: (p.off if p.off is not None else p.typical) for p in self.params}
+
+    def relevant(self, values: Mapping[str, float]) -> bool:
+        """Is the fitted term more than a rounding of "off"? An effect needs some magnitude
+        parameter at least ``MIN_MAGNITUDE_SHARE`` of its typical value away from off; a parameter
+        must be off by at least ``MIN_PARAMETER_ERROR``."""
+        if self.kind == "parameter":
+            return abs(values[ERROR_PARAM.name]) >= MIN_PARAMETER_ERROR
+        return any(abs(values[p.name] - p.off) >= MIN_MAGNITUDE_SHARE * p.typical
+                   for p in self.params if p.off is not None)
 
 
 def effect_term(replay: Replay, effect: Effect) -> Term:

@@ -6,9 +6,12 @@
    nominal parameters (``parameters``). The first ``1 - holdout_fraction`` of the record fits;
    the rest is held out and scores them (``selection``). The best significant one is chosen (a
    parameter before an effect when the two are near-aliases, ``verdict``), then every chosen term
-   is refitted jointly, and the search repeats while a candidate is significant (at most
-   ``max_effects`` rounds). A parameter must be off by at least ``MIN_PARAMETER_ERROR``. After
-   each choice the start state is re-estimated and the replay mode chosen again.
+   is refitted jointly (from the second round the best ``JOINT_CANDIDATES`` candidates are scored
+   after a joint refit with the chosen terms, so an effect chosen first cannot hide the next by
+   having absorbed part of it), and the search repeats while a candidate is significant (at most
+   ``max_effects`` rounds). A term must be relevant (``Term.relevant``: more than a rounding of
+   "off"); one the joint refit switches off is dropped. After each choice the start state is
+   re-estimated and the replay mode chosen again.
 3. A channel whose final held-out error the noise cannot account for is reported as an
    unexplained residual, with where it sits (``verdict``).
 """
@@ -35,11 +38,9 @@ from rehab_hil.effects import EFFECTS
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
-__all__ = ["MIN_PARAMETER_ERROR", "Candidate", "Options", "Progress", "Result", "Round", "find_missing_effects"]
+__all__ = ["JOINT_CANDIDATES", "Candidate", "Options", "Progress", "Result", "Round", "find_missing_effects"]
 
-# A nominal parameter off by less than this is within a config's accuracy: not reported as off
-# (an open-loop replay can trade a 0.5 % spring change against a slow drift).
-MIN_PARAMETER_ERROR = 0.03
+JOINT_CANDIDATES = 3  # from the second round, the best few candidates are refitted with the chosen terms
 
 
 class Progress:
@@ -96,19 +97,35 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     chosen: list[Fit] = []
     rounds: list[Round] = []
     aliases: list[Alias] = []
+    dropped: set[str] = set()
     for _ in range(options.max_effects):
         r_cur = replay.residual(current, hold)
         frac = effective_fraction(r_cur)
         base = bic(r_cur, n_params, frac)
         cands: list[Candidate] = []
-        for term in [t for t in terms if t.name not in {c.name for c in chosen_terms}]:
+        joint: dict[str, list[Fit]] = {}  # candidate -> its joint fit with the chosen terms
+        for term in [t for t in terms if t.name not in {c.name for c in chosen_terms} | dropped]:
             progress.start(f"round {len(rounds) + 1}: fitting {term.name}", None)
             fit = fit_term(replay, P, term, n_train, progress.advance, seeds)
             sim = replay.simulate(fit.P)
             sc = _score(replay, sim, hold, n_params + len(term.params), frac)
-            sig = is_significant(sc, base) and (term.kind == "effect" or
-                                                abs(fit.params["error_fraction"]) >= MIN_PARAMETER_ERROR)
+            sig = is_significant(sc, base) and term.relevant(fit.params)
             cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim))
+        if chosen_terms:  # the best few again, refitted jointly with the chosen terms
+            cands.sort(key=lambda c: c.score.bic)
+            for i, c in enumerate(cands[:JOINT_CANDIDATES]):
+                term = next(t for t in terms if t.name == c.fit.effect)
+                progress.start(f"round {len(rounds) + 1}: {term.name} jointly with the chosen", None)
+                fits = fit_joint(replay, P0, [*chosen_terms, term], [*(f.params for f in chosen), c.fit.params],
+                                 n_train, progress.advance)
+                sim = replay.simulate(fits[-1].P)
+                sc = _score(replay, sim, hold, n_params + len(term.params), frac)
+                if sc.bic < c.score.bic:
+                    fit = fits[-1]
+                    fit.start = c.fit.start
+                    sig = is_significant(sc, base) and term.relevant(fit.params)
+                    cands[i] = Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim)
+                    joint[fit.effect] = fits
         cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
         pick = cands[0] if cands and cands[0].significant else None
         if pick is not None:
@@ -125,13 +142,24 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         if pick is None:
             break
         chosen_terms.append(next(t for t in terms if t.name == pick.fit.effect))
-        if len(chosen_terms) > 1:
+        if pick.fit.effect in joint:
+            chosen = joint[pick.fit.effect]
+        elif len(chosen_terms) > 1:
             progress.start(f"round {len(rounds)}: joint refit of {len(chosen_terms)} terms", None)
             chosen = fit_joint(replay, P0, chosen_terms, [*(f.params for f in chosen), pick.fit.params], n_train,
                                progress.advance)
         else:
             chosen = [pick.fit]
         P = chosen[-1].P
+        keep = [i for i, (t, f) in enumerate(zip(chosen_terms, chosen, strict=True)) if t.relevant(f.params)]
+        if len(keep) < len(chosen):  # the joint refit switched a term off: it is not part of the story
+            dropped.update(chosen_terms[i].name for i in range(len(chosen)) if i not in keep)
+            chosen_terms, chosen = [chosen_terms[i] for i in keep], [chosen[i] for i in keep]
+            P = P0
+            for t, f in zip(chosen_terms, chosen, strict=True):
+                P = t.apply(P, f.params)
+            for f in chosen:
+                f.P = P
         estimate_initial_state(replay, P, n_train)  # the start state under the augmented model
         if options.mode == "auto":  # drift may dominate once the largest discrepancy is explained
             replay.mode = choose_mode(replay, P, n_train)[0]
