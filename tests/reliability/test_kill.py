@@ -36,6 +36,12 @@ def data_lines(path: Path) -> int:
         return 0
 
 
+def run_file(out: Path, name: str) -> Path:
+    """``--record DIR`` writes into a fresh run directory inside DIR (service/run_dir.py)."""
+    found = sorted(out.glob(f"*/{name}")) or [out / name]
+    return found[-1]
+
+
 def test_sigkill_mid_recording_leaves_csv_and_mcap_readable_with_every_flushed_sample(tmp_path: Path) -> None:
     out = tmp_path / "rec"
     log = (tmp_path / "stdout.txt").open("wb")
@@ -45,7 +51,7 @@ def test_sigkill_mid_recording_leaves_csv_and_mcap_readable_with_every_flushed_s
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while data_lines(out / "run.csv") < ROWS_BEFORE_KILL:
+        while data_lines(run_file(out, "run.csv")) < ROWS_BEFORE_KILL:
             assert proc.poll() is None, f"the service ended early: {(tmp_path / 'stdout.txt').read_text()[-2000:]}"
             assert time.monotonic() < deadline, "the service did not record in time"
             time.sleep(0.05)
@@ -59,13 +65,13 @@ def test_sigkill_mid_recording_leaves_csv_and_mcap_readable_with_every_flushed_s
         proc.wait(timeout=10)
         log.close()
 
-    csv = read_csv(out / "run.csv")  # raises CsvError (with the line) if the kill left a torn file
+    csv = read_csv(run_file(out, "run.csv"))  # raises CsvError (with the line) if the kill left a torn file
     idx = csv["sample_index"].astype(np.int64)
     assert len(idx) >= ROWS_BEFORE_KILL
     np.testing.assert_array_equal(idx, np.arange(idx[0], idx[0] + len(idx)))  # no sample missing
     assert np.all(np.diff(csv.t) > 0)
 
-    mcap_idx = np.array([int(m["sample_index"]) for topic, _, m in read_mcap(out / "run.mcap")
+    mcap_idx = np.array([int(m["sample_index"]) for topic, _, m in read_mcap(run_file(out, "run.mcap"))
                          if topic == "/rig/sample"], dtype=np.int64)
     assert len(mcap_idx) >= ROWS_BEFORE_KILL - 200  # within one flush period of the CSV
     n = min(len(idx), len(mcap_idx))

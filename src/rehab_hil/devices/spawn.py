@@ -121,9 +121,13 @@ def usb_bridge_wanted(config_path: str | Path, usb_bridge: bool | None) -> bool:
     """``usb_bridge`` if given, else the config's ``[rig.link] usb_bridge`` (absent: off)."""
     if usb_bridge is not None:
         return usb_bridge
-    from rehab_hil.config import load_toml
+    from rehab_hil.config import ConfigError, load_toml
 
-    link = load_toml(config_path).get("rig", {}).get("link", {})
+    try:
+        rig = load_toml(config_path).get("rig", {})
+    except ConfigError:  # the device process reports a bad config itself, naming file and key
+        return False
+    link = rig.get("link", {}) if isinstance(rig, dict) else {}
     return bool(link.get("usb_bridge", False)) if isinstance(link, dict) else False
 
 

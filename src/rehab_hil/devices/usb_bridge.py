@@ -125,6 +125,7 @@ class Batcher:
         return min(times) if times else None
 
     def clear(self) -> None:
+        """Forget everything in flight (the board reset: the 16U2's buffers are dropped too)."""
         self.pending.clear()
         self.ready.clear()
 
