@@ -163,6 +163,9 @@ class RigSection(Section):
     session: RigSessionSection | None = None
     estop: RigEstopSection | None = None
     link: RigLinkSection | None = None
+    force_calibration: str | None = Field(default=None, min_length=1,
+                                          description="the force sensor's calibration file (rehab-hil calibrate "
+                                                      "force), relative to this config file's directory")
 
     def unreachable_temperature(self) -> str | None:
         """Why ``limits.max_temperature_c`` can never fire (the estimate levels off below it), or None."""

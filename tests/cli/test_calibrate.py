@@ -132,3 +132,26 @@ def test_calibration_summary_records_the_linear_map_and_the_firmware_limit() -> 
     assert sma["firmware_force_limit_counts"] == 186  # floor(9.3 counts/N x 20 N)
     fe = calibration_summary(load_config(FE))
     assert fe["force_sensor"] is None and fe["firmware_force_limit_counts"] == 1023
+
+
+def test_a_config_references_its_calibration_relative_to_itself_and_the_firmware_limit_uses_it(tmp_path: Path) -> None:
+    from rehab_hil.calibration import CalibrationPoint, calibration_summary
+    from rehab_hil.plants import get_plant
+
+    cal, _ = fit_calibration([CalibrationPoint(f, 20 + 30 * f) for f in (0.0, 1.0, 2.0, 4.0, 8.0)], 20.0, "fs-07")
+    write_calibration(cal, tmp_path / "calibrations")
+    (tmp_path / "configs").mkdir()
+    sma = ROOT / "configs" / "sma_exoskeleton.toml"
+    ref = 'force_calibration = "../calibrations/fs-07.toml"\n\n'
+    text = sma.read_text().replace("[rig.limits]", ref + "[rig.limits]", 1)
+    path = tmp_path / "configs" / "rig.toml"
+    path.write_text(text)
+    cfg = load_config(path)
+    assert cfg.rig.force_calibration == str((tmp_path / "calibrations" / "fs-07.toml").resolve())
+    binding = get_plant(cfg.plant).device(cfg)
+    linear = force_limit_counts(load_config(sma), binding)
+    assert force_limit_counts(cfg, binding) == cal.limit_counts(cfg.rig.limits.max_force_n) != linear
+    assert calibration_summary(cfg)["calibration"]["sensor_id"] == "fs-07"
+    path.write_text(text.replace("fs-07.toml", "fs-99.toml"))
+    with pytest.raises(ConfigError, match=r"rig\.toml: rig\.force_calibration: .*/calibrations/fs-99\.toml: no such"):
+        load_config(path)

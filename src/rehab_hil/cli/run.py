@@ -21,6 +21,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from rehab_hil.calibration import calibration_summary
 from rehab_hil.cli import UserError
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
 from rehab_hil.plants import get_plant, load_config
@@ -190,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
             run_dir = new_run_dir(args.record, rig_id)
             meta = session_metadata(plant=cfg.plant, config_path=args.config, device=device, rig_id=rig_id,
                                     binding=binding, hello=hw.info, controller=args.controller, pacing=args.pacing,
-                                    sim_plant=args.sim_plant)
+                                    sim_plant=args.sim_plant, calibration={"force": calibration_summary(cfg)})
             write_metadata(run_dir, meta)  # first now: a killed run still says what it ran against
             recorder = Recorder(run_dir, binding, metadata=meta)
             stack.callback(recorder.close)

@@ -356,6 +356,13 @@ def load_config(path: str | Path, expect: str | None = None) -> Any:
         raise ConfigError(path, "plant", f"this command needs a {expect!r} config, the file is {plant!r}")
     cls = known[plant]
     cfg = validate_config(path, data, cls.config)
+    ref = cfg.rig.force_calibration
+    if ref is not None:  # resolved against the config's directory and checked now, not mid-session
+        from rehab_hil.calibration import calibration_for
+
+        resolved = ref if Path(ref).is_absolute() else str((Path(path).parent / ref).resolve())
+        cfg = cfg.model_copy(update={"rig": cfg.rig.model_copy(update={"force_calibration": resolved})})
+        calibration_for(cfg, path)
     ports = cls.ports(cfg)
     ok = {e.name for e in applicable(ports)}
     for i, e in enumerate(cfg.effects):
