@@ -9,8 +9,10 @@
    memory of the nominal parts (an SMA's martensite fraction) are nuisance parameters: fitted by
    least squares on the first ``WINDOW_S`` of the record, open loop, from the config's rest state.
 
-The result says which states were set from which channel and which were estimated; the matched
-channel-state pairs also give the anchor gain that multiple shooting re-anchors with.
+The candidate effects' discrete states (a delay's FIFO, a backlash's held angle) start at their
+input's value at the start. The result says which states were set from which channel and which
+were estimated; the matched channel-state pairs also give the anchor gain that multiple shooting
+re-anchors with.
 """
 
 from __future__ import annotations
@@ -129,6 +131,7 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
             xd[free_xd] += sol.x[len(free_x):] * sc[len(free_x):]
         estimated = {names[i]: float(x[i]) for i in free_x}
         estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
+    _settle_candidates(replay, P, x, xd)
     replay.x0, replay.xd0 = x, xd
     from_data: dict[str, str] = {}
     for c, st in sorted(matched.items()):
@@ -137,6 +140,29 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
                        {names[i]: float(s.x0[i]) for i in range(x.size)})
     out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
     return out
+
+
+def _settle_candidates(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray) -> None:
+    """Candidate effects' discrete states are past copies of their input (a delay's FIFO, a play's
+    held angle, a sampled temperature): start them at the input's value at the record's start, so
+    an effect switched on during fitting starts centred instead of carrying a start-up offset."""
+    s = replay.system
+    d = s.diagram
+    names = d.discrete_state_names
+    parts = [p for p in d.parts if p.name.startswith(CANDIDATE_PREFIX + "_") and p.discrete_states]
+    if not parts:
+        return
+    u0 = replay.U[0] * P[replay.n_diagram_params:]
+    known = {k: float(u0[j]) for j, k in enumerate(s.input_names)}
+    signals = sorted({sig for p in parts for sig, _ in p.connections[p.inputs[0]]} - set(known))
+    if signals:
+        res = s.simulate(1, {k: replay.U[:1, j] for j, k in enumerate(s.input_names)}, outputs=signals,
+                         params=P[:replay.n_diagram_params], x0=x, xd0=xd)
+        known.update({sig: float(res.signals[sig][0]) for sig in signals})
+    for p in parts:
+        value = sum(w * known[sig] for sig, w in p.connections[p.inputs[0]])
+        for st in p.discrete_states:
+            xd[names.index(f"{p.name}.{st}")] = value
 
 
 def _sim(replay: Replay, P: np.ndarray, n_meas: int, x: np.ndarray, xd: np.ndarray) -> dict[str, np.ndarray]:

@@ -9,7 +9,10 @@ Shooting cuts the record into segments of ``SEGMENT_S``; at each boundary the st
 measurements match (``initial_state``: the angle, a measured current or temperature) are
 re-anchored to the measured values, the others carried over, and the parameters are fitted on the
 residual of all segments jointly. The workflow uses shooting when the nominal model's open-loop
-residual is more than ``DRIFT_RATIO`` times its shooting residual (the drift dominates).
+residual on some channel is more than ``DRIFT_RATIO`` times its shooting residual and shooting
+makes no channel worse: even a drift of a few tenths of a degree hides a 1 deg backlash in an
+open-loop replay of a closed-loop record (measured on the benchmark), while on a plant that forgets
+its start (the SMA wire) shooting only adds anchoring noise and open loop stays.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ if TYPE_CHECKING:
 __all__ = ["DRIFT_RATIO", "SEGMENT_S", "choose_mode", "shoot"]
 
 SEGMENT_S = 1.0  # long enough to show friction, delay and backlash within a segment, short against drift
-DRIFT_RATIO = 2.0  # a channel's open-loop residual this many times its shooting residual: drift dominates
+DRIFT_RATIO = 1.1  # a channel's open-loop residual this many times its shooting residual: drift shows
 
 
 def shoot(replay: Replay, P: np.ndarray, n: int, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
@@ -48,7 +51,8 @@ def shoot(replay: Replay, P: np.ndarray, n: int, x: np.ndarray, xd: np.ndarray) 
 
 def choose_mode(replay: Replay, P: np.ndarray, n_train: int) -> tuple[str, float, float]:
     """("open" or "shooting", open-loop RMS, shooting RMS) of the scaled residual on the fit part;
-    shooting when some channel's open-loop RMS exceeds ``DRIFT_RATIO`` times its shooting RMS."""
+    shooting when some channel's open-loop RMS exceeds ``DRIFT_RATIO`` times its shooting RMS and no
+    channel's shooting RMS exceeds ``DRIFT_RATIO`` times its open-loop RMS (anchoring noise)."""
     replay.segment_steps = max(1, round(SEGMENT_S / replay.system.dt))
     sl = slice(0, n_train)
     r_open = replay.residual(replay.simulate(P, n_train, mode="open"), sl)
@@ -56,7 +60,7 @@ def choose_mode(replay: Replay, P: np.ndarray, n_train: int) -> tuple[str, float
         return "open", float(np.sqrt(np.mean(_rms(r_open) ** 2))), float("nan")
     r_shoot = replay.residual(replay.simulate(P, n_train, mode="shooting"), sl)
     o, s = _rms(r_open), _rms(r_shoot)
-    drift = bool(np.any(o > DRIFT_RATIO * s))
+    drift = bool(np.any(o > DRIFT_RATIO * s)) and not bool(np.any(s > DRIFT_RATIO * o))
     return ("shooting" if drift else "open"), float(np.sqrt(np.mean(o**2))), float(np.sqrt(np.mean(s**2)))
 
 
