@@ -4,8 +4,9 @@ Near-aliases: two significant candidates of a round whose held-out BIC lie withi
 ``ALIAS_DELTA_BIC`` of each other, or whose held-out RMS errors on the channel the chosen one cuts
 most differ by less than ``ALIAS_RMS_SHARE`` (relative), explain the residual about equally. The
 verdict names both, says this record cannot tell them apart, and suggests the experiment that
-would (``EXPERIMENTS``; a generic hint otherwise). Within that margin a nominal parameter ranks
-before a new effect (no new structure when a known one explains it).
+would (``EXPERIMENTS``; a generic hint otherwise). A nominal parameter within the BIC margin of
+an effect is chosen before it (no new structure when a known one explains the data as well); the
+RMS criterion alone only makes the statement.
 
 Unexplained residual: after the search, a channel whose held-out RMS error exceeds both
 ``NOISE_FACTOR`` times its noise floor (the measured signal's sample-to-sample scatter, which
@@ -39,6 +40,9 @@ EXPERIMENTS: dict[frozenset[str], str] = {
     frozenset({"coulomb_friction", "actuator_dead_zone"}):
         "slow moves against a known load (the patient torque): friction opposes motion, a dead zone "
         "removes a fixed part of the command whatever the load",
+    frozenset({"coulomb_friction", "motor.kt_nm_per_a"}):
+        "hold the iris against known patient torques in both directions while logging the current: friction "
+        "costs a fixed torque against the motion, a torque constant scales every ampere",
     frozenset({"motor.kt_nm_per_a", "motor.resistance_ohm"}):
         "log the motor current through a stall: the current fixes R, the torque per ampere fixes k_t",
     frozenset({"drive.supply_voltage_v", "sma.h1_w_per_m2_c"}):

@@ -33,7 +33,7 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
 from rehab_hil.discrepancy.selection import bic, effective_fraction, improvement, is_significant
 from rehab_hil.discrepancy.shooting import choose_mode
-from rehab_hil.discrepancy.verdict import experiment, is_alias, unexplained_channels
+from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, unexplained_channels
 from rehab_hil.effects import EFFECTS
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
@@ -132,7 +132,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             j = int(np.argmax(np.array(base.channel_rms) - np.array(pick.score.channel_rms)))
             near = [c for c in cands[1:] if c.significant
                     and is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])]
-            param = next((c for c in near if c.fit.kind == "parameter"), None)
+            param = next((c for c in near if c.fit.kind == "parameter"
+                          and abs(c.score.bic - pick.score.bic) < ALIAS_DELTA_BIC), None)
             if pick.fit.kind == "effect" and param is not None:  # a known parameter before new structure
                 pick, near = param, [pick, *[c for c in near if c is not param]]
             for c in near:
