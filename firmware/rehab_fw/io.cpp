@@ -108,6 +108,10 @@ int32_t encoder_count() {
   return c;
 }
 
+void encoder_set(int32_t count) {
+  ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { enc_count = count; }
+}
+
 bool estop_pin_high() { return (PIND & _BV(PD4)) != 0; }
 
 void adc_start_pair() {

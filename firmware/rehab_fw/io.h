@@ -14,6 +14,7 @@ void pwm_all_off();                     // both PWM outputs low at once (safe st
 void direction_set(uint8_t bits);       // bit k = channel k reversed (D8 ch0, D7 ch1)
 
 int32_t encoder_count();                // atomic read of the x4 count
+void encoder_set(int32_t count);        // atomic write (homing); edges keep counting from it
 bool estop_pin_high();                  // D4 level (INPUT_PULLUP: high when open)
 
 // Written by the ADC interrupt: the last conversions of A0 and A1 (0..1023).

@@ -15,11 +15,12 @@ const uint8_t MAX_PAYLOAD = MAX_PACKET - OVERHEAD;
 const uint8_t MAX_ENCODED = MAX_PACKET + 1;
 
 enum Type : uint8_t {
-  HELLO_REQ = 0x01, CONFIGURE = 0x02, COMMAND = 0x03, HEARTBEAT_REQ = 0x04, ESTOP = 0x05, CLEAR = 0x06,
+  HELLO_REQ = 0x01, CONFIGURE = 0x02, COMMAND = 0x03, HEARTBEAT_REQ = 0x04, ESTOP = 0x05, CLEAR = 0x06, SET_ENCODER = 0x07,
   HELLO = 0x81, SAMPLE = 0x82, FAULT = 0x83, HEARTBEAT = 0x84, ACK = 0x85,
 };
 
-const uint8_t LEN_CONFIGURE = 22;
+const uint8_t LEN_CONFIGURE = 24;
+const uint8_t LEN_SET_ENCODER = 4;
 const uint8_t LEN_COMMAND = 6;
 const uint8_t LEN_HEARTBEAT = 4;
 const uint8_t LEN_HELLO = 14;

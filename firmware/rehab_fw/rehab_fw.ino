@@ -12,10 +12,14 @@
 #include "rx_buffer_check.h"
 
 #define FW_MAJOR 1
-#define FW_MINOR 0
+#define FW_MINOR 1
 #define FW_PATCH 0
+// The encoder is a property of the rig, not of the build: by default the firmware adopts the
+// counts per revolution CONFIGURE carries and reports it in HELLO (0 until the first one).
+// `make ENCODER_COUNTS_PER_REV=N` pins a build to one encoder: HELLO reports N from boot and a
+// CONFIGURE with another non-zero value is refused (ACK 2, BAD_CONFIG).
 #ifndef ENCODER_COUNTS_PER_REV
-#define ENCODER_COUNTS_PER_REV 2000
+#define ENCODER_COUNTS_PER_REV 0
 #endif
 
 // Status bits (SAMPLE.status).
@@ -71,6 +75,7 @@ static bool duty_clamped = false;
 static uint16_t cmd_seq_echo = 0;
 static uint16_t tx_seq = 0;
 static uint8_t reset_cause = 0;
+static uint16_t encoder_cpr = ENCODER_COUNTS_PER_REV;  // adopted from CONFIGURE (0: not told yet)
 static proto::Receiver rx;
 
 // MCUSR holds why the chip reset; it must be read and cleared, and the watchdog disabled,
@@ -189,7 +194,7 @@ static void send_hello() {
   uint8_t p[proto::LEN_HELLO];
   p[0] = proto::VERSION; p[1] = FW_MAJOR; p[2] = FW_MINOR; p[3] = FW_PATCH;
   p[4] = 2; p[5] = 2;
-  proto::put_u16(p + 6, ENCODER_COUNTS_PER_REV);
+  proto::put_u16(p + 6, encoder_cpr);
   proto::put_u16(p + 8, 5000);
   p[10] = 10;
   proto::put_u16(p + 11, 1000);
@@ -208,8 +213,10 @@ static void handle_configure(uint16_t seq, const uint8_t *p) {
   c.enc_max = (int32_t)proto::get_u32(p + 16);
   c.flags = p[20];
   c.force_debounce = p[21];
+  uint16_t cpr = proto::get_u16(p + 22);  // 0: keep the current value
   bool ok = c.watchdog_ms > 0 && c.max_duty <= io::DUTY_FULL && c.max_heating_ms > 0 && c.force_limit <= 1023 &&
-            c.enc_min < c.enc_max;
+            c.enc_min < c.enc_max && (cpr == 0 || cpr >= 4) &&
+            (ENCODER_COUNTS_PER_REV == 0 || cpr == 0 || cpr == ENCODER_COUNTS_PER_REV);
   if (!ok) {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { latch(F_BAD_CONFIG); }
     send_ack(proto::CONFIGURE, seq, 2);
@@ -232,6 +239,7 @@ static void handle_configure(uint16_t seq, const uint8_t *p) {
   }
   configured = true;
   duty_clamped = false;
+  if (cpr) encoder_cpr = cpr;
   send_ack(proto::CONFIGURE, seq, 0);
 }
 
@@ -305,6 +313,11 @@ static void handle_packet(const uint8_t *pkt, uint8_t n) {
     case proto::CLEAR:
       if (len != 0) break;
       handle_clear(seq);
+      return;
+    case proto::SET_ENCODER:
+      if (len != proto::LEN_SET_ENCODER) break;
+      io::encoder_set((int32_t)proto::get_u32(p));  // the range check sees it from the next tick
+      send_ack(proto::SET_ENCODER, seq, 0);
       return;
     default:
       break;

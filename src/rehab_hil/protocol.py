@@ -42,6 +42,7 @@ __all__ = [
     "ProtocolError",
     "ResetCause",
     "Sample",
+    "SetEncoder",
     "Status",
     "crc16_ccitt_false",
     "decode_packet",
@@ -159,7 +160,7 @@ class Configure(Message):
     """Sample rate (0 = stop streaming), watchdog and safety limits; answered by ACK."""
 
     TYPE: ClassVar[int] = 0x02
-    FMT: ClassVar[struct.Struct] = struct.Struct("<HHHIHiiBB")
+    FMT: ClassVar[struct.Struct] = struct.Struct("<HHHIHiiBBH")
     sample_rate_hz: int
     watchdog_ms: int
     max_duty: int  # duty units (DUTY_FULL = 1.0)
@@ -169,6 +170,9 @@ class Configure(Message):
     enc_max: int
     flags: int = 0  # bit0: e-stop input pin enabled; bit1: normally-closed loop (pin high = stop)
     force_debounce_ms: int = 1  # FORCE_LIMIT needs this many consecutive ticks above the limit (0 and 1: one)
+    # the rig's encoder: the device adopts it and reports it in HELLO; 0 keeps the device's value;
+    # a build pinned to one encoder refuses any other (ACK 2)
+    encoder_counts_per_rev: int = 0
 
     FLAG_ESTOP_INPUT: ClassVar[int] = 1 << 0
     FLAG_ESTOP_NORMALLY_CLOSED: ClassVar[int] = 1 << 1
@@ -207,6 +211,16 @@ class Clear(Message):
     """Clear latched faults whose cause is gone; ACK result 0 if none remain, else 1."""
 
     TYPE: ClassVar[int] = 0x06
+
+
+@dataclass(frozen=True)
+class SetEncoder(Message):
+    """Set the encoder count to ``count`` (homing: 0 at the home pose); answered by ACK 0. The range
+    of motion is checked against the new count from the next tick on."""
+
+    TYPE: ClassVar[int] = 0x07
+    FMT: ClassVar[struct.Struct] = struct.Struct("<i")
+    count: int
 
 
 # ---- device -> host ---------------------------------------------------------------------------
@@ -271,7 +285,7 @@ class DeviceHeartbeat(Message):
 
 @dataclass(frozen=True)
 class Ack(Message):
-    """Answer to CONFIGURE, ESTOP and CLEAR."""
+    """Answer to CONFIGURE, ESTOP, CLEAR and SET_ENCODER."""
 
     TYPE: ClassVar[int] = 0x85
     FMT: ClassVar[struct.Struct] = struct.Struct("<BHB")
@@ -281,7 +295,7 @@ class Ack(Message):
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
-    cls.TYPE: cls for cls in (HelloReq, Configure, Command, Heartbeat, EStop, Clear,
+    cls.TYPE: cls for cls in (HelloReq, Configure, Command, Heartbeat, EStop, Clear, SetEncoder,
                               Hello, Sample, FaultReport, DeviceHeartbeat, Ack)
 }
 assert all(HEADER.size + c.FMT.size + CRC.size <= MAX_PACKET for c in MESSAGE_TYPES.values())

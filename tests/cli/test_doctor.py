@@ -51,7 +51,7 @@ def test_a_healthy_simulated_rig_passes_every_check_then_a_plain_path_times_out(
     try:
         hw.connect(timeout=10.0)
         rows = run_checks(hw, cfg, binding, SimulatedHand(device, dict(binding.constant_inputs), say=lambda s: None),
-                          seconds=0.5, timeout_s=5.0, expected_fw=(1, 0, 0))
+                          seconds=0.5, timeout_s=5.0, expected_fw=(1, 1, 0))
     finally:
         hw.close()
     assert set(statuses(rows).values()) == {"PASS"}, rows

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from rehab_hil.hardware import SerialHardware
+from rehab_hil.hardware import HardwareError, SerialHardware
 from rehab_hil.protocol import (
     DUTY_FULL,
     PROTOCOL_VERSION,
@@ -147,8 +147,53 @@ def test_handshake_reports_capabilities(rig: tuple[Any, SerialHardware]) -> None
     _, hw = rig
     info = hw.connect()
     assert (info.protocol_version, info.n_pwm, info.n_adc) == (PROTOCOL_VERSION, 2, 2)
-    assert (info.encoder_counts_per_rev, info.adc_ref_mv, info.adc_bits, info.max_rate_hz) == (2000, 5000, 10, 1000)
+    assert (info.adc_ref_mv, info.adc_bits, info.max_rate_hz) == (5000, 10, 1000)
     assert hw.heartbeat() > 0
+
+
+def test_configure_carries_the_encoder_resolution_which_the_device_adopts_and_reports(
+        rig: tuple[Any, SerialHardware]) -> None:
+    """The encoder is the rig's: the device takes CONFIGURE's counts/rev (0 keeps it) and says it in
+    HELLO; 1..3 counts/rev is no encoder and refused."""
+    _, hw = rig
+    hw.configure(_config(encoder_counts_per_rev=4096))
+    assert hw.connect().encoder_counts_per_rev == 4096
+    hw.configure(_config(encoder_counts_per_rev=0))
+    assert hw.connect().encoder_counts_per_rev == 4096
+    hw.configure(_config(encoder_counts_per_rev=2000))
+    assert hw.connect().encoder_counts_per_rev == 2000
+    with pytest.raises(HardwareError, match="ACK result 2"):
+        hw.configure(_config(encoder_counts_per_rev=3))
+    assert hw.connect().encoder_counts_per_rev == 2000
+    hw.configure(_config())
+    assert hw.clear()  # BAD_CONFIG, latched by the refusal
+
+
+def test_set_encoder_moves_the_count_and_edges_continue_from_it(stepped: Stepped) -> None:
+    hw = stepped.hw
+    hw.set_encoder(-123_456)
+    _, s = stepped.step(Command(0, 0, 0, 1))
+    assert abs(s.encoder_count + 123_456) < 50  # the iris may still drift back on its spring
+    for _ in range(300):  # open the iris: the count rises from the new value
+        _, s = stepped.step(Command(3000, 0, 0, 1))
+        if s.encoder_count > -123_456 + 40:
+            break
+    assert s.encoder_count > -123_456 + 40
+    stepped.step(Command(0, 0, 0, 0))
+
+
+def test_set_encoder_applies_to_the_range_of_motion_from_the_next_tick(stepped: Stepped) -> None:
+    hw = stepped.hw
+    hw.configure(_config(enc_min=-100, enc_max=100))
+    hw.set_encoder(0)
+    assert hw.clear()  # a range fault from the old count is gone now
+    _, s = stepped.step(Command(0, 0, 0, 1))
+    assert s.faults == 0 and abs(s.encoder_count) < 50  # the iris may still drift back on its spring
+    hw.set_encoder(500)
+    _, s = stepped.step(Command(0, 0, 0, 1))
+    assert s.faults == Fault.RANGE_OF_MOTION and abs(s.encoder_count - 500) < 50
+    hw.set_encoder(0)
+    assert hw.clear()
 
 
 @pytest.mark.parametrize(("rate", "period_us"), [(1000, 1000), (250, 4000), (300, 3000)])

@@ -6,8 +6,11 @@ Times are checked in device time (SAMPLE.device_time_us), never against the wall
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 from collections.abc import Callable
 from itertools import pairwise
+from pathlib import Path
 
 import pytest
 from cobs import cobs
@@ -27,7 +30,7 @@ from rehab_hil.protocol import (
     encode_frame,
 )
 
-from .conftest import Hardware, Harness, config
+from .conftest import HARNESS, ROOT, Hardware, Harness, config
 
 pytestmark = [pytest.mark.firmware, pytest.mark.timeout(60)]
 
@@ -59,7 +62,8 @@ def _applied(hw: SerialHardware, command: Command) -> Sample:
 def test_handshake_reports_the_uno_capabilities_and_power_on(rig: tuple[Harness, SerialHardware]) -> None:
     _, hw = rig
     info = hw.connect()
-    assert (info.protocol_version, info.n_pwm, info.n_adc, info.encoder_counts_per_rev) == (1, 2, 2, 2000)
+    # counts/rev: 0 until a CONFIGURE carries the rig's (the fixture's carries none)
+    assert (info.protocol_version, info.n_pwm, info.n_adc, info.encoder_counts_per_rev) == (1, 2, 2, 0)
     assert (info.adc_ref_mv, info.adc_bits, info.max_rate_hz) == (5000, 10, 1000)
     assert info.reset_cause == 1  # power-on, from MCUSR
     assert hw.heartbeat() >= 0
@@ -323,3 +327,22 @@ def test_a_flood_of_commands_is_survived_and_the_link_recovers(rig: tuple[Harnes
     assert harness.state()["resets"] == 0
     dropped = s.rx_bad_frames - before.rx_bad_frames
     assert 0 <= dropped < 300
+
+
+def test_a_build_pinned_to_one_encoder_reports_it_and_refuses_another(tmp_path: Path) -> None:
+    """`make ENCODER_COUNTS_PER_REV=2000` (the default build adopts CONFIGURE's value instead)."""
+    if shutil.which("avr-gcc") is None or not HARNESS.exists():
+        pytest.skip("no avr-gcc or harness: run `make firmware harness`")
+    subprocess.run(["make", "-s", "-C", str(ROOT / "firmware"), "ENCODER_COUNTS_PER_REV=2000"], check=True,
+                   capture_output=True, timeout=300)
+    h = Harness(ROOT / "firmware" / "build" / "cpr2000" / "rehab_fw.elf")
+    hw = Hardware(h.port)
+    try:
+        assert hw.connect(timeout=10.0).encoder_counts_per_rev == 2000  # from boot
+        hw.configure(config(encoder_counts_per_rev=2000))
+        with pytest.raises(HardwareError, match=r"ACK result 2.*reports 2000 encoder counts/rev, the config 4096"):
+            hw.configure(config(encoder_counts_per_rev=4096))
+        assert hw.connect().encoder_counts_per_rev == 2000
+    finally:
+        hw.close()
+        h.close()

@@ -3,6 +3,7 @@ claim is refused before anything moves; calls in the wrong state are refused wit
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -61,12 +62,14 @@ def test_too_few_pwm_channels_or_adc_inputs_are_refused(cfg, binding) -> None:
         on_configure(binding, no_adc.info)
 
 
-def test_an_encoder_resolution_is_checked_only_when_the_device_reports_one(binding) -> None:
+def test_the_device_adopts_the_bindings_encoder_resolution_so_hello_may_differ(binding) -> None:
     other = inprocess_rig(CONFIG, configured=False, hello={"encoder_counts_per_rev": 4096})
-    with pytest.raises(ContractError, match=r"reports 4096 encoder counts/rev, the binding 2000"):
-        on_configure(binding, other.info)
+    on_configure(binding, other.info)  # an earlier session's encoder: CONFIGURE carries this one's
     unknown = inprocess_rig(CONFIG, configured=False, hello={"encoder_counts_per_rev": 0})
-    on_configure(binding, unknown.info)  # 0: not reported
+    on_configure(binding, unknown.info)  # 0: not told yet
+    huge = dataclasses.replace(binding, encoder_counts_per_rev=70_000)
+    with pytest.raises(ContractError, match=r"70000 encoder counts/rev do not fit CONFIGURE's 16-bit field"):
+        on_configure(huge, unknown.info)
 
 
 def test_a_claim_the_binding_does_not_provide_is_refused(binding) -> None:

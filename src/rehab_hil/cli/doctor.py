@@ -133,7 +133,8 @@ def run_checks(hw: HardwareInterface, cfg: Any, binding: Any, hand: Hand, *, sec
                       f"protocol v{info.protocol_version} (host v{PROTOCOL_VERSION}), firmware "
                       f"{'.'.join(map(str, fw))}" + (f" (expected {'.'.join(map(str, expected_fw))})" if expected_fw
                                                      else "") + f", reset cause {info.reset_cause:#x}"))
-    if binding.encoder_counts_per_rev and info.encoder_counts_per_rev != binding.encoder_counts_per_rev & 0xFFFF:
+    # 0: the device has not been told yet (it adopts CONFIGURE's counts/rev, protocol.md)
+    if binding.encoder_counts_per_rev and info.encoder_counts_per_rev not in (0, binding.encoder_counts_per_rev):
         rows.append(Check("encoder counts/rev", "WARN", f"device reports {info.encoder_counts_per_rev}, config "
                           f"{binding.encoder_counts_per_rev}: angles will be scaled wrongly"))
     try:

@@ -62,6 +62,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--foxglove", metavar="PORT", type=int, nargs="?", const=8765, default=None,
                    help="serve the session live to Foxglove over its WebSocket protocol (default port 8765)")
     p.add_argument("--foxglove-host", default="127.0.0.1", help="address the Foxglove server binds (default 127.0.0.1)")
+    p.add_argument("--home", choices=("current", "hard-stop", "none"), default="current",
+                   help="encoder zero at start: 'current' gives the present pose [encoder] home_angle_deg (asks "
+                        "first on a terminal), 'hard-stop' drives slowly to the closed stop ([encoder] hard_stop_deg, "
+                        "homing_duty; a motor behind an H-bridge), 'none' keeps the device's count")
     return p
 
 
@@ -185,6 +189,18 @@ def run(args: argparse.Namespace) -> int:
             on_configure(binding, hw.info, controller.claims)  # refuse a mismatch before anything moves
         except HardwareError as e:
             raise UserError(f"--device {device}: {e}") from None
+        # homing (issue 15): the encoder's zero at a confirmed pose or the closed hard stop
+        import sys
+
+        from rehab_hil.service.homing import home
+
+        try:
+            homed = home(args.home, hw, cfg, binding, assembly.firmware_configure(cfg, binding),
+                         confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)
+        except HardwareError as e:
+            raise UserError(f"--home {args.home}: {e}") from None
+        if homed is not None:
+            print(f"homed ({homed.mode}): encoder count {homed.count} at the home pose")
         recorder = None
         if args.record:
             rig_id = args.rig_id or args.telemetry or cfg.plant

@@ -8,6 +8,7 @@ wraps it with a pty, a clock and a plant model.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from rehab_hil.protocol import (
@@ -30,13 +31,14 @@ from rehab_hil.protocol import (
     Message,
     ResetCause,
     Sample,
+    SetEncoder,
     Status,
     nearest_rate_divider,
 )
 
 __all__ = ["FIRMWARE_VERSION", "DeviceCore", "Readings"]
 
-FIRMWARE_VERSION = (1, 0, 0)
+FIRMWARE_VERSION = (1, 1, 0)
 TICK_US = 1_000_000 // BASE_RATE_HZ
 # faults CLEAR cannot remove while their cause is present
 _CONDITIONAL = Fault.FORCE_LIMIT | Fault.RANGE_OF_MOTION | Fault.ESTOP_INPUT
@@ -64,11 +66,16 @@ class Readings:
 class DeviceCore:
     """Protocol v1 device behaviour; ``duty`` / ``direction`` are the applied outputs."""
 
-    def __init__(self, encoder_counts_per_rev: int, reset_cause: int = ResetCause.POWER_ON,
+    def __init__(self, encoder_counts_per_rev: int = 0, reset_cause: int = ResetCause.POWER_ON,
                  estop_normally_closed: bool | None = None) -> None:
-        """``estop_normally_closed``: how the simulated rig's e-stop is wired (from its config's
-        ``[rig.estop]``); None = wired as the host configures it (CONFIGURE flags bit1)."""
-        self.encoder_counts_per_rev = encoder_counts_per_rev
+        """``encoder_counts_per_rev``: the build's ENCODER_COUNTS_PER_REV; 0 (the default build)
+        adopts the value CONFIGURE carries, non-zero pins the device to that encoder (a CONFIGURE
+        with another value is refused). ``estop_normally_closed``: how the simulated rig's e-stop is
+        wired (from its config's ``[rig.estop]``); None = wired as the host configures it (CONFIGURE
+        flags bit1)."""
+        self.pinned_counts_per_rev = encoder_counts_per_rev
+        self.encoder_counts_per_rev = encoder_counts_per_rev  # reported in HELLO
+        self.encoder_offset = 0  # firmware count = the encoder's own edges + this (SET_ENCODER)
         self.reset_cause = reset_cause
         self.estop_wiring_nc = estop_normally_closed
         self.ticks = 0
@@ -125,6 +132,11 @@ class DeviceCore:
             return [DeviceHeartbeat(self.uptime_ms)]
         if isinstance(msg, EStop):
             return [*self._trip(Fault.ESTOP_COMMAND), Ack(EStop.TYPE, frame.seq, AckResult.OK)]
+        if isinstance(msg, SetEncoder):
+            # the count continues from msg.count: the offset moves, the encoder's edges do not
+            self.encoder_offset = (self.encoder_offset + msg.count - self.readings.encoder_count) % (1 << 32)
+            self.readings = dataclasses.replace(self.readings, encoder_count=msg.count)
+            return [Ack(SetEncoder.TYPE, frame.seq, AckResult.OK)]
         if isinstance(msg, Clear):
             self.faults &= self._present_causes()
             result = AckResult.OK if self.faults == 0 else AckResult.REFUSED
@@ -133,10 +145,14 @@ class DeviceCore:
         return []
 
     def _configure(self, c: Configure, seq: int) -> list[Message]:
+        cpr, pinned = c.encoder_counts_per_rev, self.pinned_counts_per_rev
         bad = (c.watchdog_ms == 0 or c.max_duty > DUTY_FULL or c.max_heating_ms == 0
-               or c.force_limit_counts > 1023 or c.enc_min >= c.enc_max)
+               or c.force_limit_counts > 1023 or c.enc_min >= c.enc_max or 0 < cpr < 4
+               or (pinned and cpr and cpr != pinned))
         if bad:
             return [*self._trip(Fault.BAD_CONFIG), Ack(Configure.TYPE, seq, AckResult.BAD_PARAMETER)]
+        if cpr:
+            self.encoder_counts_per_rev = cpr
         self.config = c
         self.divider = 0 if c.sample_rate_hz == 0 else nearest_rate_divider(c.sample_rate_hz)
         self._outputs_off()
@@ -176,6 +192,9 @@ class DeviceCore:
         """One 1 kHz base tick with the sensor readings of this instant: safety checks, then a
         SAMPLE if this is a sample tick. Returns the FAULT frames of new trips and the SAMPLE."""
         self.ticks += 1
+        if self.encoder_offset:  # the firmware's 32-bit counter, moved by SET_ENCODER
+            count = (readings.encoder_count + self.encoder_offset + (1 << 31)) % (1 << 32) - (1 << 31)
+            readings = dataclasses.replace(readings, encoder_count=count)
         self.readings = readings
         out: list[Message] = []
         c = self.config

@@ -56,7 +56,8 @@ class PlantIO:
             self.set_input(name, value)
         self.noise = adc_noise_counts
         self._rng = np.random.default_rng(seed)
-        self._counts_per_rad = binding.encoder_counts_per_rev / (2.0 * math.pi)
+        # a rig with direction -1 has its encoder wired the other way: its counts fall as the angle rises
+        self._counts_per_rad = binding.encoder_direction * binding.encoder_counts_per_rev / (2.0 * math.pi)
 
     def set_input(self, name: str, value: float) -> None:
         """Set a constant plant input (e.g. the patient's torque); unknown names raise KeyError."""

@@ -53,7 +53,9 @@ MAX_TICKS_PER_WAKE = 20  # catch-up ticks between two looks at the pty and the c
 
 
 class SimDevice(ControlChannel):
-    """One simulated device: the firmware core, the plant, a pty master and the fault knobs."""
+    """One simulated device: the firmware core, the plant, a pty master and the fault knobs.
+
+    ``counts_per_rev`` plays the firmware build's ENCODER_COUNTS_PER_REV (0: adopts CONFIGURE's)."""
 
     def __init__(self, plant: PlantIO, counts_per_rev: int, clock: str = "realtime", seed: int = 0,
                  estop_normally_closed: bool | None = None) -> None:
@@ -276,7 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         plant.tick([0, 0], 0)  # compile the kernels before announcing the port
         plant.stepper.reset()
         estop = cfg.rig.estop
-        device = SimDevice(plant, binding.encoder_counts_per_rev, clock=args.clock, seed=args.seed,
+        device = SimDevice(plant, 0, clock=args.clock, seed=args.seed,  # 0: adopts CONFIGURE's, as the firmware
                            estop_normally_closed=estop.normally_closed if estop is not None else False)
         for knob in ("drop", "corrupt"):
             device.control(f"{knob} {getattr(args, knob)}")

@@ -75,9 +75,10 @@ def on_configure(binding: Binding, hello: Hello | None, claims: Claims | Iterabl
     """Check the device's HELLO and the controllers' claims against the binding before anything
     moves; raises ``ContractError`` with one line naming what differs.
 
-    The HELLO must speak this host's protocol version, have a PWM channel for every command
-    interface and an ADC input for every ADC state interface, and, when it reports an encoder
-    resolution (non-zero), report the binding's. Each claimed interface must exist, and no command
+    The HELLO must speak this host's protocol version and have a PWM channel for every command
+    interface and an ADC input for every ADC state interface; the binding's encoder resolution must
+    fit CONFIGURE (the device adopts it there, whatever its HELLO said before; a build pinned to
+    another encoder refuses that CONFIGURE). Each claimed interface must exist, and no command
     interface may be claimed twice."""
     if hello is None:
         raise ContractError("contract: no HELLO from the device (connect first)")
@@ -95,7 +96,7 @@ def on_configure(binding: Binding, hello: Hello | None, claims: Claims | Iterabl
             raise ContractError(f"contract: state interface {si.name} needs ADC input {si.source[3:]}, "
                                 f"the device has {hello.n_adc} ADC input(s)")
     if any(si.source == "encoder" for si in states):
-        _check_encoder(binding.encoder_counts_per_rev, hello.encoder_counts_per_rev)
+        _check_encoder(binding.encoder_counts_per_rev)
     command_names = [ci.name for ci in commands]
     state_names = [si.name for si in states]
     owner: dict[str, int] = {}
@@ -112,19 +113,14 @@ def on_configure(binding: Binding, hello: Hello | None, claims: Claims | Iterabl
                                     f"binding does not provide{_closest(name, state_names)}")
 
 
-def _check_encoder(binding_cpr: int, device_cpr: int) -> None:
-    """HELLO's ``encoder_counts_per_rev`` is the firmware build's (a u16; 0: not reported). A
-    reported value that differs from the binding's means angles would be scaled wrongly."""
-    if device_cpr == 0:
-        return
-    if binding_cpr > 0xFFFF:  # the field cannot carry it; only its low 16 bits can be compared
-        if device_cpr != binding_cpr & 0xFFFF:
-            raise ContractError(f"contract: the device reports {device_cpr} encoder counts/rev (a 16-bit field), "
-                                f"the binding {binding_cpr}")
-        return
-    if device_cpr != binding_cpr:
-        raise ContractError(f"contract: the device reports {device_cpr} encoder counts/rev, the binding "
-                            f"{binding_cpr} (firmware built for another encoder?)")
+def _check_encoder(binding_cpr: int) -> None:
+    """The encoder is the rig's, not the firmware build's: CONFIGURE carries the binding's counts per
+    revolution and the device adopts it (HELLO reports it from then on), so a different value in
+    HELLO (0 before the first CONFIGURE, or an earlier session's) is no mismatch. Only a resolution
+    CONFIGURE's 16-bit field cannot carry is refused."""
+    if not 0 < binding_cpr <= 0xFFFF:
+        raise ContractError(f"contract: the binding's {binding_cpr} encoder counts/rev do not fit CONFIGURE's "
+                            "16-bit field (1..65535)")
 
 
 def _closest(name: str, known: list[str]) -> str:

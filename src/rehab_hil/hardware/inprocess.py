@@ -28,6 +28,7 @@ from rehab_hil.protocol import (
     HelloReq,
     Message,
     Sample,
+    SetEncoder,
 )
 
 __all__ = ["InProcessHardware", "PlantPort"]
@@ -112,6 +113,12 @@ class InProcessHardware(HardwareInterface):
     def clear(self, timeout: float = 1.0) -> bool:
         self._require_connected("clear")
         return self._request(Clear()) == 0
+
+    def set_encoder(self, count: int = 0, timeout: float = 1.0) -> None:
+        self._require_connected("set_encoder")
+        result = self._request(SetEncoder(int(count)))
+        if result != 0:
+            raise HardwareError(f"SET_ENCODER {count} answered with result {result}")
 
     def close(self) -> None:
         """PWM off (as the serial link's last COMMAND does) and FINALIZED; idempotent."""

@@ -22,8 +22,8 @@ import numpy as np
 
 from rehab_hil.protocol import DUTY_FULL, Configure, Hello, Sample
 
-__all__ = ["HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "configure_from_config",
-           "duty_units"]
+__all__ = ["HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "angle_limits_counts",
+           "configure_from_config", "duty_units"]
 
 
 class HardwareError(RuntimeError):
@@ -86,24 +86,38 @@ def duty_units(duty: float) -> int:
     return round(min(max(duty, 0.0), 1.0) * DUTY_FULL)
 
 
-def configure_from_config(cfg: Any, encoder_counts_per_rev: int, force_limit_counts: int = 1023,
-                          estop_input: bool = False) -> Configure:
-    """The CONFIGURE for a validated plant config: rate, watchdog and the ``[rig.limits]``.
+def angle_limits_counts(min_deg: float, max_deg: float, encoder_counts_per_rev: int,
+                        direction: int = 1) -> tuple[int, int]:
+    """An angle range [deg] as the firmware's (enc_min, enc_max) counts, rounded outwards; with
+    ``direction`` -1 the counts fall as the angle rises, so the ends swap."""
+    per_deg = direction * encoder_counts_per_rev / 360.0
+    lo, hi = sorted((min_deg * per_deg, max_deg * per_deg))
+    return math.floor(lo), math.ceil(hi)
 
-    Angles become encoder counts with ``encoder_counts_per_rev``; the force limit in ADC counts
-    depends on the sensor calibration, so the caller passes it (1023 = off)."""
+
+def configure_from_config(cfg: Any, encoder_counts_per_rev: int, force_limit_counts: int = 1023,
+                          estop_input: bool = False, encoder_direction: int = 1) -> Configure:
+    """The CONFIGURE for a validated plant config: rate, watchdog, the ``[rig.limits]`` and the
+    encoder's counts per revolution (the device adopts it and reports it in HELLO).
+
+    Angles become encoder counts with ``encoder_counts_per_rev`` and ``encoder_direction``; the force
+    limit in ADC counts depends on the sensor calibration, so the caller passes it (1023 = off)."""
     rig = cfg.rig
     lim = rig.limits
-    per_deg = encoder_counts_per_rev / 360.0
+    if not 0 <= encoder_counts_per_rev <= 0xFFFF:
+        raise ValueError(f"encoder_counts_per_rev {encoder_counts_per_rev} does not fit CONFIGURE's 16 bits")
+    enc_min, enc_max = angle_limits_counts(lim.min_angle_deg, lim.max_angle_deg, encoder_counts_per_rev,
+                                           encoder_direction)
     return Configure(
         sample_rate_hz=round(rig.sample_rate_hz),
         watchdog_ms=int(rig.watchdog_ms),
         max_duty=duty_units(lim.max_duty),
         max_heating_ms=round(lim.max_heating_s * 1000.0),
         force_limit_counts=int(force_limit_counts),
-        enc_min=math.floor(lim.min_angle_deg * per_deg),
-        enc_max=math.ceil(lim.max_angle_deg * per_deg),
+        enc_min=enc_min,
+        enc_max=enc_max,
         flags=Configure.FLAG_ESTOP_INPUT if estop_input else 0,
+        encoder_counts_per_rev=encoder_counts_per_rev,
     )
 
 
@@ -151,6 +165,11 @@ class HardwareInterface(ABC):
     @abstractmethod
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
         """Send duties (0..1 per channel) and direction bits now (ACTIVE only); returns the COMMAND's seq."""
+
+    def set_encoder(self, count: int = 0, timeout: float = 1.0) -> None:
+        """Set the device's encoder count (SET_ENCODER; homing: the home pose's count), connected
+        states; waits for the ACK. The default: a device that cannot."""
+        raise HardwareError(f"{type(self).__name__} cannot set the encoder count")
 
     @abstractmethod
     def estop(self, timeout: float = 1.0) -> None:

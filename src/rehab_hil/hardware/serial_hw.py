@@ -30,12 +30,21 @@ from rehab_hil.protocol import (
     HelloReq,
     Message,
     Sample,
+    SetEncoder,
     encode_frame,
 )
 
 __all__ = ["SerialHardware"]
 
 _PENDING_COMMANDS = 1024  # send times kept for latency matching
+
+
+def _cpr_hint(info: Hello | None, config: Configure) -> str:
+    """Why a CONFIGURE may have been refused: a firmware build pinned to another encoder."""
+    cpr, dev = config.encoder_counts_per_rev, info.encoder_counts_per_rev if info else 0
+    if cpr and dev and cpr != dev:
+        return f"; the device reports {dev} encoder counts/rev, the config {cpr} (a build pinned to another encoder?)"
+    return ""
 
 
 class SerialHardware(HardwareInterface):
@@ -90,7 +99,8 @@ class SerialHardware(HardwareInterface):
         self._require_connected("configure")
         result = self._request(config, timeout)
         if result != 0:
-            raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})")
+            raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})"
+                                + _cpr_hint(self.info, config))
         self._last_index = None  # the stream restarts: no gap accounting across it
         self.state = LifecycleState.ACTIVE
 
@@ -149,6 +159,12 @@ class SerialHardware(HardwareInterface):
     def clear(self, timeout: float = 1.0) -> bool:
         self._require_connected("clear")
         return self._request(Clear(), timeout) == 0
+
+    def set_encoder(self, count: int = 0, timeout: float = 1.0) -> None:
+        self._require_connected("set_encoder")
+        result = self._request(SetEncoder(int(count)), timeout)
+        if result != 0:
+            raise HardwareError(f"SET_ENCODER {count} answered with result {result}")
 
     def heartbeat(self, timeout: float = 1.0) -> int:
         """Link check: the device's uptime in ms."""

@@ -10,7 +10,7 @@ import math
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["CoulombFriction", "RotaryInertia", "TorsionSpring", "ViscousFriction"]
+__all__ = ["CoulombFriction", "HardStop", "RotaryInertia", "TorsionSpring", "ViscousFriction"]
 
 
 class RotaryInertia(Part):
@@ -46,6 +46,21 @@ class TorsionSpring(Part):
     @njit
     def output(t, x, xd, u, p, y):
         y[0] = -p[0] * (u[0] - p[1])
+
+
+class HardStop(Part):
+    """A lower mechanical end stop: below ``stop_angle_rad`` a stiff spring-damper pushes back,
+    never pulls (a one-sided contact; the closed stop a motor can be homed against)."""
+
+    inputs = ("angle_rad", "velocity_rad_s")
+    outputs = ("torque_nm",)
+    params = ("stiffness_nm_per_rad", "damping_nm_s_per_rad", "stop_angle_rad")
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        pen = p[2] - u[0]
+        y[0] = max(0.0, p[0] * pen - p[1] * u[1]) if pen > 0.0 else 0.0
 
 
 class ViscousFriction(Part):

@@ -16,7 +16,7 @@ import pkgutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -135,7 +135,18 @@ class PlantConfig(Section):
 
 
 class EncoderSection(Section):
-    counts_per_rev: int = Field(ge=4, le=10_000_000, description="encoder edges per revolution of its axis")
+    """The rig's quadrature encoder (x4 edges) and its homing (``rehab-hil run --home``)."""
+
+    counts_per_rev: int = Field(ge=4, le=65_535, description="encoder edges per revolution of its axis (CONFIGURE "
+                                "and HELLO carry it in 16 bits)")
+    direction: Literal[1, -1] = Field(1, description="+1: counts rise with the angle; -1: an encoder wired (or "
+                                      "mounted) the other way round, so counts fall as the angle rises")
+    home_angle_deg: float = Field(0.0, ge=-360.0, le=360.0, description="joint angle at the pose `--home current` "
+                                  "zeroes at [deg]")
+    hard_stop_deg: float | None = Field(None, ge=-360.0, le=360.0, description="joint angle at the closed mechanical "
+                                        "stop `--home hard-stop` drives to [deg]; unset: no hard-stop homing")
+    homing_duty: float = Field(0.05, gt=0.0, le=0.3, description="duty of the hard-stop homing drive (slow, low "
+                               "torque) [0..1]")
 
 
 class ForceSensorSection(Section):
@@ -196,6 +207,7 @@ class DeviceBinding:
     encoder_source: str = ""  # what the simulated encoder reads (differs under a sensor effect)
     plant: str = ""
     angle_output: str = ""  # the model's output for the encoder angle in degrees (the recorded column)
+    encoder_direction: int = 1  # +1: counts rise with the angle; -1: the encoder counts the other way
 
     def __post_init__(self) -> None:
         if not self.encoder_source and self.encoder_signal:
@@ -306,6 +318,7 @@ class Plant:
             encoder_counts_per_rev=int(enc.counts_per_unit) if enc else 0,
             adc=adc, step_s=step_s, substeps=substeps,
             encoder_source=source(enc) if enc else "", plant=cls.name, angle_output=enc.signal if enc else "",
+            encoder_direction=int(getattr(getattr(cfg, "encoder", None), "direction", 1)),
         )
 
 

@@ -34,7 +34,7 @@ from rehab_hil.config import Field, Section
 from rehab_hil.control.pid import PIDController
 from rehab_hil.control.trajectories import OpenCloseReference, StepReference
 from rehab_hil.models.dc_motor import DCMotorArmature
-from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, TorsionSpring, ViscousFriction
+from rehab_hil.models.mechanics import CoulombFriction, HardStop, RotaryInertia, TorsionSpring, ViscousFriction
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
@@ -57,6 +57,10 @@ class IrisSection(Section):
     coulomb_nm: float = Field(ge=0.0, le=100.0, description="F_c, seed 002 eq 6")
     stick_velocity_rad_s: float = Field(gt=0.0, le=1.0, description="stiction band of the friction model")
     stick_damping_nm_s_per_rad: float = Field(ge=0.0, le=1000.0, description="settles motion inside the band")
+    closed_stop_deg: float | None = Field(None, ge=-180.0, le=180.0, description="angle of the closed mechanical "
+                                          "stop (a rig to home against); unset: the iris has none, only its spring")
+    stop_stiffness_nm_per_rad: float = Field(50.0, gt=0.0, le=10_000.0, description="stiffness of that stop")
+    stop_damping_nm_s_per_rad: float = Field(0.5, ge=0.0, le=100.0, description="damping of that stop")
 
 
 class MotorSection(Section):
@@ -161,6 +165,11 @@ def build(cfg: FingerExtensorConfig) -> list[Part]:
             level_nm=iris.coulomb_nm, stick_velocity_rad_s=iris.stick_velocity_rad_s,
             stick_damping_nm_s_per_rad=iris.stick_damping_nm_s_per_rad,
         ),
+        *([] if iris.closed_stop_deg is None else [HardStop(
+            "closed_stop", connect={"angle_rad": "iris_angle_rad", "velocity_rad_s": "iris_velocity_rad_s"},
+            rename={"torque_nm": "drive_torque_nm"}, stiffness_nm_per_rad=iris.stop_stiffness_nm_per_rad,
+            damping_nm_s_per_rad=iris.stop_damping_nm_s_per_rad, stop_angle_rad=float(np.radians(iris.closed_stop_deg)),
+        )]),
         QuadratureEncoder(
             "encoder", connect={"angle_rad": "iris_angle_rad"},
             rename={"counts": "encoder_counts", "angle_deg": "iris_angle_deg"},

@@ -124,7 +124,7 @@ def firmware_configure(cfg: Any, binding: DeviceBinding) -> Configure:
     firmware checks A0 only)."""
     limit_counts = force_limit_counts(cfg, binding)  # 1023 (off) unless A0 is a force; unrepresentable: refused
     msg = configure_from_config(cfg, binding.encoder_counts_per_rev, force_limit_counts=limit_counts,
-                                estop_input=estop_enabled(cfg))
+                                estop_input=estop_enabled(cfg), encoder_direction=binding.encoder_direction)
     es = cfg.rig.estop
     nc = Configure.FLAG_ESTOP_NORMALLY_CLOSED if es is not None and es.normally_closed else 0
     return dataclasses.replace(msg, flags=msg.flags | nc, force_debounce_ms=cfg.rig.limits.force_debounce_ms)

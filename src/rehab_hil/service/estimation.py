@@ -53,7 +53,8 @@ class Estimator:
         if not velocity_cutoff_hz > 0:
             raise ValueError(f"velocity cutoff must be positive, got {velocity_cutoff_hz}")
         self.binding = binding
-        self.rad_per_count = 2.0 * math.pi / binding.encoder_counts_per_rev
+        # the config's encoder direction: a rig wired backwards (-1) still reads positive flexion
+        self.rad_per_count = binding.encoder_direction * 2.0 * math.pi / binding.encoder_counts_per_rev
         self.tau_s = 1.0 / (2.0 * math.pi * velocity_cutoff_hz)
         self.reset()
 
