@@ -12,6 +12,11 @@ sensor and logs at 500 Hz or 1 kHz). Case families, one function each:
 - ``out_of_library_cases``: a Stribeck peak and a cogging torque (nothing in the library);
 - ``clean_cases``: no discrepancy;
 - ``timing_case``: wall time of the full workflow on 60 s of 1 kHz closed-loop data;
+- ``rig_cases``: recordings of real sessions (issue 13): ``rehab-hil run --record`` on the in-process
+  rig (the firmware's logic and a plant) whose plant config (``--sim-plant``) hides an effect the
+  host's model lacks, read back from the run directory as a user does; Finger Extensor (Coulomb
+  friction, backlash, clean) and SMA exoskeleton (hysteresis, clean); also prints the replay RMSE of
+  the nominal and the augmented model on the recording;
 - ``sma_cases``: the SMA exoskeleton, records cut mid-session (hot wire, bent finger), random
   duty trains, sensors only (MCP encoder, Flexiforce on a 10-bit ADC), logged at 500 Hz: hidden
   hysteresis, passive muscle, contact spring, dead zone, a supply 8 % low, clean. These records
@@ -319,16 +324,57 @@ def clean_cases(seed: int) -> list[dict]:
     return [_case("clean", seed + 500 + i) for i in range(4)]
 
 
+RIG_CASES = [  # (plant config, hidden effects, session length [s])
+    (CONFIG, {"coulomb_friction": {"level_nm": 0.03}}, 10.0),
+    (CONFIG, {"backlash": {"width_rad": 0.03}}, 10.0),
+    (CONFIG, {}, 10.0),
+    (SMA_CONFIG, {"sma_hysteresis": {"width_c": 10.0}}, 60.0),
+    (SMA_CONFIG, {}, 60.0),
+]
+
+
+def rig_cases(seed: int) -> list[dict]:
+    return [{**_case("rig" if eff else "rig clean", seed + 700 + i, eff), "config": str(path), "session_s": dur,
+             "plant": load_config(path).plant} for i, (path, eff, dur) in enumerate(RIG_CASES)]
+
+
+def rig_record(case: dict, workdir: Path) -> Recording:
+    """A session recorded through ``rehab-hil run --record`` on a rig whose plant hides the case's
+    effects, read back from its run directory (``rehab_hil.rig_recording``)."""
+    from rehab_hil.cli import main as cli
+    from rehab_hil.rig_recording import load_recording
+
+    config = Path(case["config"])
+    device = workdir / "rig_plant.toml"
+    device.write_text(config.read_text() + "".join(
+        f'\n[[effects]]\nname = "{n}"\nparams = {{ {", ".join(f"{k} = {v!r}" for k, v in p.items())} }}\n'
+        for n, p in case["effects"].items()))
+    root = workdir / "runs"
+    code = cli(["run", "--config", str(config), "--device", "inprocess", "--sim-plant", str(device), "--duration",
+                str(case["session_s"]), "--record", str(root), "--no-display"])
+    if code != 0:
+        raise RuntimeError(f"rehab-hil run exited {code} for {case}")
+    (run_dir,) = root.iterdir()
+    cfg = load_config(config)
+    return load_recording(run_dir, get_plant(cfg.plant), cfg).recording
+
+
 FAMILIES: dict[str, Callable[[int], list[dict]]] = {
     "single": single_effect_cases, "pair": pair_cases, "parameter": parameter_cases,
-    "out_of_library": out_of_library_cases, "clean": clean_cases, "sma": sma_cases,
+    "out_of_library": out_of_library_cases, "clean": clean_cases, "sma": sma_cases, "rig": rig_cases,
 }
 
 
 def run_case(cfg, case: dict, duration_s: float) -> dict:
     """Generate the record, run the workflow, score it."""
     t0 = time.perf_counter()
-    if case.get("plant") == "sma_exoskeleton":
+    if "config" in case:  # a real session's recording
+        import tempfile
+
+        cfg = load_config(case["config"])
+        with tempfile.TemporaryDirectory() as tmp:
+            rec = rig_record(case, Path(tmp))
+    elif case.get("plant") == "sma_exoskeleton":
         cfg = load_config(SMA_CONFIG)
         rec = sma_record(case["effects"], case["errors"], case["seed"], min(duration_s, 20.0))
     else:
@@ -346,7 +392,10 @@ def run_case(cfg, case: dict, duration_s: float) -> dict:
     named = set(res.named)
     fam = case["family"]
     row["aliased"] = any(a.other in hidden or a.chosen in hidden for a in res.aliases)
-    if fam in ("single", "pair"):
+    if "config" in case:
+        before, after = res.metrics("nominal"), res.metrics("augmented")
+        row["rmse_before_after"] = {c: (before[c]["rmse"], after[c]["rmse"]) for c in res.channels}
+    if fam in ("single", "pair", "rig"):
         row["correct"] = hidden <= named
         row["false_alarms"] = sorted((named - hidden) | set(row["parameters"]))
     elif fam == "parameter":
@@ -355,7 +404,7 @@ def run_case(cfg, case: dict, duration_s: float) -> dict:
         row["false_alarms"] = sorted(named | (set(row["parameters"]) - {key}))
         if key in row["parameters"]:
             row["param_rel_error"] = abs(row["parameters"][key] - true) / abs(true)
-    elif fam == "clean":
+    elif fam in ("clean", "rig clean"):
         row["correct"] = not named and not row["parameters"]
         row["false_alarms"] = sorted(named | set(row["parameters"]))
     else:  # out of library: nothing in the library is right; say so rather than name something
@@ -417,6 +466,8 @@ def main() -> None:
         hidden = ", ".join([*case["effects"], *case["errors"]]) or "(clean)"
         console.print(f"[{i}/{len(cases)}] {case['family']:>14}: {hidden} -> {row['conclusion'][:160]} "
                       f"({'ok' if row['correct'] else 'WRONG'}, {row['mode']}, {row['wall_s']:.1f} s)")
+        for c, (b, a) in row.get("rmse_before_after", {}).items():
+            console.print(f"      {c}: replay RMSE {b:.4g} -> {a:.4g} (nominal -> augmented)")
     summary = summarise(rows)
     table = Table(title=f"Finger Extensor, independent closed-loop records ({args.duration:.0f} s, 500 Hz / 1 kHz)")
     for col in ("family", "cases", "named correctly", "missed", "false alarms", "alias said",

@@ -36,6 +36,7 @@ class Recording:
     t: np.ndarray
     signals: dict[str, np.ndarray]
     truncated: bool = False  # the file's last line was cut short and dropped
+    rig: bool = False  # recorded on a rig: its ADC channels are clipped to the converter's range
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]

@@ -93,6 +93,7 @@ def read_recording(path: str | Path) -> LoadedRecording:
         if rec.truncated:
             notes.append(f"{path}: the last line was cut short (the run was killed?): analysed up to the last "
                          f"complete sample (t = {rec.t[-1]:.3f} s)")
+    rec.rig = metadata is not None or "raw_adc0_counts" in rec.signals  # the recorder's raw columns
     return LoadedRecording(rec, path, notes, metadata)
 
 

@@ -71,8 +71,7 @@ def run(args: argparse.Namespace) -> int:
                                    Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
         progress.start("writing report", None)
         write_report(res, Path(args.config), Path(args.data), Path(args.out))
-    print(f"{res.plant}: " + (f"missing effect found: {', '.join(res.named)}" if res.named
-                              else "no missing effect found") + f" ({res.wall_s:.1f} s)")
+    print(f"{res.plant}: {res.conclusion} ({res.wall_s:.1f} s)")
     for f in res.chosen:
         print("  " + f.effect + ": " + ", ".join(f"{k} = {v:.4g} ± {f.stderr[k]:.2g}" for k, v in f.params.items()))
     before, after = res.metrics("nominal"), res.metrics("augmented")

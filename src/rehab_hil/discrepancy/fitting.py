@@ -100,7 +100,8 @@ class _Objective:
         self.count += 1
         if self.tick:
             self.tick()
-        r = self.replay.residual(self.replay.simulate(P, self.n_train), slice(0, self.n_train)).ravel()
+        r = self.replay.residual(self.replay.simulate(P, self.n_train, sensed=False),
+                                  slice(0, self.n_train)).ravel()
         # a candidate that makes the model diverge is a bad fit, not a crash
         return np.clip(np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP), -BLOWUP, BLOWUP)
 

@@ -24,6 +24,7 @@ from rehab_hil.plants.base import Plant, compose, plants
 __all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "Replay", "check_recording"]
 
 CANDIDATE_PREFIX = "candidate"
+ADC_FULL_SCALE_COUNTS = 1023  # the Uno's 10-bit ADC (docs/protocol.md)
 MIN_DURATION_S = 2.0  # shorter records cannot be split into a fit part and a held-out part
 MIN_SAMPLES = 100
 
@@ -82,6 +83,11 @@ class Replay:
     mode: str = "open"
     segment_steps: int = 0
     anchor_gain: np.ndarray | None = None  # states x channels: scaled output error -> state correction
+    # channel -> (offset_counts, counts_per_unit, full-scale counts) of the rig's ADC that measured it:
+    # on a rig recording the model is read through the same converter (whole counts, 0..1023: a
+    # 10-bit ADC shows neither a negative force nor steps finer than a count), so its quantisation
+    # and clipping are not mistaken for a missing effect
+    adc_range: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     @classmethod
     def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>") -> Replay:
@@ -103,8 +109,13 @@ class Replay:
         scale = np.array([max(float(np.std(measured[c])), 1e-9) for c in channels])
         U = system.input_matrix(n, inputs)
         mgrid = np.vstack([np.interp(grid, t, measured[c]) for c in channels])
+        adc = {m.signal: (m.offset_counts, m.counts_per_unit, float(ADC_FULL_SCALE_COUNTS)) for m in ports.measured
+               if rec.rig and m.sensor == "adc" and m.signal in channels and m.counts_per_unit > 0}
+        for k, c in enumerate(channels):  # a channel resolved in fewer counts than its spread weighs less
+            if c in adc:
+                scale[k] = max(scale[k], 1.0 / adc[c][1])
         return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx,
-                   U, mgrid, system.x0.copy(), system.xd0.copy())
+                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc)
 
     @property
     def n_steps(self) -> int:
@@ -164,13 +175,19 @@ class Replay:
 
         return shoot(self, P, n, x, xd)
 
-    def simulate(self, P: np.ndarray, n_meas: int | None = None, mode: str | None = None) -> dict[str, np.ndarray]:
-        """Model outputs at the first ``n_meas`` measured time stamps (all by default)."""
+    def simulate(self, P: np.ndarray, n_meas: int | None = None, mode: str | None = None,
+                 sensed: bool = True) -> dict[str, np.ndarray]:
+        """Model outputs at the first ``n_meas`` measured time stamps (all by default); ``sensed``:
+        read through the rig's ADC (``adc_range``: whole counts, clipped), as the data were. Fits use
+        ``sensed=False``: a rounded output is flat between counts and gives a fit no slope."""
         n_meas = self.t.size if n_meas is None else n_meas
         n = self.steps_for(n_meas)
         Y = self.simulate_grid(P, n, mode)
         i, w = self._idx[:n_meas], self._w[:n_meas]
-        return {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(self.channels)}
+        out = {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(self.channels)}
+        for c, (offset, per_unit, full) in self.adc_range.items() if sensed else ():
+            out[c] = (np.clip(np.round(offset + per_unit * out[c]), 0.0, full) - offset) / per_unit
+        return out
 
     def residual(self, sim: Mapping[str, np.ndarray], sl: slice = slice(None)) -> np.ndarray:
         """Scaled residual (model - measured) / scale, shape (channels, samples)."""
