@@ -57,7 +57,6 @@ class InProcessHardware(HardwareInterface):
         unknown = set(self._hello_overrides) - {f.name for f in dataclasses.fields(Hello)}
         if unknown:
             raise ValueError(f"unknown HELLO fields {sorted(unknown)}")
-        self._samples: deque[tuple[float, Sample]] = deque()
         self._acks: dict[tuple[int, int], int] = {}
         self._tx_seq = 0
         self._last_index: int | None = None
@@ -92,13 +91,6 @@ class InProcessHardware(HardwareInterface):
         self.last_sample_time = t
         return sample
 
-    def pending_samples(self) -> int:
-        return len(self._samples)
-
-    def discard_pending(self) -> int:
-        n = len(self._samples)
-        self._samples.clear()
-        return n
 
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
         self._require_active("write_command")

@@ -137,6 +137,7 @@ class HardwareInterface(ABC):
         self.stats = LinkStats()
         self.state = LifecycleState.UNCONFIGURED
         self.last_sample_time = 0.0
+        self._samples: deque[tuple[float, Sample]] = deque()  # (arrival time, SAMPLE) not yet read
 
     @abstractmethod
     def connect(self, timeout: float = 2.0) -> Hello:
@@ -153,14 +154,15 @@ class HardwareInterface(ABC):
         """The next SAMPLE in arrival order, or None after ``timeout`` seconds (None: wait forever)."""
 
     def pending_samples(self) -> int:
-        """Samples received and not yet returned by ``read_sample`` (without touching the link);
-        0 for an interface that queues nothing."""
-        return 0
+        """Samples received and not yet returned by ``read_sample`` (without touching the link)."""
+        return len(self._samples)
 
     def discard_pending(self) -> int:
         """Drop samples received and not yet read (those of the stream before a CONFIGURE or CLEAR
         was acknowledged); returns how many."""
-        return 0
+        n = len(self._samples)
+        self._samples.clear()
+        return n
 
     @abstractmethod
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:

@@ -57,7 +57,6 @@ class SerialHardware(HardwareInterface):
         self.last_sample: Sample | None = None
         self._ser: serial.Serial | None = None
         self._decoder = FrameDecoder()
-        self._samples: deque[tuple[float, Sample]] = deque()
         self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result
         self._heartbeats: deque[DeviceHeartbeat] = deque(maxlen=16)
         self._hellos: deque[Hello] = deque(maxlen=16)
@@ -116,13 +115,6 @@ class SerialHardware(HardwareInterface):
         self.last_sample_time = t
         return sample
 
-    def pending_samples(self) -> int:
-        return len(self._samples)
-
-    def discard_pending(self) -> int:
-        n = len(self._samples)
-        self._samples.clear()
-        return n
 
     def flush_input(self) -> None:
         """Forget everything received and not yet read: the OS buffer, a partial frame, queued

@@ -11,7 +11,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
-__all__ = ["NullSink", "QueueSink", "TelemetrySink"]
+__all__ = ["NullSink", "QueueSink", "TelemetrySink", "loop_stats"]
 
 
 @runtime_checkable
@@ -68,3 +68,19 @@ class QueueSink:
         if self._thread.is_alive():
             self._q.put(self._stop)
             self._thread.join()
+
+
+def loop_stats(service: Any, hw: Any) -> Callable[[], dict[str, Any]]:
+    """The 1 Hz stats message's source: loop progress and the link figures (zenoh and Foxglove)."""
+
+    def stats() -> dict[str, Any]:
+        p = service.progress
+        out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "missed", "tripped")}
+        link = getattr(hw, "stats", None)
+        if link is not None:
+            d = link.as_dict()
+            d["bad_frames"] = sum(d["bad_frames"].values())
+            out["link"] = d
+        return out
+
+    return stats

@@ -23,6 +23,7 @@ import foxglove
 
 from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
+from rehab_hil.service.telemetry import loop_stats
 
 __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "FoxgloveError", "FoxgloveLive", "LiveView", "RigFeed", "rig_prefix",
            "topics"]
@@ -253,18 +254,7 @@ class LiveView:
         """Loop progress and link figures on ``/rig/stats`` once per second (and on zenoh, if on)."""
         if self.zenoh is not None:
             self.zenoh.watch(service, hw)
-
-        def stats() -> dict[str, Any]:
-            p = service.progress
-            out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "missed", "tripped")}
-            link = getattr(hw, "stats", None)
-            if link is not None:
-                d = link.as_dict()
-                d["bad_frames"] = sum(d["bad_frames"].values())
-                out["link"] = d
-            return out
-
-        self.feed.set_stats_source(stats)
+        self.feed.set_stats_source(loop_stats(service, hw))
 
     def on_trip(self, event: Any) -> None:
         """``LoopService.run(on_trip=...)``: the supervisor's event on ``/rig/event`` (and zenoh)."""

@@ -16,6 +16,7 @@ import zenoh
 
 from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.protocol import PROTOCOL_VERSION
+from rehab_hil.service.telemetry import loop_stats
 from rehab_hil.telemetry.codec import JSON_VERSION, STATE_VERSION
 from rehab_hil.telemetry.publisher import TelemetryPublisher
 from rehab_hil.telemetry.session import NetworkConfig, TelemetryConfigError, open_session
@@ -70,18 +71,7 @@ class RigTelemetry:
 
     def watch(self, service: Any, hw: Any) -> None:
         """Publish ``service.progress`` and ``hw.stats`` in the 1 Hz stats message (read off the loop thread)."""
-
-        def stats() -> dict[str, Any]:
-            p = service.progress
-            out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "missed", "tripped")}
-            link = getattr(hw, "stats", None)
-            if link is not None:
-                d = link.as_dict()
-                d["bad_frames"] = sum(d["bad_frames"].values())
-                out["link"] = d
-            return out
-
-        self.sink.set_stats_source(stats)
+        self.sink.set_stats_source(loop_stats(service, hw))
 
     def on_trip(self, event: Any) -> None:
         """``LoopService.run(on_trip=...)`` hook: publish the supervisor's event on ``.../safety``."""
@@ -99,3 +89,4 @@ class RigTelemetry:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
