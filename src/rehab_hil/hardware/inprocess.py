@@ -10,19 +10,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections import deque
 from collections.abc import Mapping
 from typing import Protocol
 
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
-    Ack,
     Clear,
     Command,
     Configure,
     EStop,
-    FaultReport,
     Frame,
     Hello,
     HelloReq,
@@ -51,15 +48,11 @@ class InProcessHardware(HardwareInterface):
         self.plant = plant
         self.core = DeviceCore(encoder_counts_per_rev)
         self.estop_pin = False  # the e-stop input (True = pressed)
-        self.faults_reported: deque[FaultReport] = deque(maxlen=256)
-        self.last_sample: Sample | None = None
         self._hello_overrides = dict(hello or {})
         unknown = set(self._hello_overrides) - {f.name for f in dataclasses.fields(Hello)}
         if unknown:
             raise ValueError(f"unknown HELLO fields {sorted(unknown)}")
-        self._acks: dict[tuple[int, int], int] = {}
         self._tx_seq = 0
-        self._last_index: int | None = None
         self._sent: tuple[int, float] | None = None  # the last COMMAND (seq, perf_counter) until echoed
 
     # ---- lifecycle ----------------------------------------------------------------------------
@@ -150,18 +143,11 @@ class InProcessHardware(HardwareInterface):
         for msg in msgs:
             st.frames_rx += 1
             if isinstance(msg, Sample):
-                st.samples += 1
-                if self._last_index is not None:
-                    st.dropped_samples += max(0, msg.sample_index - self._last_index - 1)
-                self._last_index = msg.sample_index
                 if self._sent is not None and msg.cmd_seq_echo == self._sent[0]:
                     st.latencies_s.append(now - self._sent[1])  # command -> echo: the device's work
                     self._sent = None
-                self.last_sample = msg
-                self._samples.append((now, msg))
-            elif isinstance(msg, Ack):
-                self._acks[(msg.acked_type, msg.acked_seq)] = msg.result
-            elif isinstance(msg, FaultReport):
-                self.faults_reported.append(msg)
+                self._received_sample(now, msg)
+            elif self._received_reply(msg):
+                pass
             elif isinstance(msg, Hello):
                 self.info = dataclasses.replace(msg, **self._hello_overrides)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.protocol import DUTY_FULL, Configure, Hello, Sample
+from rehab_hil.protocol import DUTY_FULL, Ack, Configure, FaultReport, Hello, Sample
 
 __all__ = ["HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "angle_limits_counts",
            "configure_from_config", "duty_units"]
@@ -138,6 +138,32 @@ class HardwareInterface(ABC):
         self.state = LifecycleState.UNCONFIGURED
         self.last_sample_time = 0.0
         self._samples: deque[tuple[float, Sample]] = deque()  # (arrival time, SAMPLE) not yet read
+        self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
+        self.last_sample: Sample | None = None
+        self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result
+        self._last_index: int | None = None  # sample_index of the last SAMPLE (gap accounting)
+
+    def _received_sample(self, now: float, msg: Sample) -> None:
+        """Book one SAMPLE: counted, gaps in sample_index (mod 2^32) counted as dropped, queued."""
+        st = self.stats
+        st.samples += 1
+        if self._last_index is not None:
+            gap = (msg.sample_index - self._last_index - 1) & 0xFFFFFFFF
+            if gap < 0x80000000:
+                st.dropped_samples += gap
+        self._last_index = msg.sample_index
+        self.last_sample = msg
+        self._samples.append((now, msg))
+
+    def _received_reply(self, msg: object) -> bool:
+        """Book an ACK or a FAULT report; False for any other message."""
+        if isinstance(msg, Ack):
+            self._acks[(msg.acked_type, msg.acked_seq)] = msg.result
+        elif isinstance(msg, FaultReport):
+            self.faults_reported.append(msg)
+        else:
+            return False
+        return True
 
     @abstractmethod
     def connect(self, timeout: float = 2.0) -> Hello:

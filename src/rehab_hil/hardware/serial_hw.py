@@ -16,13 +16,11 @@ import serial
 
 from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
-    Ack,
     Clear,
     Command,
     Configure,
     DeviceHeartbeat,
     EStop,
-    FaultReport,
     Frame,
     FrameDecoder,
     Heartbeat,
@@ -53,16 +51,12 @@ class SerialHardware(HardwareInterface):
     def __init__(self, port: str, baud: int = 1_000_000, write_timeout_s: float = 0.2) -> None:
         super().__init__()
         self.port, self.baud, self.write_timeout_s = port, baud, write_timeout_s
-        self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
-        self.last_sample: Sample | None = None
         self._ser: serial.Serial | None = None
         self._decoder = FrameDecoder()
-        self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result
         self._heartbeats: deque[DeviceHeartbeat] = deque(maxlen=16)
         self._hellos: deque[Hello] = deque(maxlen=16)
         self._sent_at: OrderedDict[int, float] = OrderedDict()  # COMMAND seq -> perf_counter
         self._last_echo: int | None = None
-        self._last_index: int | None = None
         self._rx_seq: int | None = None
         self._tx_seq = 0
         self._wlock = threading.Lock()
@@ -249,13 +243,7 @@ class SerialHardware(HardwareInterface):
         st.frames_rx += 1
         self._rx_seq = frame.seq
         if isinstance(msg, Sample):
-            st.samples += 1
             st.device_rx_bad_frames = msg.rx_bad_frames
-            if self._last_index is not None:
-                gap = (msg.sample_index - self._last_index - 1) & 0xFFFFFFFF
-                if gap < 0x80000000:
-                    st.dropped_samples += gap
-            self._last_index = msg.sample_index
             if msg.cmd_seq_echo != self._last_echo:
                 self._last_echo = msg.cmd_seq_echo
                 sent = self._sent_at.get(msg.cmd_seq_echo)
@@ -264,12 +252,9 @@ class SerialHardware(HardwareInterface):
                     while self._sent_at and next(iter(self._sent_at)) != msg.cmd_seq_echo:
                         self._sent_at.popitem(last=False)
                     self._sent_at.popitem(last=False)
-            self.last_sample = msg
-            self._samples.append((now, msg))
-        elif isinstance(msg, Ack):
-            self._acks[(msg.acked_type, msg.acked_seq)] = msg.result
-        elif isinstance(msg, FaultReport):
-            self.faults_reported.append(msg)
+            self._received_sample(now, msg)
+        elif self._received_reply(msg):
+            pass
         elif isinstance(msg, Hello):
             if self.info is not None and frame.seq == 0:  # unsolicited boot HELLO: the device rebooted
                 st.reboots += 1

@@ -167,6 +167,7 @@ class DutyInput:
     channel: int
     scale: float
     signed: bool = False
+    unit: str = ""  # of the plant input (the actuator port's unit)
 
 
 @dataclass(frozen=True)
@@ -223,7 +224,7 @@ class DeviceBinding:
     @property
     def command_interfaces(self) -> tuple[CommandInterface, ...]:
         """What the host commands: each duty-driven plant input."""
-        return tuple(CommandInterface(name, name.rsplit("_", 1)[-1], d.channel, d.scale, d.signed)
+        return tuple(CommandInterface(name, d.unit, d.channel, d.scale, d.signed)
                      for name, d in self.duty_inputs.items())
 
     def state(self, kind: str) -> StateInterface | None:
@@ -312,7 +313,8 @@ class Plant:
         step_s, substeps = cls.step(cfg)
         return DeviceBinding(
             parts=parts,
-            duty_inputs={a.signal: DutyInput(a.duty_channel, a.duty_scale, a.signed) for a in ports.actuators},
+            duty_inputs={a.signal: DutyInput(a.duty_channel, a.duty_scale, a.signed, a.unit)
+                         for a in ports.actuators},
             constant_inputs=dict(ports.constants),
             encoder_signal=enc.wire.signal if enc and enc.wire else None,
             encoder_counts_per_rev=int(enc.counts_per_unit) if enc else 0,
