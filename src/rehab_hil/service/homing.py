@@ -23,11 +23,12 @@ from rehab_hil.hardware.interface import HardwareError, HardwareInterface, duty_
 from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.protocol import Configure, Fault, Sample
 
-__all__ = ["HOME_MODES", "HomingResult", "home", "home_count", "home_current", "home_hard_stop"]
+__all__ = ["BACK_DEG", "HOME_MODES", "HomingResult", "home", "home_count", "home_current", "home_hard_stop"]
 
 HOME_MODES = ("current", "hard-stop", "none")
 HOMING_RATE_HZ = 100  # samples while homing: enough to see a stall, light on a slow link
 WIDE = 1 << 30
+BACK_DEG = 5.0  # range of motion allowed away from the stop while homing [deg]
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,8 @@ def home_hard_stop(hw: HardwareInterface, session: Configure, binding: DeviceBin
     the stop the count of ``stop_deg``.
 
     ``span_deg``: how far the stop can be from the start pose (the joint's whole range); the range
-    of motion allows that much towards the stop and one degree the other way. ``session`` is the
+    of motion allows that much towards the stop and ``BACK_DEG`` the other way (a joint still settling
+    from its last move when homing starts, as a loaded host sees it). ``session`` is the
     session's CONFIGURE: its watchdog, heating time, force limit and e-stop apply while homing."""
     ch = _closing_channel(binding)
     cpr, d = binding.encoder_counts_per_rev, binding.encoder_direction
@@ -94,7 +96,7 @@ def home_hard_stop(hw: HardwareInterface, session: Configure, binding: DeviceBin
     hw.configure(dataclasses.replace(session, sample_rate_hz=HOMING_RATE_HZ, max_duty=0, enc_min=-WIDE,
                                      enc_max=WIDE), timeout=timeout_s)
     c0 = _fresh(hw, timeout_s).encoder_count
-    lo, hi = sorted((-d * span_deg * per_deg, d * 1.0 * per_deg))
+    lo, hi = sorted((-d * span_deg * per_deg, d * BACK_DEG * per_deg))
     window = (c0 + math.floor(lo), c0 + math.ceil(hi))
     hw.configure(dataclasses.replace(session, sample_rate_hz=HOMING_RATE_HZ, max_duty=duty_units(duty),
                                      enc_min=window[0], enc_max=window[1]), timeout=timeout_s)
