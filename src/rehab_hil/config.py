@@ -157,6 +157,8 @@ class RigSection(Section):
     baud: int = Field(ge=9600, le=4_000_000, description="serial baud rate [bit/s]")
     sample_rate_hz: float = Field(gt=0.0, le=2000.0, description="device sample and loop rate [Hz]")
     watchdog_ms: int = Field(ge=5, le=10_000, description="firmware watchdog: PWM off without a command [ms]")
+    write_timeout_ms: int = Field(default=200, ge=1, le=60_000, description="a serial write blocked this long "
+                                  "(the device is not reading) is a lost link [ms]")
     limits: RigLimitsSection
     host: RigHostSection | None = None
     thermal: RigThermalSection | None = None

@@ -130,11 +130,12 @@ def test_hidden_coulomb_friction_behind_the_real_firmware_in_simavr_is_found(tmp
     if reason:
         pytest.skip(reason)
     device = _with_effect(FE, tmp_path / "rig_plant.toml", "coulomb_friction", "level_nm = 0.03")
-    # simavr runs in real time: on a loaded test machine the host may stall for tens of ms, which a
-    # real Uno never sees from its USB host. Wider link budgets keep that from ending the session.
+    # simavr runs in real time: on a loaded test machine the host (or simavr) may stall for tens or
+    # hundreds of ms, which a real Uno never sees. Wider link budgets keep that from ending the session.
     host = tmp_path / "host.toml"
     host.write_text(re.sub(r"(?m)^link_loss_periods = \d+", "link_loss_periods = 500",
-                           re.sub(r"(?m)^watchdog_ms = \d+", "watchdog_ms = 1000", FE.read_text())))
+                           re.sub(r"(?m)^watchdog_ms = \d+", "watchdog_ms = 1000\nwrite_timeout_ms = 2000",
+                                  FE.read_text())))
     run = _session(host, tmp_path / "runs", capsys, device="avr", sim_plant=device)
     meta = json.loads((run / "metadata.json").read_text())
     assert meta["device"]["kind"] == "avr" and meta["firmware"]["version"]

@@ -185,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
     lockstep = args.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
     with ExitStack() as stack:
         try:
-            hw = stack.enter_context(open_rig(device, device_config, lockstep=args.lockstep, baud=cfg.rig.baud))
+            hw = stack.enter_context(open_rig(device, device_config, lockstep=args.lockstep, baud=cfg.rig.baud,
+                                                write_timeout_s=cfg.rig.write_timeout_ms / 1000.0))
             on_configure(binding, hw.info, controller.claims)  # refuse a mismatch before anything moves
         except HardwareError as e:
             raise UserError(f"--device {device}: {e}") from None
