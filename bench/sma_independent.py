@@ -453,7 +453,9 @@ def sma_independent_record(effects: dict[str, dict[str, float]], errors: dict[st
     ``prestrain`` and ``pad_creep`` (``ERRORS``). Unknown names raise ``ValueError``.
     ``start_at_rest``: start from ambient rest at t = 0 and skip the cut (for cross-checks);
     ``sensors=False``: log the true angle and force (no quantisation, noise or clipping);
-    ``duty``: an open-loop duty train at 1 kHz from t = 0 (else a random one; ignored in closed loop)."""
+    ``duty``: an open-loop duty train at 1 kHz from t = 0 (else a random one; ignored in closed loop).
+    With sensors the record is flagged ``rig`` (its force ADC clips at 0 and 1023 counts: the model's
+    contact force goes negative, down to about -0.4 N, while the passive wire holds a cooling bend)."""
     _check(effects, errors)
     cfg = _config()
     rng = np.random.default_rng(seed)
