@@ -4,8 +4,6 @@ of its hidden effects, and the record a rig would log."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
@@ -19,12 +17,8 @@ DUTY_S = 4.0
 
 
 @pytest.fixture(scope="module")
-def gen():
-    spec = importlib.util.spec_from_file_location("bench_sma_independent", ROOT / "bench" / "sma_independent.py")
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def gen(independent_sma):
+    return independent_sma
 
 
 @pytest.fixture(scope="module")
