@@ -10,12 +10,7 @@
    least squares on the first ``WINDOW_S`` of the record, open loop, from the config's rest state.
 
 The candidate effects' discrete states (a delay's FIFO, a backlash's held angle) start at their
-input's value at the start.
-3. An estimated start is a guess fitted with the model under test: on a plant that forgets its
-   start (a wire cools to ambient in seconds) the fits skip the samples until the model has
-   forgotten it (``_memory``), so a start guessed under a wrong model cannot bias a candidate's fit
-   (measured on an SMA record with a hidden driver dead zone: the fitted width went from a third
-   of the true one to the true one). The result says which states were set from which channel and which
+input's value at the start. The result says which states were set from which channel and which
 were estimated; the matched channel-state pairs also give the anchor gain that multiple shooting
 re-anchors with.
 """
@@ -33,13 +28,11 @@ from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
 if TYPE_CHECKING:
     from rehab_hil.discrepancy.replay import Replay
 
-__all__ = ["FORGET_SHARE", "MATCH_SHARE", "MAX_MEMORY_SHARE", "WINDOW_S", "InitialState", "estimate_initial_state"]
+__all__ = ["MATCH_SHARE", "WINDOW_S", "InitialState", "estimate_initial_state"]
 
 MATCH_SHARE = 0.95  # a channel "is" a state when that state carries this share of its sensitivity
 WINDOW_S = 1.5  # nuisance states are fitted on this much of the record's start
 FD_SHARE = 0.05  # finite-difference step: this share of a state's spread over the nominal replay
-FORGET_SHARE = 0.02  # the start is forgotten once a push of the estimated states shows less than this share
-MAX_MEMORY_SHARE = 0.3  # a longer memory than this share of the fit part counts as never forgetting
 
 
 @dataclass
@@ -140,7 +133,6 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
         estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
     _settle_candidates(replay, P, x, xd)
     replay.x0, replay.xd0 = x, xd
-    replay.fit_start = _memory(replay, P, n_train, x, xd, free_x, scales, free_xd) if estimated else 0
     from_data: dict[str, str] = {}
     for c, st in sorted(matched.items()):
         from_data[names[st]] = ", ".join(filter(None, [from_data.get(names[st], ""), replay.channels[c]]))
@@ -148,28 +140,6 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
                        {names[i]: float(s.x0[i]) for i in range(x.size)})
     out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
     return out
-
-
-def _memory(replay: Replay, P: np.ndarray, n_train: int, x: np.ndarray, xd: np.ndarray, free_x: list[int],
-            scales: np.ndarray, free_xd: list[int]) -> int:
-    """Samples until the model forgets its estimated start: the estimated states are pushed by their
-    spread (a memory fraction by a half) and the run compared with the estimate's; the fits start
-    where the difference has fallen below ``FORGET_SHARE`` of its peak for good. A plant that never
-    forgets (an integrator, a martensite fraction no full transformation resets) gets 0: its start
-    is carried through the record (or re-anchored by shooting), and there is nothing to skip."""
-    xp, xdp = x.copy(), xd.copy()
-    xp[free_x] += scales[free_x]
-    xdp[free_xd] = np.where(xdp[free_xd] > 0.5, xdp[free_xd] - 0.5, xdp[free_xd] + 0.5)
-    a = _sim(replay, P, n_train, x.copy(), xd.copy())
-    b = _sim(replay, P, n_train, xp, xdp)
-    d = np.max(np.abs(np.vstack([(b[c] - a[c]) / s for c, s in zip(replay.channels, replay.scale, strict=True)])),
-               axis=0)
-    d = np.nan_to_num(d, nan=np.inf)
-    if not np.isfinite(d).all() or d.max() <= 0.0:
-        return 0
-    above = np.nonzero(d > FORGET_SHARE * d.max())[0]
-    last = int(above[-1]) + 1 if above.size else 0
-    return last if last <= MAX_MEMORY_SHARE * n_train else 0
 
 
 def _settle_candidates(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray) -> None:

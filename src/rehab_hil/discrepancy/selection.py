@@ -6,12 +6,9 @@ copies of each other, and n_eff = n (1 - rho) / (1 + rho) from the lag-1 autocor
 the current model's held-out residual (AR(1) variance inflation). A candidate is chosen only if
 its BIC is lower than the current model's by more than ``MIN_DELTA_BIC`` (very strong evidence on
 the Kass-Raftery scale) AND it cuts the held-out RMS error of some channel by at least
-``MIN_IMPROVEMENT`` and by more than that channel's resolution (per channel, so that sensor noise
-on another channel cannot hide a real gain, and a statistically detectable but practically
-negligible gain is not reported). The resolution is ``RESOLUTION_FLOOR`` of the spread, or the
-sensor's own sample-to-sample scatter when that is finer (``resolution_floors``): a fine encoder
-resolves a cut of a tenth of a degree that is below half a percent of a 60 deg motion.
-Candidates are ranked significant first, then by BIC.
+``MIN_IMPROVEMENT`` and by more than ``RESOLUTION_FLOOR`` (per channel, so that sensor noise on
+another channel cannot hide a real gain, and a statistically detectable but practically
+negligible gain is not reported). Candidates are ranked significant first, then by BIC.
 """
 
 from __future__ import annotations
@@ -20,10 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rehab_hil.discrepancy.verdict import noise_floor
-
 __all__ = ["MIN_DELTA_BIC", "MIN_IMPROVEMENT", "RESOLUTION_FLOOR", "Score", "bic", "effective_fraction", "improvement",
-           "is_significant", "resolution_floors"]
+           "is_significant"]
 
 MIN_DELTA_BIC = 10.0
 MIN_IMPROVEMENT = 0.15  # relative cut of a channel's held-out RMS error
@@ -67,24 +62,14 @@ def bic(residual: np.ndarray, n_params: int, fraction: float) -> Score:
     return Score(float(np.sqrt(rss / n)), per, float(value), n_params)
 
 
-def resolution_floors(measured: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Per channel (rows of ``measured``), the smallest cut of the scaled RMS error that counts:
-    ``RESOLUTION_FLOOR`` or the channel's sample-to-sample scatter (``verdict.noise_floor``,
-    quantisation included) over its scale, whichever is finer."""
-    m = np.atleast_2d(np.asarray(measured, float))
-    return np.array([min(RESOLUTION_FLOOR, noise_floor(row) / float(s)) for row, s in zip(m, scale, strict=True)])
-
-
-def improvement(candidate: Score, current: Score, floors: np.ndarray | None = None) -> float:
+def improvement(candidate: Score, current: Score) -> float:
     """Largest relative cut of a channel's held-out RMS error; a channel counts only if the cut
-    itself exceeds its resolution floor (``RESOLUTION_FLOOR`` unless ``floors`` says; 0 when none does)."""
-    fl = np.full(len(current.channel_rms), RESOLUTION_FLOOR) if floors is None else floors
-    cuts = [1.0 - c / b for c, b, f in zip(candidate.channel_rms, current.channel_rms, fl, strict=True)
-            if b - c > f]
+    itself exceeds the resolution floor (0 when none does)."""
+    cuts = [1.0 - c / b for c, b in zip(candidate.channel_rms, current.channel_rms, strict=True)
+            if b - c > RESOLUTION_FLOOR]
     return max(cuts, default=0.0)
 
 
-def is_significant(candidate: Score, current: Score, floors: np.ndarray | None = None) -> bool:
+def is_significant(candidate: Score, current: Score) -> bool:
     """Is the candidate significantly better than the current model (see module docstring)?"""
-    return (candidate.bic < current.bic - MIN_DELTA_BIC
-            and improvement(candidate, current, floors) >= MIN_IMPROVEMENT)
+    return candidate.bic < current.bic - MIN_DELTA_BIC and improvement(candidate, current) >= MIN_IMPROVEMENT

@@ -31,7 +31,7 @@ from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.parameters import parameter_terms
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
-from rehab_hil.discrepancy.selection import bic, effective_fraction, improvement, is_significant, resolution_floors
+from rehab_hil.discrepancy.selection import bic, effective_fraction, improvement, is_significant
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, unexplained_channels
 from rehab_hil.effects import EFFECTS
@@ -92,7 +92,6 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     if options.parameters:
         terms += [parameter_term(p) for p in parameter_terms(replay)]
     descriptions = {e.name: e.description for e in EFFECTS.values()}
-    floors = resolution_floors(np.vstack([replay.measured[c][:n_train] for c in replay.channels]), replay.scale)
     P, current, n_params = P0, nominal, 0
     chosen_terms: list[Term] = []
     chosen: list[Fit] = []
@@ -110,8 +109,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             fit = fit_term(replay, P, term, n_train, progress.advance, seeds)
             sim = replay.simulate(fit.P)
             sc = _score(replay, sim, hold, n_params + len(term.params), frac)
-            sig = is_significant(sc, base, floors) and term.relevant(fit.params)
-            cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base, floors), sig, sim))
+            sig = is_significant(sc, base) and term.relevant(fit.params)
+            cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim))
         if chosen_terms:  # the best few again, refitted jointly with the chosen terms
             cands.sort(key=lambda c: c.score.bic)
             for i, c in enumerate(cands[:JOINT_CANDIDATES]):
@@ -124,8 +123,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
                 if sc.bic < c.score.bic:
                     fit = fits[-1]
                     fit.start = c.fit.start
-                    sig = is_significant(sc, base, floors) and term.relevant(fit.params)
-                    cands[i] = Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base, floors), sig, sim)
+                    sig = is_significant(sc, base) and term.relevant(fit.params)
+                    cands[i] = Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim)
                     joint[fit.effect] = fits
         cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
         pick = cands[0] if cands and cands[0].significant else None
@@ -153,15 +152,6 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         else:
             chosen = [pick.fit]
         P = chosen[-1].P
-        initial = estimate_initial_state(replay, P, n_train)  # the start state under the augmented model
-        if options.mode == "auto":  # drift may dominate once the largest discrepancy is explained
-            replay.mode = choose_mode(replay, P, n_train)[0]
-        # the chosen terms were fitted from the previous start state (the nominal model's, in the
-        # first round: a supply 8 % low makes it estimate a cold wire): refit them from the new one,
-        # or the next round sees a residual the chosen terms would have explained
-        progress.start(f"round {len(rounds)}: refit of the chosen terms from the new start state", None)
-        chosen = fit_joint(replay, P0, chosen_terms, [f.params for f in chosen], n_train, progress.advance)
-        P = chosen[-1].P
         keep = [i for i, (t, f) in enumerate(zip(chosen_terms, chosen, strict=True)) if t.relevant(f.params)]
         if len(keep) < len(chosen):  # the joint refit switched a term off: it is not part of the story
             dropped.update(chosen_terms[i].name for i in range(len(chosen)) if i not in keep)
@@ -171,7 +161,9 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
                 P = t.apply(P, f.params)
             for f in chosen:
                 f.P = P
-            initial = estimate_initial_state(replay, P, n_train)
+        estimate_initial_state(replay, P, n_train)  # the start state under the augmented model
+        if options.mode == "auto":  # drift may dominate once the largest discrepancy is explained
+            replay.mode = choose_mode(replay, P, n_train)[0]
         current = replay.simulate(P)
         n_params = sum(len(t.params) for t in chosen_terms)
     for rd in rounds:
