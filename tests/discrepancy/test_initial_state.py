@@ -39,3 +39,32 @@ def test_starting_from_the_data_removes_the_offset_of_the_rest_start(away):
     estimate_initial_state(away, P, n // 2)
     start = np.sqrt(np.mean(away.residual(away.simulate(P, mode="open"))[0] ** 2))
     assert start < 0.5 * rest, (start, rest)
+
+
+def test_the_motor_forgets_its_unmeasured_start_within_milliseconds(away):
+    # the Finger Extensor's estimated states are its speed and nothing else (angle and current are
+    # measured): a push of the speed dies within the mechanical time constant, so the fits skip
+    # only a few milliseconds (the SMA wire's seconds: the test below)
+    estimate_initial_state(away, away.nominal_params(), away.t.size // 2)
+    assert away.t[away.fit_start] < 0.05
+
+
+@pytest.mark.slow
+def test_a_start_guessed_under_the_wrong_model_does_not_bias_the_fit(independent_sma):
+    """An SMA session cut mid-way with a hidden driver dead zone: the start (wire temperature, pad,
+    martensite) is estimated under the nominal model, which lacks the dead zone; the wire forgets it
+    within seconds, and the fits skip those seconds, so the fitted width is the true one."""
+    from rehab_hil.discrepancy.workflow import Options, find_missing_effects
+    from rehab_hil.plants import get_plant, load_config
+
+    from .conftest import ROOT
+
+    cfg = load_config(ROOT / "configs" / "sma_exoskeleton.toml")
+    rec = independent_sma.sma_independent_record({"actuator_dead_zone": {"width_duty": 0.15}}, {}, 604, 20.0, 500.0)
+    replay = Replay.build(get_plant("sma_exoskeleton"), cfg, rec)
+    estimate_initial_state(replay, replay.nominal_params(), round(0.6 * replay.t.size))
+    assert 0.2 < replay.t[replay.fit_start] < 5.0  # a few thermal time constants of the wire
+    res = find_missing_effects(cfg, rec, "dead_zone.csv", options=Options(max_effects=2))
+    assert "actuator_dead_zone" in res.named, res.conclusion
+    width = {f.effect: f.params for f in res.chosen}["actuator_dead_zone"]["width_duty"]
+    assert width == pytest.approx(0.15, rel=0.15), res.conclusion

@@ -18,6 +18,8 @@ def test_noise_floor_and_the_unexplained_threshold():
     t = np.linspace(0, 10, 5000)
     y = 20 * np.sin(t) + rng.normal(0, 0.1, t.size)
     assert noise_floor(y) == pytest.approx(0.1, rel=0.1)
+    fast = 60 * np.sin(10 * t) + rng.normal(0, 0.1, t.size)  # 600 deg/s of motion is not noise
+    assert noise_floor(fast) == pytest.approx(0.1, rel=0.2)
     assert unexplained_channels(["a"], {"a": y}, {"a": 0.2}) == {}  # at the noise: explained
     out = unexplained_channels(["a"], {"a": y}, {"a": 3.0})  # 20 % of the spread: not
     assert out["a"]["rms"] == 3.0 and out["a"]["threshold"] < 3.0

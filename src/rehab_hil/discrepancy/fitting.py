@@ -101,7 +101,7 @@ class _Objective:
         if self.tick:
             self.tick()
         r = self.replay.residual(self.replay.simulate(P, self.n_train, sensed=False),
-                                  slice(0, self.n_train)).ravel()
+                                  slice(self.replay.fit_start, self.n_train)).ravel()
         # a candidate that makes the model diverge is a bad fit, not a crash
         return np.clip(np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP), -BLOWUP, BLOWUP)
 
@@ -141,7 +141,7 @@ def _refine(replay: Replay, base: np.ndarray, terms: list[Term], starts: list[di
 
     sol = least_squares(lambda z: obj(build(z)), z0, bounds=(lo, hi), diff_step=DIFF_STEP,
                         max_nfev=MAX_NFEV + 6 * (len(layout) - 1), xtol=1e-3, ftol=1e-4, x_scale=1.0)
-    se = _stderr(sol.jac, sol.fun, typ, len(obj.replay.channels), obj.n_train)
+    se = _stderr(sol.jac, sol.fun, typ, len(obj.replay.channels), obj.n_train - obj.replay.fit_start)
     P = build(sol.x)
     out, k = [], 0
     for t, s in zip(terms, starts, strict=True):

@@ -10,7 +10,14 @@
    least squares on the first ``WINDOW_S`` of the record, open loop, from the config's rest state.
 
 The candidate effects' discrete states (a delay's FIFO, a backlash's held angle) start at their
-input's value at the start. The result says which states were set from which channel and which
+input's value at the start.
+3. An estimated start is a guess fitted with the model under test: where it differs from the
+   config's rest in a way the model remembers for a while (a session cut mid-way: a hot wire that
+   takes seconds to cool), the fits skip the samples until the runs from the guess and from rest
+   agree (``_memory``), so a start guessed under a wrong model cannot bias a candidate's fit
+   (measured on an SMA record with a hidden driver dead zone: the fitted width went from a third
+   of the true one to the true one); a session from power-up keeps its first heating.
+The result says which states were set from which channel and which
 were estimated; the matched channel-state pairs also give the anchor gain that multiple shooting
 re-anchors with.
 """
@@ -24,15 +31,17 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
+from rehab_hil.discrepancy.verdict import SPREAD_SHARE
 
 if TYPE_CHECKING:
     from rehab_hil.discrepancy.replay import Replay
 
-__all__ = ["MATCH_SHARE", "WINDOW_S", "InitialState", "estimate_initial_state"]
+__all__ = ["MATCH_SHARE", "MAX_MEMORY_SHARE", "WINDOW_S", "InitialState", "estimate_initial_state"]
 
 MATCH_SHARE = 0.95  # a channel "is" a state when that state carries this share of its sensitivity
 WINDOW_S = 1.5  # nuisance states are fitted on this much of the record's start
 FD_SHARE = 0.05  # finite-difference step: this share of a state's spread over the nominal replay
+MAX_MEMORY_SHARE = 0.3  # a longer memory than this share of the fit part counts as never forgetting
 
 
 @dataclass
@@ -133,6 +142,7 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
         estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
     _settle_candidates(replay, P, x, xd)
     replay.x0, replay.xd0 = x, xd
+    replay.fit_start = _memory(replay, P, n_train, x, xd, free_x, free_xd) if estimated else 0
     from_data: dict[str, str] = {}
     for c, st in sorted(matched.items()):
         from_data[names[st]] = ", ".join(filter(None, [from_data.get(names[st], ""), replay.channels[c]]))
@@ -140,6 +150,31 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
                        {names[i]: float(s.x0[i]) for i in range(x.size)})
     out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
     return out
+
+
+def _memory(replay: Replay, P: np.ndarray, n_train: int, x: np.ndarray, xd: np.ndarray, free_x: list[int],
+            free_xd: list[int]) -> int:
+    """Samples the estimated start matters for: the run from it and the run from the config's rest
+    (the estimated states put back) are compared, and the fits start where they agree for good to
+    within what the verdict would call a fit (``verdict.SPREAD_SHARE`` of each channel's spread: a
+    guess 1 C off ambient at a power-up keeps the first heating, which the fit needs). A record
+    that starts at rest (a session from power-up) skips nothing; one cut mid-session (a hot wire)
+    skips the seconds the wire takes to cool. A plant that never forgets (an integrator, a martensite
+    fraction no full transformation resets) skips nothing either: its start is carried through the
+    record (or re-anchored by shooting)."""
+    s = replay.system
+    xr, xdr = x.copy(), xd.copy()
+    xr[free_x] = s.x0[free_x]
+    xdr[free_xd] = s.xd0[free_xd]
+    a = _sim(replay, P, n_train, x.copy(), xd.copy())
+    b = _sim(replay, P, n_train, xr, xdr)
+    d = np.max(np.abs(np.vstack([(b[c] - a[c]) / sc for c, sc in zip(replay.channels, replay.scale, strict=True)])),
+               axis=0)
+    if not np.isfinite(d).all():
+        return 0
+    above = np.nonzero(d > SPREAD_SHARE)[0]
+    last = int(above[-1]) + 1 if above.size else 0
+    return last if last <= MAX_MEMORY_SHARE * n_train else 0
 
 
 def _settle_candidates(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray) -> None:

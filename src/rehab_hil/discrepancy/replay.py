@@ -83,6 +83,7 @@ class Replay:
     mode: str = "open"
     segment_steps: int = 0
     anchor_gain: np.ndarray | None = None  # states x channels: scaled output error -> state correction
+    fit_start: int = 0  # first measured sample the fits use: the start state's memory is over (initial_state)
     # channel -> (offset_counts, counts_per_unit, full-scale counts) of the rig's ADC that measured it:
     # on a rig recording the model is read through the same converter (whole counts, 0..1023: a
     # 10-bit ADC shows neither a negative force nor steps finer than a count), so its quantisation
