@@ -57,3 +57,25 @@ def test_cli_prints_one_line_naming_the_file_for_bad_data(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1 and "bad.csv" in err and "motor_voltage_v" in err
+
+
+def test_a_force_logged_in_whole_adc_counts_is_read_through_the_adc_even_from_a_plain_csv(tmp_path):
+    """A lab's own logger writes a CSV without the rig's metadata: a force column on the Flexiforce's
+    count grid (whole counts, never negative) still came through the 10-bit ADC, so the model is read
+    through it too; a continuous force column (a simulation's) is not."""
+    from rehab_hil.discrepancy.replay import Replay
+    from rehab_hil.interchange import read_csv
+    from rehab_hil.plants import get_plant, load_config
+
+    from .conftest import ROOT
+
+    cfg = load_config(ROOT / "configs" / "sma_exoskeleton.toml")
+    t = np.arange(0.0, 4.0, 0.002)
+    force = np.clip(np.sin(t), 0.0, None) * 2.0
+    per_n = cfg.force_sensor.counts_per_n
+    base = {"pwm_duty": (t % 2.0 < 1.0) * 0.8, "supply_voltage_v": 32.0 + 0 * t, "theta_mcp_deg": 10 * t}
+    for name, f, expect in (("adc.csv", np.round(force * per_n) / per_n, True), ("sim.csv", force, False)):
+        rec = read_csv(write_csv(tmp_path / name, t, {**base, "contact_force_n": f}))
+        assert not rec.rig
+        replay = Replay.build(get_plant("sma_exoskeleton"), cfg, rec)
+        assert ("contact_force_n" in replay.adc_range) is expect, name

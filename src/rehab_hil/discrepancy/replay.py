@@ -21,7 +21,7 @@ from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import CompiledSystem, Diagram
 from rehab_hil.plants.base import Plant, compose, plants
 
-__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "Replay", "check_recording"]
+__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "Replay", "check_recording", "on_adc_grid"]
 
 CANDIDATE_PREFIX = "candidate"
 ADC_FULL_SCALE_COUNTS = 1023  # the Uno's 10-bit ADC (docs/protocol.md)
@@ -111,7 +111,8 @@ class Replay:
         U = system.input_matrix(n, inputs)
         mgrid = np.vstack([np.interp(grid, t, measured[c]) for c in channels])
         adc = {m.signal: (m.offset_counts, m.counts_per_unit, float(ADC_FULL_SCALE_COUNTS)) for m in ports.measured
-               if rec.rig and m.sensor == "adc" and m.signal in channels and m.counts_per_unit > 0}
+               if m.sensor == "adc" and m.signal in channels and m.counts_per_unit > 0
+               and (rec.rig or on_adc_grid(measured[m.signal], m.offset_counts, m.counts_per_unit))}
         for k, c in enumerate(channels):  # a channel resolved in fewer counts than its spread weighs less
             if c in adc:
                 scale[k] = max(scale[k], 1.0 / adc[c][1])
@@ -198,6 +199,15 @@ class Replay:
     def nominal_params(self) -> np.ndarray:
         """The diagram's parameters followed by the input scales (all 1)."""
         return np.concatenate([self.system.params, np.ones(len(self.system.input_names))])
+
+
+def on_adc_grid(y: np.ndarray, offset_counts: float, counts_per_unit: float,
+                full_counts: float = float(ADC_FULL_SCALE_COUNTS)) -> bool:
+    """Was ``y`` read through this ADC calibration? Every value a whole count within the converter's
+    range: a lab's own logger writes a CSV without the rig flag, and its force column still shows
+    neither a negative force nor steps finer than a count."""
+    c = offset_counts + counts_per_unit * np.asarray(y, float)
+    return bool(c.size and np.all(np.abs(c - np.round(c)) < 1e-3) and c.min() > -1e-3 and c.max() < full_counts + 1e-3)
 
 
 def channel_metrics(measured: Sequence[float] | np.ndarray, model: Sequence[float] | np.ndarray) -> dict[str, float]:
