@@ -18,27 +18,21 @@ def fe():
     return get_plant("finger_extensor"), load_config(FE_CONFIG)
 
 
-def _load(name: str, file: str):
-    import importlib.util
-    import sys
-
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / file)
-        assert spec and spec.loader
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        sys.modules[name] = mod
-    return sys.modules[name]
-
-
-@pytest.fixture(scope="session")
-def independent_sma():
-    """The benchmark's independent SMA-exoskeleton simulator (bench/sma_independent.py)."""
-    return _load("bench_sma_independent", "sma_independent.py")
-
-
 @pytest.fixture(scope="session")
 def independent():
     """The benchmark's independent Finger Extensor simulator (bench/discrepancy.py), which shares no
     code with the plant models: records the code under test did not make."""
-    return _load("bench_discrepancy", "discrepancy.py")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_discrepancy", ROOT / "bench" / "discrepancy.py")
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="session")
+def independent_sma(independent):
+    """The benchmark's independent SMA-exoskeleton simulator (bench/sma_independent.py), loaded the
+    way the benchmark loads it."""
+    return independent._independent_sma()
