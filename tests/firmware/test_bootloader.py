@@ -146,7 +146,8 @@ def test_opening_the_port_resets_the_board_into_the_bootloader() -> None:
 def test_bytes_lost_in_the_2_byte_receive_buffer_are_counted_and_the_link_recovers(booted: Harness) -> None:
     """One COMMAND per sample at 1 kHz while streaming: a byte that completes while two are unread
     is lost (the harness counts the overrun); the firmware drops that frame as bad, counts it, and
-    the next frame is applied. simavr 1.6 paces the receive flag from each read, not from each
+    the frames after it are applied (the one right after a frame broken near its end is lost with it).
+    simavr 1.6 paces the receive flag from each read, not from each
     arrival, so a reader late once stays late for the frame: the loss measured here (5-18 % of
     COMMANDs, docs/loop.md) is an upper bound. CONFIGUREs (29 B, stream off) lose nothing since the
     tick interrupt lets the UART's preempt it (before: 2 in 20)."""
@@ -157,20 +158,24 @@ def test_bytes_lost_in_the_2_byte_receive_buffer_are_counted_and_the_link_recove
             hw.configure(config(sample_rate_hz=0))
         assert booted.state()["rx_dropped"] == 0
         hw.configure(config())
-        seq = 0
         for _ in range(500):
-            seq = hw.send_command(Command(1000, 0, 0, 1))
+            hw.send_command(Command(1000, 0, 0, 1))
             assert hw.read_sample(2.0) is not None
-        s = hw.read_sample(2.0)
-        assert s is not None
-        overruns = booted.state()["rx_dropped"]
-        assert s.rx_bad_frames == overruns  # every overrun cost exactly one frame, all counted
-        assert overruns < 0.4 * 500
-        seq = hw.send_command(Command(2000, 0, 0, 1))
-        for _ in range(20):
-            s = hw.read_sample(2.0)
+        # a frame broken near its end waits, incomplete, for more bytes: the next frame completes it
+        # as one bad frame and is lost with it (measured: ~1 run in 10), so the host sends on, as
+        # the loop does every period, and the link recovers within a few frames
+        for _ in range(3):
+            seq = hw.send_command(Command(2000, 0, 0, 1))
+            for _ in range(20):
+                s = hw.read_sample(2.0)
+                if s is not None and s.cmd_seq_echo == seq:
+                    break
             if s is not None and s.cmd_seq_echo == seq:
                 break
         assert s is not None and s.cmd_seq_echo == seq and s.duty0 == 2000
+        # counted once the last broken frame has been closed by the frame after it
+        overruns = booted.state()["rx_dropped"]
+        assert s.rx_bad_frames == overruns  # every overrun cost exactly one frame, all counted
+        assert overruns < 0.4 * 500
     finally:
         hw.close()
