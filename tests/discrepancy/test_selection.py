@@ -35,3 +35,15 @@ def test_a_cut_below_the_data_resolution_does_not_count_as_improvement():
     base = bic(np.vstack([np.full(1000, 1e-3), np.ones(1000)]), 0, 0.5)
     cand = bic(np.vstack([np.full(1000, 1e-5), np.ones(1000)]), 1, 0.5)
     assert improvement(cand, base) == 0.0
+
+
+def test_channel_weights_change_the_bic_but_not_the_channel_errors():
+    """A noisy channel weighed down (``Replay.fit_weight``) counts less in the BIC; its RMS error, which
+    the improvement rule reads, stays in the scaled unit."""
+    r = np.vstack([np.full(1000, 0.01), np.full(1000, 0.3)])
+    plain, weighted = bic(r, 0, 0.5), bic(r, 0, 0.5, weight=np.array([1.0, 0.1]))
+    assert weighted.channel_rms == plain.channel_rms
+    assert weighted.bic < plain.bic
+    better_noisy = bic(r * np.array([[1.0], [0.5]]), 1, 0.5, weight=np.array([1.0, 0.1]))
+    better_sharp = bic(r * np.array([[0.5], [1.0]]), 1, 0.5, weight=np.array([1.0, 0.1]))
+    assert better_noisy.bic < weighted.bic and better_sharp.bic < weighted.bic

@@ -29,6 +29,10 @@ def test_aliases_within_the_margin_and_the_suggested_experiment():
     assert is_alias(-500.0, -495.0, 1.0, 1.5)  # BIC within the margin
     assert is_alias(-500.0, -300.0, 1.0, 1.05)  # same error where it matters
     assert not is_alias(-500.0, -300.0, 1.0, 2.0)
+    # the fit part prefers the one the held-out part ranks second: the record's halves disagree
+    assert is_alias(-500.0, -300.0, 1.0, 2.0, train_a=0.35, train_b=0.33)
+    assert not is_alias(-500.0, -300.0, 1.0, 2.0, train_a=0.33, train_b=0.35)
+    assert "the fit part prefers b" in Alias(1, "a", "b", 118.0, "x", split=True).sentence()
     assert "slow ramp through the contact angle" in experiment("passive_muscle", "contact_spring_damper", {})
     assert "a" in experiment("a", "b", {"a": "thing a", "b": "thing b"})
 

@@ -101,7 +101,7 @@ class _Objective:
         if self.tick:
             self.tick()
         r = self.replay.residual(self.replay.simulate(P, self.n_train, sensed=False),
-                                  slice(self.replay.fit_start, self.n_train)).ravel()
+                                  slice(self.replay.fit_start, self.n_train), weighted=True).ravel()
         # a candidate that makes the model diverge is a bad fit, not a crash
         return np.clip(np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP), -BLOWUP, BLOWUP)
 

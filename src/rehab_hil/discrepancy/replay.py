@@ -15,18 +15,21 @@ from typing import Any
 
 import numpy as np
 
+from rehab_hil.discrepancy.verdict import noise_floor
 from rehab_hil.effects import Effect, applicable, attach
 from rehab_hil.interchange import CsvError, Recording
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import CompiledSystem, Diagram
 from rehab_hil.plants.base import Plant, compose, plants
 
-__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "Replay", "check_recording", "on_adc_grid"]
+__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "NOISY_SPREAD", "Replay", "check_recording",
+           "on_adc_grid"]
 
 CANDIDATE_PREFIX = "candidate"
 ADC_FULL_SCALE_COUNTS = 1023  # the Uno's 10-bit ADC (docs/protocol.md)
 MIN_DURATION_S = 2.0  # shorter records cannot be split into a fit part and a held-out part
 MIN_SAMPLES = 100
+NOISY_SPREAD = 10.0  # a channel whose spread is under this many noise floors weighs less in the fits
 
 
 def check_recording(spec: type[Plant], rec: Recording, path: str | Path) -> list[str]:
@@ -89,6 +92,13 @@ class Replay:
     # 10-bit ADC shows neither a negative force nor steps finer than a count), so its quantisation
     # and clipping are not mistaken for a missing effect
     adc_range: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    # per channel, what the fits and the BIC weigh the scaled residual by: 1, or less for a channel whose
+    # noise floor is more than 1/NOISY_SPREAD of its spread (the residual is divided by ten noise
+    # floors instead). A force of a few ADC counts with a count's scatter would otherwise weigh as
+    # much as an encoder angle 300 times sharper: a hidden 15 % Flexiforce gain bent a fitted driver
+    # dead zone 4 % (an independent SMA record). Weighing every channel by its noise alone silences
+    # a motor current with 0.01 A noise, which tells a 13 ms delay from a larger rotor inertia.
+    fit_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
 
     @classmethod
     def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>") -> Replay:
@@ -116,8 +126,9 @@ class Replay:
         for k, c in enumerate(channels):  # a channel resolved in fewer counts than its spread weighs less
             if c in adc:
                 scale[k] = max(scale[k], 1.0 / adc[c][1])
+        weight = scale / np.maximum(scale, NOISY_SPREAD * np.array([noise_floor(measured[c]) for c in channels]))
         return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx,
-                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc)
+                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc, fit_weight=weight)
 
     @property
     def n_steps(self) -> int:
@@ -179,22 +190,27 @@ class Replay:
 
     def simulate(self, P: np.ndarray, n_meas: int | None = None, mode: str | None = None,
                  sensed: bool = True) -> dict[str, np.ndarray]:
-        """Model outputs at the first ``n_meas`` measured time stamps (all by default); ``sensed``:
-        read through the rig's ADC (``adc_range``: whole counts, clipped), as the data were. Fits use
-        ``sensed=False``: a rounded output is flat between counts and gives a fit no slope."""
+        """Model outputs at the first ``n_meas`` measured time stamps (all by default), read through
+        the rig's ADC (``adc_range``) as the data were: clipped to the converter's range, and with
+        ``sensed`` rounded to whole counts. Fits use ``sensed=False``: a rounded output is flat
+        between counts and gives a fit no slope, but the clip stays (a model force below zero
+        compared with a force ADC's floor is an error no sensor gain or effect should fit: measured
+        on an SMA record, it turned a hidden +15 % Flexiforce gain into a fitted -12 %)."""
         n_meas = self.t.size if n_meas is None else n_meas
         n = self.steps_for(n_meas)
         Y = self.simulate_grid(P, n, mode)
         i, w = self._idx[:n_meas], self._w[:n_meas]
         out = {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(self.channels)}
-        for c, (offset, per_unit, full) in self.adc_range.items() if sensed else ():
-            out[c] = (np.clip(np.round(offset + per_unit * out[c]), 0.0, full) - offset) / per_unit
+        for c, (offset, per_unit, full) in self.adc_range.items():
+            counts = offset + per_unit * out[c]
+            out[c] = (np.clip(np.round(counts) if sensed else counts, 0.0, full) - offset) / per_unit
         return out
 
-    def residual(self, sim: Mapping[str, np.ndarray], sl: slice = slice(None)) -> np.ndarray:
-        """Scaled residual (model - measured) / scale, shape (channels, samples)."""
-        return np.vstack([(sim[c][sl] - self.measured[c][sl]) / s
-                          for c, s in zip(self.channels, self.scale, strict=True)])
+    def residual(self, sim: Mapping[str, np.ndarray], sl: slice = slice(None), weighted: bool = False) -> np.ndarray:
+        """Scaled residual (model - measured) / scale, shape (channels, samples); ``weighted``: times
+        ``fit_weight`` (what the fits minimise)."""
+        r = np.vstack([(sim[c][sl] - self.measured[c][sl]) / s for c, s in zip(self.channels, self.scale, strict=True)])
+        return r * self.fit_weight[:, None] if weighted else r
 
     def nominal_params(self) -> np.ndarray:
         """The diagram's parameters followed by the input scales (all 1)."""

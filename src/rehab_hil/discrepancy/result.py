@@ -45,11 +45,13 @@ class Alias:
     other: str
     delta_bic: float
     experiment: str
+    split: bool = False  # the fit part preferred ``other``, the held-out part ``chosen``
 
     def sentence(self) -> str:
-        return (f"{self.chosen} and {self.other} explain the residual about equally (held-out scores within the "
-                f"alias margin, delta BIC {self.delta_bic:+.1f}): not distinguishable from this record; to tell "
-                f"them apart: {self.experiment}")
+        why = ("the fit part prefers " + self.other if self.split
+               else "held-out scores within the alias margin") + f", delta BIC {self.delta_bic:+.1f}"
+        return (f"{self.chosen} and {self.other} explain the residual about equally ({why}): not distinguishable "
+                f"from this record; to tell them apart: {self.experiment}")
 
 
 def parameter_sentence(fit: Fit) -> str:

@@ -50,12 +50,15 @@ class Score:
     n_params: int
 
 
-def bic(residual: np.ndarray, n_params: int, fraction: float) -> Score:
-    """BIC of a held-out scaled residual (channels x samples) with ``n_params`` fitted parameters."""
+def bic(residual: np.ndarray, n_params: int, fraction: float, weight: np.ndarray | None = None) -> Score:
+    """BIC of a held-out scaled residual (channels x samples) with ``n_params`` fitted parameters;
+    ``weight`` (per channel) weighs the channels in the BIC as the fits do (``Replay.fit_weight``),
+    while the per-channel RMS stays in the scaled unit (the improvement and its floor)."""
     r = np.atleast_2d(residual)
     r = np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)  # diverged: very bad
     n = r.size
-    rss = float(np.sum(r**2))
+    rw = r if weight is None else r * np.asarray(weight, float)[:, None]
+    rss = float(np.sum(rw**2))
     n_eff = max(n * fraction, n_params + 2.0)
     value = n_eff * np.log(max(rss, 1e-300) / n) + n_params * np.log(n_eff)
     per = tuple(float(np.sqrt(np.mean(row**2))) for row in r)

@@ -2,7 +2,8 @@
 
 Near-aliases: two significant candidates of a round whose held-out BIC lie within
 ``ALIAS_DELTA_BIC`` of each other, or whose held-out RMS errors on the channel the chosen one cuts
-most differ by less than ``ALIAS_RMS_SHARE`` (relative), explain the residual about equally. The
+most differ by less than ``ALIAS_RMS_SHARE`` (relative), or where the fit part prefers the one the
+held-out part ranks second, explain the residual about equally. The
 verdict names both, says this record cannot tell them apart, and suggests the experiment that
 would (``EXPERIMENTS``; a generic hint otherwise). A nominal parameter within the BIC margin of
 an effect is chosen before it (no new structure when a known one explains the data as well); the
@@ -23,7 +24,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 __all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "experiment",
-           "is_alias", "noise_floor", "unexplained_channels"]
+           "fit_tolerance", "is_alias", "noise_floor", "unexplained_channels"]
 
 ALIAS_DELTA_BIC = 10.0  # the significance margin (selection.MIN_DELTA_BIC): less is not "very strong"
 ALIAS_RMS_SHARE = 0.10  # held-out RMS on the decisive channel within 10 % of each other
@@ -60,10 +61,16 @@ def experiment(a: str, b: str, descriptions: Mapping[str, str]) -> str:
             f"{b}: {descriptions.get(b, b)})")
 
 
-def is_alias(bic_a: float, bic_b: float, rms_a: float, rms_b: float) -> bool:
-    """Do two candidates explain the held-out residual about equally? ``rms_*``: their held-out RMS
-    on the channel the chosen one cuts most."""
-    return abs(bic_a - bic_b) < ALIAS_DELTA_BIC or abs(rms_a - rms_b) <= ALIAS_RMS_SHARE * max(rms_a, rms_b)
+def is_alias(bic_a: float, bic_b: float, rms_a: float, rms_b: float,
+             train_a: float | None = None, train_b: float | None = None) -> bool:
+    """Do two candidates explain the residual about equally? ``rms_*``: their held-out RMS on the
+    channel the chosen one cuts most; ``train_*``: their cost on the fit part. ``a`` (chosen on the
+    held-out part) and ``b`` are also aliases when the fit part prefers ``b``: the record's two halves
+    disagree (an SMA record with a hidden passive muscle: the muscle fitted the first 12 s better, as
+    a steeper exponential, and a contact spring the held-out part, whose bends went further)."""
+    split = train_a is not None and train_b is not None and train_b < train_a
+    return (abs(bic_a - bic_b) < ALIAS_DELTA_BIC or abs(rms_a - rms_b) <= ALIAS_RMS_SHARE * max(rms_a, rms_b)
+            or split)
 
 
 def noise_floor(y: np.ndarray) -> float:
@@ -75,6 +82,13 @@ def noise_floor(y: np.ndarray) -> float:
     return float(np.std(d) / np.sqrt(6.0)) if d.size > 1 else 0.0
 
 
+def fit_tolerance(y: np.ndarray) -> float:
+    """The error that counts as a fit of a measured channel: the larger of ``NOISE_FACTOR`` noise
+    floors and ``SPREAD_SHARE`` of its spread (the unexplained-residual threshold), in its unit."""
+    y = np.asarray(y, float)
+    return max(NOISE_FACTOR * noise_floor(y), SPREAD_SHARE * float(np.std(y[np.isfinite(y)])), 1e-12)
+
+
 def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndarray],
                          residual_rms: Mapping[str, float]) -> dict[str, dict[str, float]]:
     """Channels whose held-out RMS error the noise and a small share of the spread cannot account
@@ -83,7 +97,7 @@ def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndar
     for c in channels:
         y = measured[c]
         floor, spread = noise_floor(y), float(np.std(y))
-        thr = max(NOISE_FACTOR * floor, SPREAD_SHARE * spread)
+        thr = fit_tolerance(y)
         if residual_rms[c] > thr:
             out[c] = {"rms": float(residual_rms[c]), "noise_floor": floor, "spread": spread, "threshold": thr}
     return out

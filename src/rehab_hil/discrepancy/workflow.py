@@ -31,7 +31,14 @@ from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.parameters import parameter_terms
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
-from rehab_hil.discrepancy.selection import bic, effective_fraction, improvement, is_significant
+from rehab_hil.discrepancy.selection import (
+    MIN_IMPROVEMENT,
+    RESOLUTION_FLOOR,
+    bic,
+    effective_fraction,
+    improvement,
+    is_significant,
+)
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, unexplained_channels
 from rehab_hil.effects import EFFECTS
@@ -63,7 +70,20 @@ class Options:
 
 
 def _score(replay: Replay, sim: dict[str, np.ndarray], hold: slice, n_params: int, frac: float):
-    return bic(replay.residual(sim, hold), n_params, frac)
+    return bic(replay.residual(sim, hold), n_params, frac, replay.fit_weight)
+
+
+def _relevant(replay: Replay, term: Term, fit: Fit, sim: dict[str, np.ndarray], hold: slice, base) -> bool:
+    """Is a fitted term more than a rounding of "off"? By its magnitude (``Term.relevant``) or, for
+    an effect, by what it does: switched off, some channel's held-out output moves by at least
+    ``MIN_IMPROVEMENT`` of that channel's current error (and more than the resolution floor). A
+    passive muscle fitted as a small scale with a steep shape (0.0005 N m x e^(6.5 q)) gives the
+    torque of the hidden 0.01 N m x e^(2 q) over the motion, though its scale alone looks like "off"."""
+    if term.relevant(fit.params) or term.kind != "effect":
+        return term.relevant(fit.params)
+    off = replay.simulate(term.apply(fit.P, term.off()))
+    moved = np.sqrt(np.mean((replay.residual(sim, hold) - replay.residual(off, hold)) ** 2, axis=1))
+    return any(m >= MIN_IMPROVEMENT * b and m > RESOLUTION_FLOOR for m, b in zip(moved, base.channel_rms, strict=True))
 
 
 def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<data>",
@@ -101,7 +121,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     for _ in range(options.max_effects):
         r_cur = replay.residual(current, hold)
         frac = effective_fraction(r_cur)
-        base = bic(r_cur, n_params, frac)
+        base = bic(r_cur, n_params, frac, replay.fit_weight)
         cands: list[Candidate] = []
         joint: dict[str, list[Fit]] = {}  # candidate -> its joint fit with the chosen terms
         for term in [t for t in terms if t.name not in {c.name for c in chosen_terms} | dropped]:
@@ -109,7 +129,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             fit = fit_term(replay, P, term, n_train, progress.advance, seeds)
             sim = replay.simulate(fit.P)
             sc = _score(replay, sim, hold, n_params + len(term.params), frac)
-            sig = is_significant(sc, base) and term.relevant(fit.params)
+            sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base)
             cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim))
         if chosen_terms:  # the best few again, refitted jointly with the chosen terms
             cands.sort(key=lambda c: c.score.bic)
@@ -123,7 +143,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
                 if sc.bic < c.score.bic:
                     fit = fits[-1]
                     fit.start = c.fit.start
-                    sig = is_significant(sc, base) and term.relevant(fit.params)
+                    sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base)
                     cands[i] = Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim)
                     joint[fit.effect] = fits
         cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
@@ -131,14 +151,16 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         if pick is not None:
             j = int(np.argmax(np.array(base.channel_rms) - np.array(pick.score.channel_rms)))
             near = [c for c in cands[1:] if c.significant
-                    and is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])]
+                    and is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j],
+                                 pick.fit.train_cost, c.fit.train_cost)]
             param = next((c for c in near if c.fit.kind == "parameter"
                           and abs(c.score.bic - pick.score.bic) < ALIAS_DELTA_BIC), None)
             if pick.fit.kind == "effect" and param is not None:  # a known parameter before new structure
                 pick, near = param, [pick, *[c for c in near if c is not param]]
             for c in near:
+                split = not is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])
                 aliases.append(Alias(len(rounds) + 1, pick.fit.effect, c.fit.effect, c.score.bic - pick.score.bic,
-                                     experiment(pick.fit.effect, c.fit.effect, descriptions)))
+                                     experiment(pick.fit.effect, c.fit.effect, descriptions), split))
         rounds.append(Round(base, cands, pick.fit.effect if pick else None))
         if pick is None:
             break
@@ -153,7 +175,10 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         progress.start(f"round {len(rounds)}: joint refit of the chosen terms from the new start state", None)
         chosen = fit_joint(replay, P0, chosen_terms, [f.params for f in chosen], n_train, progress.advance)
         P = chosen[-1].P
-        keep = [i for i, (t, f) in enumerate(zip(chosen_terms, chosen, strict=True)) if t.relevant(f.params)]
+        sim_joint = replay.simulate(P)
+        now = _score(replay, sim_joint, hold, 0, frac)
+        keep = [i for i, (t, f) in enumerate(zip(chosen_terms, chosen, strict=True))
+                if _relevant(replay, t, f, sim_joint, hold, now)]
         if len(keep) < len(chosen):  # the joint refit switched a term off: it is not part of the story
             dropped.update(chosen_terms[i].name for i in range(len(chosen)) if i not in keep)
             chosen_terms, chosen = [chosen_terms[i] for i in keep], [chosen[i] for i in keep]
