@@ -162,6 +162,7 @@ class _Relay:
         self.up = Batcher(params.to_host_flush_s, params.to_host_flush_bytes, params.jitter_s, now, rng)
         self.down = Batcher(params.to_device_frame_s, 1 << 30, params.jitter_s, now, rng)
         self.host_open = False
+        self.resetting = 0  # resets sent to the device and not yet acknowledged
         self.silent_until = 0.0
         self.rebooting = False
         self.internal_replies = 0  # replies to our own reboot commands, not forwarded
@@ -190,6 +191,11 @@ class _Relay:
         """DTR went up: the 328P resets into the bootloader; silent until it hands over."""
         self._to_child("reboot external")
         self.internal_replies += 1
+        # bytes the device sent before the reset took effect (a power-up HELLO still in its pty)
+        # are dropped until the device acknowledges the reset: a real 16U2 never delivers them,
+        # since the host had not opened the port (measured: under load a stale HELLO reached the
+        # host before optiboot had run, 2 runs in 6)
+        self.resetting += 1
         self.up.clear()
         self.down.clear()
         self.resets += 1
@@ -230,7 +236,7 @@ class _Relay:
                     self.down.push(now, data)
             if self.dev in readable:
                 data = _read(self.dev)
-                if data and not self.rebooting:
+                if data and not self.rebooting and not self.resetting:
                     self.up.push(now, data)
             if cfd in readable:
                 chunk = os.read(cfd, 4096)
@@ -241,6 +247,10 @@ class _Relay:
                     line, self._child_out = self._child_out.split(b"\n", 1)
                     if self.internal_replies:
                         self.internal_replies -= 1
+                        if self.resetting:
+                            self.resetting -= 1
+                            _read(self.dev)  # what the device sent before the reset
+                            self.up.clear()
                     else:
                         sys.stdout.buffer.write(line + b"\n")
                         sys.stdout.flush()
