@@ -100,6 +100,9 @@ class TestFaultKnobs:
         assert hw.stats.bad_frames.total() - before == 1
         assert hw.stats.dropped_samples - dropped == 1
 
+    # a realtime device starved by a loaded machine serves the stall's ticks late, after it: about
+    # 1 run in 3 under two busy loops; a failure that repeats on rerun is real
+    @pytest.mark.flaky(reruns=2)
     def test_stall_loses_the_samples_of_the_stall(self, rig: tuple[Any, SerialHardware]) -> None:
         device, hw = rig
         dropped = hw.stats.dropped_samples
