@@ -143,6 +143,9 @@ def test_opening_the_port_resets_the_board_into_the_bootloader() -> None:
         h.close()
 
 
+# the firmware in simavr at real rate: starved by a fully loaded make test it failed 1 run in 4 today;
+# a failure that repeats on rerun is real
+@pytest.mark.flaky(reruns=2)
 def test_bytes_lost_in_the_2_byte_receive_buffer_are_counted_and_the_link_recovers(booted: Harness) -> None:
     """One COMMAND per sample at 1 kHz while streaming: a byte that completes while two are unread
     is lost (the harness counts the overrun); the firmware drops that frame as bad, counts it, and
