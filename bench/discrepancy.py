@@ -115,6 +115,12 @@ def _bumps(rng: np.random.Generator, duration_s: float, peak_nm: float) -> Calla
     return torque
 
 
+def _inertias(cfg: dict) -> tuple[float, float]:
+    """(iris disc, rotor reflected through the gear) inertia of the Finger Extensor [kg m^2]."""
+    iris, mot = cfg["iris"], cfg["motor"]
+    return 0.5 * iris["mass_kg"] * iris["radius_m"] ** 2, mot["gear_ratio"] ** 2 * mot["rotor_inertia_kg_m2"]
+
+
 def fe_record(effects: dict[str, dict[str, float]], errors: dict[str, float], seed: int,
               duration_s: float = 30.0, rate_hz: float | None = None) -> Recording:
     """A closed-loop Finger Extensor record from an independent simulator.
@@ -132,8 +138,8 @@ def fe_record(effects: dict[str, dict[str, float]], errors: dict[str, float], se
     rng = np.random.default_rng(seed)
     iris, mot = cfg["iris"], cfg["motor"]
     n2 = mot["gear_ratio"] ** 2
-    J_iris = 0.5 * iris["mass_kg"] * iris["radius_m"] ** 2
-    J = J_iris + n2 * mot["rotor_inertia_kg_m2"] * (1 + errors.get("inertia", 0))  # the rotor's inertia off
+    J_iris, J_rotor = _inertias(cfg)
+    J = J_iris + J_rotor * (1 + errors.get("inertia", 0))  # the rotor's inertia off
     b = iris["viscous_nm_s_per_rad"] + n2 * mot["rotor_viscous_nm_s_per_rad"]
     k = iris["spring_nm_per_rad"] * (1 + errors.get("spring", 0))
     kt = mot["kt_nm_per_a"] * (1 + errors.get("kt", 0))
@@ -446,9 +452,8 @@ def oracle_cut(cfg, rec, case: dict) -> float | None:
             if ("error", err) == without:
                 continue
             if err == "inertia":  # the term scales the total inertia; the generator only the rotor's
-                fe = _toml("finger_extensor")
-                rotor = fe["motor"]["gear_ratio"] ** 2 * fe["motor"]["rotor_inertia_kg_m2"]
-                value = value * rotor / (rotor + 0.5 * fe["iris"]["mass_kg"] * fe["iris"]["radius_m"] ** 2)
+                j_iris, j_rotor = _inertias(_toml("finger_extensor"))
+                value = value * j_rotor / (j_rotor + j_iris)
             P = terms[PARAMETER_ERRORS[err][0]].apply(P, {"error_fraction": value})
         return P
 

@@ -24,7 +24,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 __all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "experiment",
-           "fit_tolerance", "is_alias", "noise_floor", "unexplained_channels"]
+           "is_alias", "noise_floor", "unexplained_channels"]
 
 ALIAS_DELTA_BIC = 10.0  # the significance margin (selection.MIN_DELTA_BIC): less is not "very strong"
 ALIAS_RMS_SHARE = 0.10  # held-out RMS on the decisive channel within 10 % of each other
@@ -82,13 +82,6 @@ def noise_floor(y: np.ndarray) -> float:
     return float(np.std(d) / np.sqrt(6.0)) if d.size > 1 else 0.0
 
 
-def fit_tolerance(y: np.ndarray) -> float:
-    """The error that counts as a fit of a measured channel: the larger of ``NOISE_FACTOR`` noise
-    floors and ``SPREAD_SHARE`` of its spread (the unexplained-residual threshold), in its unit."""
-    y = np.asarray(y, float)
-    return max(NOISE_FACTOR * noise_floor(y), SPREAD_SHARE * float(np.std(y[np.isfinite(y)])), 1e-12)
-
-
 def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndarray],
                          residual_rms: Mapping[str, float]) -> dict[str, dict[str, float]]:
     """Channels whose held-out RMS error the noise and a small share of the spread cannot account
@@ -97,7 +90,7 @@ def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndar
     for c in channels:
         y = measured[c]
         floor, spread = noise_floor(y), float(np.std(y))
-        thr = fit_tolerance(y)
+        thr = max(NOISE_FACTOR * floor, SPREAD_SHARE * spread)
         if residual_rms[c] > thr:
             out[c] = {"rms": float(residual_rms[c]), "noise_floor": floor, "spread": spread, "threshold": thr}
     return out

@@ -79,8 +79,10 @@ def _relevant(replay: Replay, term: Term, fit: Fit, sim: dict[str, np.ndarray], 
     ``MIN_IMPROVEMENT`` of that channel's current error (and more than the resolution floor). A
     passive muscle fitted as a small scale with a steep shape (0.0005 N m x e^(6.5 q)) gives the
     torque of the hidden 0.01 N m x e^(2 q) over the motion, though its scale alone looks like "off"."""
-    if term.relevant(fit.params) or term.kind != "effect":
-        return term.relevant(fit.params)
+    if term.relevant(fit.params):
+        return True
+    if term.kind != "effect":
+        return False
     off = replay.simulate(term.apply(fit.P, term.off()))
     moved = np.sqrt(np.mean((replay.residual(sim, hold) - replay.residual(off, hold)) ** 2, axis=1))
     return any(m >= MIN_IMPROVEMENT * b and m > RESOLUTION_FLOOR for m, b in zip(moved, base.channel_rms, strict=True))
@@ -175,10 +177,10 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         progress.start(f"round {len(rounds)}: joint refit of the chosen terms from the new start state", None)
         chosen = fit_joint(replay, P0, chosen_terms, [f.params for f in chosen], n_train, progress.advance)
         P = chosen[-1].P
-        sim_joint = replay.simulate(P)
-        now = _score(replay, sim_joint, hold, 0, frac)
+        current = replay.simulate(P)
+        now = _score(replay, current, hold, 0, frac)
         keep = [i for i, (t, f) in enumerate(zip(chosen_terms, chosen, strict=True))
-                if _relevant(replay, t, f, sim_joint, hold, now)]
+                if _relevant(replay, t, f, current, hold, now)]
         if len(keep) < len(chosen):  # the joint refit switched a term off: it is not part of the story
             dropped.update(chosen_terms[i].name for i in range(len(chosen)) if i not in keep)
             chosen_terms, chosen = [chosen_terms[i] for i in keep], [chosen[i] for i in keep]
@@ -188,7 +190,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             for f in chosen:
                 f.P = P
             initial = estimate_initial_state(replay, P, n_train)
-        current = replay.simulate(P)
+            current = replay.simulate(P)
         n_params = sum(len(t.params) for t in chosen_terms)
     for rd in rounds:
         for c in rd.candidates:
