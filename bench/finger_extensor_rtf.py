@@ -44,7 +44,8 @@ def main() -> dict:
     for name, (parts, inputs) in cases.items():
         t0 = time.perf_counter()
         # in the closed loop the PID produces motor_voltage_v, so only patient_torque_nm is external
-        system = Diagram(parts, inputs=("motor_voltage_v", "patient_torque_nm")).compile(step_s, substeps)
+        system = Diagram(parts, inputs=("motor_voltage_v", "patient_torque_nm"),
+                         sums=spec.ports(cfg).sums).compile(step_s, substeps)
         system.simulate(10, inputs)
         load_s = time.perf_counter() - t0
         walls = measure(system, n, inputs)

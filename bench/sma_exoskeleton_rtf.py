@@ -34,7 +34,7 @@ def main() -> dict:
     spec = get_plant("sma_exoskeleton")
     step_s, substeps = spec.step(cfg)
     t0 = time.perf_counter()
-    diagram = Diagram(spec.build(cfg), inputs=("pwm_duty", "supply_voltage_v"))
+    diagram = Diagram(spec.build(cfg), inputs=("pwm_duty", "supply_voltage_v"), sums=spec.ports(cfg).sums)
     system = diagram.compile(step_s, substeps)
     system.simulate(10, {"pwm_duty": 1.0, "supply_voltage_v": 32.0})
     load_s = time.perf_counter() - t0

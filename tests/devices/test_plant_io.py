@@ -63,6 +63,7 @@ def test_noise_is_seeded_and_reproducible(binding: Any) -> None:
 @pytest.mark.parametrize(("change", "match"), [
     (dict(step_s=0.0003), "divide"),
     (dict(constant_inputs={}), "patient_torque_nm"),
+    (dict(sums=()), "signal 'drive_torque_nm' is produced by parts 'motor', 'rotor_viscous'"),  # sums dropped
 ])
 def test_a_binding_that_cannot_run_on_the_device_is_refused(binding: Any, change: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):

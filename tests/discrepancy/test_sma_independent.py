@@ -7,9 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rehab_hil.models.system import Diagram
 from rehab_hil.plants import get_plant, load_config
-from rehab_hil.plants.base import compose
 
 from .conftest import ROOT
 
@@ -44,7 +42,7 @@ def test_clean_record_matches_the_project_model_from_rest(clean, duty):
     0.0018 N RMS over a 38 deg, 0.7 N bend (below one encoder count, 0.088 deg, and the force noise)."""
     cfg = load_config(ROOT / "configs" / "sma_exoskeleton.toml")
     spec = get_plant("sma_exoskeleton")
-    system = Diagram(compose(spec, cfg), inputs=spec.external_inputs(cfg)).compile(*spec.step(cfg))
+    system = spec.diagram(cfg).compile(*spec.step(cfg))
     res = system.simulate(duty.size, {"pwm_duty": duty, "supply_voltage_v": cfg.drive.supply_voltage_v},
                           outputs=["theta_mcp_deg", "contact_force_n"])
     assert res["theta_mcp_deg"].max() > 35.0  # the comparison covers the whole transformation

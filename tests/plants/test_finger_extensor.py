@@ -24,7 +24,7 @@ def cfg():
 
 @pytest.fixture(scope="module")
 def plant(cfg):
-    d = Diagram(fe.build(cfg), inputs=fe.INPUTS)
+    d = Diagram(fe.build(cfg), inputs=fe.INPUTS, sums=fe.ports(cfg).sums)
     return d, d.compile(cfg.simulation.step_s, cfg.simulation.substeps)
 
 

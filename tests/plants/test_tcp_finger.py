@@ -34,7 +34,7 @@ def cfg():
 
 @pytest.fixture(scope="module")
 def plant(cfg):
-    diagram = Diagram(build(cfg), inputs=TcpFinger.inputs)
+    diagram = Diagram(build(cfg), inputs=TcpFinger.inputs, sums=TcpFinger.ports(cfg).sums)
     return diagram, diagram.compile(cfg.simulation.step_s, cfg.simulation.substeps)
 
 
@@ -118,7 +118,7 @@ def test_device_binding_maps_pwm_duty_to_power_and_reads_mcp_and_force(cfg):
     assert not b.duty_inputs["power_w"].signed
     assert b.encoder_signal == "theta_mcp_rad"
     assert b.adc[0].signal == "tcp_force_n"
-    produced = Diagram(b.parts, inputs=TcpFinger.inputs).signal_names
+    produced = Diagram(b.parts, inputs=TcpFinger.inputs, sums=b.sums).signal_names
     assert "theta_mcp_rad" in produced and "tcp_force_n" in produced
 
 

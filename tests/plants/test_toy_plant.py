@@ -84,6 +84,7 @@ def _ports(cfg: ToyConfig) -> Ports:
                        stick_damping_nm_s_per_rad=0.01),),
         measured=(MeasuredPort("rotor_angle_deg", "angle", "deg", "encoder",
                                Wire("rotor_angle_rad", (("deg", "u"),)), counts_per_unit=cfg.encoder.counts_per_rev),),
+        sums=("rotor_torque_nm",),  # the drive and the damping
     )
 
 

@@ -45,7 +45,7 @@ _SIGNALS = [*sx.OUTPUTS, "theta_mcp_rad", "theta_pip_rad", "theta_dip_rad", "mar
 
 
 def compile_plant(cfg: sx.SMAExoskeletonConfig) -> CompiledSystem:
-    diagram = Diagram(sx.build(cfg), inputs=("pwm_duty", "supply_voltage_v"))
+    diagram = Diagram(sx.build(cfg), inputs=("pwm_duty", "supply_voltage_v"), sums=sx.ports(cfg).sums)
     return diagram.compile(cfg.simulation.step_s, cfg.simulation.substeps)
 
 

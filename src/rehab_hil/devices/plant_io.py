@@ -36,7 +36,8 @@ class PlantIO:
             raise ValueError(f"the device has 2 ADC inputs, the binding asks for {len(binding.adc)}")
         self.binding = binding
         inputs = (*binding.duty_inputs, *binding.constant_inputs)
-        self.system = Diagram(binding.parts, inputs=inputs).compile(binding.step_s, binding.substeps)
+        self.system = Diagram(binding.parts, inputs=inputs, sums=binding.sums).compile(binding.step_s,
+                                                                                       binding.substeps)
         names = self.system.input_names
         known = set(binding.duty_inputs) | set(binding.constant_inputs)
         missing = [n for n in names if n not in known]

@@ -108,7 +108,7 @@ class Replay:
         candidates = applicable(ports)
         parts = attach(spec.name, ports, step_s, compose(spec, cfg), [(e.name, e.disabled()) for e in candidates],
                        prefix=CANDIDATE_PREFIX)
-        system = Diagram(parts, inputs=spec.external_inputs(cfg)).compile(step_s, substeps)
+        system = Diagram(parts, inputs=spec.external_inputs(cfg), sums=ports.sums).compile(step_s, substeps)
         t = rec.t - rec.t[0]
         n = int(np.floor(t[-1] / step_s + 1e-9)) + 2
         grid = np.arange(n) * step_s

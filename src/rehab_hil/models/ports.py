@@ -2,10 +2,11 @@
 
 A plant declares its ports once (``Plant.ports(cfg)``): the actuator input(s), the joint axes
 (angle, velocity, the signal its torques are summed on), the measured signals with their sensor,
-heat inputs and the temperature an SMA's material law sees, and the inputs the config holds
-constant. Effects name the port kind they need (``rehab_hil.effects``), the rig binding is derived
-from the actuator and measured ports, and the discrepancy workflow reads the measured kinds:
-nothing outside the plant module needs its part or signal names.
+heat inputs and the temperature an SMA's material law sees, the inputs the config holds
+constant, and the signals several of its parts sum onto. Effects name the port kind they need
+(``rehab_hil.effects``), the rig binding is derived from the actuator and measured ports, and the
+discrepancy workflow reads the measured kinds: nothing outside the plant module needs its part or
+signal names.
 """
 
 from __future__ import annotations
@@ -114,6 +115,9 @@ class Ports:
     heat: tuple[HeatPort, ...] = ()
     transformation_temperature: tuple[TemperatureWire, ...] = ()
     constants: Mapping[str, float] = field(default_factory=dict)  # inputs the config holds (SI units)
+    # the signals several parts add onto (every joint's torque sum, heat flows): the only signals
+    # the plant's diagram lets have more than one producer (``Diagram(..., sums=...)``)
+    sums: tuple[str, ...] = ()
 
     def of_kind(self, kind: str) -> tuple[object, ...]:
         """The ports of one kind (``PORT_KINDS``), primary first."""

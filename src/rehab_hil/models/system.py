@@ -106,33 +106,44 @@ class Part:
 
 
 class Diagram:
-    """Parts wired by signal name; signals with one name from several parts are summed.
+    """Parts wired by signal name; a signal declared summable is the sum of all its producers.
 
     ``inputs`` names the signals allowed to come from outside: a part input that no part
     produces must be declared there, so a misspelled signal is an error, not an input of zero.
     The declared inputs that some part reads and no part produces are the diagram's external
     inputs (``input_names``, in order of first use), as Drake refuses an unconnected port.
+
+    ``sums`` names the signals several parts may add onto (the torques on one joint, heat flows,
+    a feedforward plus a feedback effort): a signal produced by two or more parts that is not
+    declared there is refused, naming the parts, so two un-renamed parts never add up silently.
+    A declared sum that no part produces is allowed (an effect may be the one that feeds it).
     """
 
-    def __init__(self, parts: Sequence[Part], inputs: Sequence[str]) -> None:
+    def __init__(self, parts: Sequence[Part], inputs: Sequence[str], *, sums: Sequence[str] = ()) -> None:
         names = [p.name for p in parts]
         dup = {n for n in names if names.count(n) > 1}
         if dup:
             raise DiagramError(f"duplicate part names {sorted(dup)}")
         if isinstance(inputs, str):
             raise DiagramError(f"inputs must be a sequence of signal names, not the string {inputs!r}")
+        if isinstance(sums, str):
+            raise DiagramError(f"sums must be a sequence of signal names, not the string {sums!r}")
         self.parts = list(parts)
         self.declared_inputs: tuple[str, ...] = tuple(inputs)
+        self.sums: tuple[str, ...] = tuple(dict.fromkeys(sums))
         self.producers: dict[str, list[int]] = {}  # signal -> flat output slots
+        owners: dict[str, list[str]] = {}  # signal -> producing part names, one per slot
         spans = []
         xo = xdo = uo = po = slot = 0
         for part in self.parts:
             for i, sname in enumerate(part.signal_names):
                 self.producers.setdefault(sname, []).append(slot + i)
+                owners.setdefault(sname, []).append(part.name)
             ends = (xo + len(part.states), xdo + len(part.discrete_states), uo + len(part.inputs),
                     po + len(part.params), slot + len(part.outputs))
             spans.append(((xo, ends[0]), (xdo, ends[1]), (uo, ends[2]), (po, ends[3]), (slot, ends[4])))
             xo, xdo, uo, po, slot = ends
+        self._check_sums(owners)
         self.n_x, self.n_xd, self.n_w, self.n_p, self.n_sig = xo, xdo, uo, po, slot
         self.input_names: tuple[str, ...] = self._external_inputs()
         self.signal_names: tuple[str, ...] = tuple(self.producers)
@@ -160,6 +171,20 @@ class Diagram:
             n_x=self.n_x, n_xd=self.n_xd, n_w=self.n_w, n_p=self.n_p, n_sig=self.n_sig,
             kernel_modules=tuple(sorted(modules | {__name__})),
         )
+
+    def _check_sums(self, owners: Mapping[str, Sequence[str]]) -> None:
+        """Refuse a signal with several producers unless it is declared summable."""
+        for sname, parts in owners.items():
+            if len(parts) < 2 or sname in self.sums:
+                continue
+            distinct = list(dict.fromkeys(parts))
+            if len(distinct) == 1:
+                who = f"{len(parts)} outputs of part {distinct[0]!r}"
+            else:
+                quoted = [repr(p) for p in distinct]
+                who = f"parts {', '.join(quoted[:-1])} and {quoted[-1]}"
+            raise DiagramError(f"signal {sname!r} is produced by {who}; only signals declared summable "
+                               f"(sums=...) may have several producers")
 
     def _external_inputs(self) -> tuple[str, ...]:
         """Unproduced signals the parts read, in order of first use; undeclared ones are refused."""

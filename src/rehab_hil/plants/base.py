@@ -13,7 +13,7 @@ from __future__ import annotations
 import difflib
 import importlib
 import pkgutil
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal
@@ -53,7 +53,8 @@ __all__ = [
 @dataclass
 class Scenario:
     """A closed- or open-loop experiment: extra parts (reference, controller), external input
-    arrays per step, and a function that turns the result into metrics."""
+    arrays per step, the signals its parts sum onto beyond the plant's (a feedforward plus a
+    feedback effort), and a function that turns the result into metrics."""
 
     name: str
     n_steps: int
@@ -61,6 +62,7 @@ class Scenario:
     inputs: Mapping[str, float | np.ndarray] = field(default_factory=dict)
     extra_outputs: tuple[str, ...] = ()
     metrics: Callable[[SimulationResult], dict[str, float]] | None = None
+    sums: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -209,6 +211,7 @@ class DeviceBinding:
     plant: str = ""
     angle_output: str = ""  # the model's output for the encoder angle in degrees (the recorded column)
     encoder_direction: int = 1  # +1: counts rise with the angle; -1: the encoder counts the other way
+    sums: tuple[str, ...] = ()  # the plant's summable signals (``Ports.sums``), for its diagram
 
     def __post_init__(self) -> None:
         if not self.encoder_source and self.encoder_signal:
@@ -244,7 +247,7 @@ _REGISTRY: dict[str, type[Plant]] = {}
 
 class Plant:
     """One plant: its schema, parts, ports, signals and scenarios. Subclasses that set ``name``
-    register themselves; ``compose``, ``step`` and ``device`` come from here."""
+    register themselves; ``compose``, ``diagram``, ``step`` and ``device`` come from here."""
 
     name: ClassVar[str]
     config: ClassVar[type[PlantConfig]]
@@ -291,6 +294,15 @@ class Plant:
         return None
 
     @classmethod
+    def diagram(cls, cfg: Any, extra_parts: Sequence[Part] = (), extra_inputs: Iterable[str] = (),
+                extra_sums: Iterable[str] = ()) -> Diagram:
+        """The plant's diagram (``compose``: nominal parts plus the config's effects) with extra parts
+        (a reference, a controller), the plant's external inputs plus ``extra_inputs``, and the
+        plant's summable signals (``Ports.sums``) plus ``extra_sums``."""
+        return Diagram([*compose(cls, cfg), *extra_parts], inputs=(*cls.external_inputs(cfg), *extra_inputs),
+                       sums=(*cls.ports(cfg).sums, *extra_sums))
+
+    @classmethod
     def applicable_effects(cls, cfg: Any) -> list[str]:
         return [e.name for e in applicable(cls.ports(cfg))]
 
@@ -321,6 +333,7 @@ class Plant:
             adc=adc, step_s=step_s, substeps=substeps,
             encoder_source=source(enc) if enc else "", plant=cls.name, angle_output=enc.signal if enc else "",
             encoder_direction=int(getattr(getattr(cfg, "encoder", None), "direction", 1)),
+            sums=ports.sums,
         )
 
 
@@ -389,8 +402,8 @@ def load_config(path: str | Path, expect: str | None = None) -> Any:
 def run_scenario(spec: type[Plant], cfg: Any, scenario: Scenario,
                  extra_parts: list[Part] | None = None) -> SimulationResult:
     """Compile plant + scenario (+ extra effect parts) and simulate; records CSV signals."""
-    diagram = Diagram([*compose(spec, cfg), *(extra_parts or []), *scenario.parts],
-                      inputs=(*spec.external_inputs(cfg), *scenario.inputs))
+    diagram = spec.diagram(cfg, [*(extra_parts or []), *scenario.parts], extra_inputs=scenario.inputs,
+                           extra_sums=scenario.sums)
     step_s, substeps = spec.step(cfg)
     system = diagram.compile(step_s, substeps)
     record = [*spec.inputs, *spec.outputs, *scenario.extra_outputs]

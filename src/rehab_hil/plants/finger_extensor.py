@@ -277,6 +277,7 @@ def ports(cfg: FingerExtensorConfig) -> Ports:
             MeasuredPort("motor_current_a", "current", "a"),
         ),
         constants={"patient_torque_nm": 0.0},
+        sums=("drive_torque_nm",),  # motor, both viscous frictions, spring, patient (and a closed stop)
     )
 
 

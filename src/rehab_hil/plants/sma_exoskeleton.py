@@ -381,6 +381,7 @@ def ports(cfg: SMAExoskeletonConfig) -> Ports:
         transformation_temperature=(TemperatureWire(Wire("sma_temperature_c", (("sma_active", "temperature_c"),)),
                                                     cfg.sma.ambient_c),),
         constants={"supply_voltage_v": cfg.drive.supply_voltage_v},
+        sums=tuple(f"tau_{j}_nm" for j in JOINTS),  # each joint: contact, passive muscle, damping
     )
 
 

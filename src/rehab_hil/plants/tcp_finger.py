@@ -326,7 +326,7 @@ def sensitivity(cfg: TcpFingerConfig, power_w: float | None = None,
     power = cfg.sensitivity.power_w if power_w is None else power_w
     factors = list(cfg.sensitivity.factors if factors is None else factors)
     sc = pulse_scenario(cfg, power_w=power)
-    diagram = Diagram(build(cfg), inputs=INPUTS)
+    diagram = Diagram(build(cfg), inputs=INPUTS, sums=ports(cfg).sums)
     system = diagram.compile(cfg.simulation.step_s, cfg.simulation.substeps)
     outputs = [f"theta_{j}_deg" for j in JOINTS]
     inputs = {k: v for k, v in sc.inputs.items() if k in system.input_names}
@@ -384,6 +384,7 @@ def ports(cfg: TcpFingerConfig) -> Ports:
         ),
         heat=(HeatPort("tcp_temperature_c", heat_in, m.ambient_c),),
         constants={"measured_force_n": 0.0},
+        sums=tuple(f"tau{i}_nm" for i in range(1, len(JOINTS) + 1)),  # each joint: tendon, spring, damping
     )
 
 
