@@ -9,7 +9,7 @@ import pytest
 
 from rehab_hil.effects import EFFECTS, applicable, attach, check_spec, parse_effect_option
 from rehab_hil.models.effect_parts import DELAY_SLOTS, Backlash, ContactSpringDamper, TransportDelay
-from rehab_hil.models.system import DiagramError
+from rehab_hil.models.system import Diagram, DiagramError
 from rehab_hil.plants import base, get_plant, load_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -72,6 +72,48 @@ def test_attach_inserts_a_delay_on_the_motor_input_and_sums_friction_into_the_ir
     assert by["motor"].connections["voltage_v"] == [("effect_time_delay_y", 1.0)]
     assert by["effect_time_delay"].connections["u"] == [("motor_voltage_v", 1.0)]
     assert ("effect_coulomb_friction_torque_nm", 1.0) in by["iris"].connections["torque_nm"]
+
+
+def _wiring(parts) -> list:
+    """Each part's name, published signals and input wiring, as plain values (a snapshot)."""
+    return [(p.name, tuple(p.signal_names), {port: list(terms) for port, terms in p.connections.items()},
+             p.param_values.copy().tolist()) for p in parts]
+
+
+REWIRING = {  # effects that insert on a wire, sum into a port, take a name over or add onto an axis
+    "finger_extensor": [("time_delay", {"delay_s": 0.01}), ("backlash", {"width_rad": 0.02}),
+                        ("coulomb_friction", {"level_nm": 0.02}), ("viscous_friction", {}),
+                        ("sensor_gain_offset", {"gain_error_fraction": 0.1})],
+    "sma_exoskeleton": [("sensor_gain_offset", {"gain_error_fraction": -0.1}), ("sma_hysteresis", {"width_c": 5.0}),
+                        ("backlash", {"width_rad": 0.02}), ("coulomb_friction", {"level_nm": 0.005})],
+    "tcp_finger": [("time_delay", {"delay_s": 0.01}), ("nonlinear_convection", {}),
+                   ("sensor_gain_offset", {"offset_counts": 5.0}), ("passive_muscle", {})],
+}
+
+
+@pytest.mark.parametrize("plant", sorted(REWIRING))
+def test_attach_leaves_the_callers_parts_and_their_connections_unchanged(plant):
+    spec, cfg = get_plant(plant), load_config(CONFIGS / f"{plant}.toml")
+    nominal = spec.build(cfg)
+    before = _wiring(nominal)
+    parts = attach(spec.name, spec.ports(cfg), cfg.simulation.step_s, nominal, REWIRING[plant])
+    assert _wiring(nominal) == before
+    assert len(parts) == len(nominal) + len(REWIRING[plant])
+    assert _wiring(parts[: len(nominal)]) != before  # the copies were rewired
+    assert not {id(p) for p in parts} & {id(p) for p in nominal}
+
+
+@pytest.mark.parametrize("plant", sorted(REWIRING))
+def test_attaching_twice_to_one_nominal_list_gives_identical_diagrams(plant):
+    spec, cfg = get_plant(plant), load_config(CONFIGS / f"{plant}.toml")
+    nominal = spec.build(cfg)
+    ports = spec.ports(cfg)
+    first, second = (Diagram(attach(spec.name, ports, cfg.simulation.step_s, nominal, REWIRING[plant]),
+                             inputs=spec.external_inputs(cfg), sums=ports.sums) for _ in range(2))
+    assert first.layout == second.layout
+    np.testing.assert_array_equal(first.initial_params(), second.initial_params())
+    for a, b in zip(first.initial_state(), second.initial_state(), strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_attach_refuses_an_effect_that_does_not_apply(fe):

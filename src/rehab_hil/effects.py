@@ -4,14 +4,16 @@ An effect is a model part that attaches to a plant through a typed port (``model
 friction and contact to a joint axis, a delay to the actuator input, backlash to the encoder's
 wire, hysteresis to the temperature an SMA's material law sees, convection to a heat input.
 Which effects apply to a plant is computed from its ports; no plant or part name appears here.
-``attach`` appends effect parts to a plant's parts: used for the ``[[effects]]`` of a config
-(``plants.compose``, every command and the simulated rig) and by the discrepancy workflow, which
-attaches every applicable effect disabled and enables them by editing the parameter vector.
+``attach`` returns a plant's parts with effect parts added (copies: the caller's parts are never
+rewired): used for the ``[[effects]]`` of a config (``plants.compose``, every command and the
+simulated rig) and by the discrepancy workflow, which attaches every applicable effect disabled
+and enables them by editing the parameter vector.
 Parameter bounds live here with the effect (documented in docs/discrepancy.md).
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -296,11 +298,13 @@ def not_applicable_message(name: str, plant: str, ports: Ports) -> str:
 
 def attach(plant: str, ports: Ports, step_s: float, parts: list[Part],
            effects: Sequence[tuple[str, Mapping[str, float]]], prefix: str = "effect") -> list[Part]:
-    """Append one part per (effect name, parameters) to ``parts``, wired onto the plant's ports.
+    """A new part list: copies of ``parts`` plus one part per (effect name, parameters), wired onto
+    the plant's ports. The caller's parts are left as they were (an effect rewires the copies'
+    connections and signal names), so the nominal list can be kept or attached to again.
 
     Parts are named ``<prefix>_<effect>`` (``_<i>`` added for repeats). Raises DiagramError when the
     plant has no port of the kind an effect needs."""
-    parts = list(parts)
+    parts = copy.deepcopy(list(parts))  # parts hold names and numpy arrays; their kernels are class attributes
     by_name = {p.name: p for p in parts}
     used: set[str] = set(by_name)
     # sensor effects take a signal's name over: everything that sums onto it must be in place first

@@ -265,7 +265,7 @@ class Plant:
 
     @staticmethod
     def build(cfg: Any) -> list[Part]:
-        """The nominal plant as parts (a fresh list each call: ``compose`` rewires it)."""
+        """The nominal plant as parts (a fresh list each call)."""
         raise NotImplementedError
 
     @staticmethod
