@@ -3,59 +3,28 @@
 A plant's rig binding declares what the device measures (state interfaces: a model signal, its
 physical kind and SI unit, and the hardware source that carries it) and what the host commands
 (command interfaces: a model input driven by a PWM channel). Controllers claim the interfaces
-they use; ``on_configure`` checks the claims against the binding and the device's HELLO.
+they use; ``on_configure`` checks the claims against the binding and the device's HELLO. The
+interface types themselves live in ``rehab_hil.interfaces`` (no rig imports, so plants can use
+them) and are re-exported here.
 """
 
 from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Protocol
 
 from rehab_hil.hardware.interface import HardwareError
+from rehab_hil.interfaces import Claims, CommandInterface, StateInterface
+from rehab_hil.interfaces import Source as Source  # the Literal aliases stay importable from here
+from rehab_hil.interfaces import StateKind as StateKind
 from rehab_hil.protocol import PROTOCOL_VERSION, Hello
 
 __all__ = ["Binding", "Claims", "CommandInterface", "ContractError", "StateInterface", "on_configure"]
 
-StateKind = Literal["angle", "force", "torque", "temperature"]
-Source = Literal["encoder", "adc0", "adc1"]
-
-
-@dataclass(frozen=True)
-class StateInterface:
-    """A measured quantity: ``name`` is the model signal (SI unit, e.g. ``theta_mcp_rad``), also the
-    recorded column; ``source`` is where the device reads it (encoder counts or an ADC channel)."""
-
-    name: str
-    kind: StateKind
-    unit: str
-    source: Source
-
-
-@dataclass(frozen=True)
-class CommandInterface:
-    """A commanded model input (``motor_voltage_v``, ``pwm_duty``, ``power_w``) driven by PWM
-    ``channel``: value = scale * duty, negated by the direction pin when ``signed`` (an H-bridge)."""
-
-    name: str
-    unit: str
-    channel: int
-    scale: float
-    signed: bool = False
-
 
 class ContractError(HardwareError):
     """The device, the plant's binding and the controllers' claims do not fit together."""
-
-
-@dataclass(frozen=True)
-class Claims:
-    """The interfaces a controller uses, by name: command interfaces it writes, state interfaces
-    it reads. ``on_configure`` refuses a claim the binding does not provide."""
-
-    command: tuple[str, ...] = ()
-    state: tuple[str, ...] = ()
 
 
 class Binding(Protocol):

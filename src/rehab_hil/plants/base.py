@@ -23,7 +23,7 @@ import numpy as np
 from rehab_hil.config import ConfigError, Field, RigSection, Section, SimulationSection, load_toml, model_validator
 from rehab_hil.config import validate as validate_config
 from rehab_hil.effects import applicable, attach, check_spec, not_applicable_message
-from rehab_hil.hardware.contract import CommandInterface, StateInterface
+from rehab_hil.interfaces import CommandInterface, StateInterface
 from rehab_hil.models.ports import MeasuredPort, Ports
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 
