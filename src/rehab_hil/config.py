@@ -7,6 +7,7 @@ the schema by the file's top-level ``plant`` key. Units are in the key names (``
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from pathlib import Path
@@ -96,8 +97,14 @@ class RigThermalSection(Section):
     wrong model)."""
 
     ambient_c: float = Field(ge=-50.0, le=100.0)
-    rise_at_full_duty_c: float = Field(ge=0.0, le=1000.0, description="equilibrium rise at duty 1 [C]")
+    rise_at_full_duty_c: float = Field(ge=0.0, le=10000.0, description="equilibrium rise at duty 1 [C] (may "
+                                       "exceed any real temperature: a coil that would melt long before)")
     time_constant_s: float = Field(gt=0.0, le=3600.0)
+    second_rise_at_full_duty_c: float = Field(default=0.0, ge=-10000.0, le=10000.0, description="a second mode's "
+                                              "equilibrium rise at duty 1 (an identified second-order transfer "
+                                              "function; may be negative) [C]")
+    second_time_constant_s: float | None = Field(default=None, gt=0.0, le=3600.0, description="its time constant "
+                                                 "[s]; unset: one mode")
     max_disagreement_c: float = Field(default=25.0, gt=0.0, le=500.0, description="measured vs estimated "
                                       "temperature beyond this is a fault (sensor or model) [C]")
     disagreement_s: float = Field(default=1.0, gt=0.0, le=600.0, description="for this long [s]")
@@ -132,22 +139,16 @@ class RigLinkSection(Section):
 
 
 class RigSessionSection(Section):
-    """What ``rehab-hil run`` does: open-close cycles (seed 000: 5 per minute) and its controllers."""
+    """What ``rehab-hil run`` does: open-close cycles (seed 000: 5 per minute) and the controller
+    that follows them (a module of ``rehab_hil.controllers``, its settings in ``[controllers.<name>]``)."""
 
-    tracking: str = Field(pattern="^(pid|pwm_ratio|pulsed)$", description="how the session follows its "
-                          "reference (pulsed: the open_loop duty profile, seed 001's PIS)")
+    controller: str = Field(min_length=1, description="the session's controller: model_based, pid, "
+                            "open_loop_map, pulsed (rehab_hil.controllers)")
     cycles_per_minute: float = Field(gt=0.0, le=120.0)
     closed_deg: float = Field(ge=-360.0, le=360.0)
     open_deg: float = Field(ge=-360.0, le=360.0)
     move_fraction: float = Field(gt=0.0, lt=0.5, description="share of a cycle spent on each move")
-    step_deg: float = Field(ge=-360.0, le=360.0, description="target of the pid / pwm controllers")
-    open_loop_duty: float = Field(ge=0.0, le=1.0, description="duty of the open-loop profile's on phase")
-    open_loop_on_s: float = Field(gt=0.0, le=600.0)
-    open_loop_off_s: float = Field(ge=0.0, le=600.0)
-    pwm_duty_min: float = Field(default=0.4, ge=0.0, le=1.0, description="seed 000 Fig. 10: bending starts")
-    pwm_duty_max: float = Field(default=1.0, ge=0.0, le=1.0)
-    pwm_angle_at_duty_min_deg: float = Field(default=0.0, ge=-360.0, le=360.0)
-    pwm_angle_at_duty_max_deg: float = Field(default=37.5, ge=-360.0, le=360.0, description="seed 000: MCP 37.5 deg")
+    step_deg: float = Field(ge=-360.0, le=360.0, description="target of --reference step")
 
 
 class RigSection(Section):
@@ -174,7 +175,8 @@ class RigSection(Section):
         th = self.thermal
         if th is None:
             return None
-        ceiling = th.ambient_c + th.rise_at_full_duty_c * self.limits.max_duty
+        rise = th.rise_at_full_duty_c + (th.second_rise_at_full_duty_c if th.second_time_constant_s else 0.0)
+        ceiling = th.ambient_c + rise * self.limits.max_duty
         if self.limits.max_temperature_c < ceiling:
             return None
         return (f"{self.limits.max_temperature_c} C is unreachable: the thermal estimate levels off at "
@@ -220,21 +222,34 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(path, "", f"not valid TOML: not UTF-8 at byte {e.start}") from None
 
 
-def validate(path: str | Path, data: dict[str, Any], schema: type[T]) -> T:
-    """Validate ``data`` against ``schema``; the first error becomes a ``ConfigError``."""
+def validate(path: str | Path, data: dict[str, Any], schema: type[T], prefix: str = "") -> T:
+    """Validate ``data`` against ``schema``; the first error becomes a ``ConfigError`` (its key
+    after ``prefix``, the table ``data`` sits in). An unknown key is reported before the missing
+    one it was probably meant to be (a typo), with the closest known key."""
     _reject_non_finite(path, data, ())
     try:
         model = schema.model_validate(data)
     except ValidationError as e:
-        errs = e.errors()
+        errs = sorted(e.errors(), key=lambda err: err["type"] != "extra_forbidden")
         first = errs[0]
         key = _dotted(first["loc"])
         more = f" (and {len(errs) - 1} more errors)" if len(errs) > 1 else ""
-        raise ConfigError(path, key, _message(first) + more) from None
+        hint = _typo_hint(first, errs)
+        raise ConfigError(path, prefix + key, _message(first) + hint + more) from None
     rig = getattr(model, "rig", None)
     if isinstance(rig, RigSection) and (why := rig.unreachable_temperature()):
         raise ConfigError(path, "rig.limits.max_temperature_c", why)
     return model
+
+
+def _typo_hint(first: dict[str, Any], errs: list[dict[str, Any]]) -> str:
+    """For an unknown key: the missing key of the same table it most resembles."""
+    if first["type"] != "extra_forbidden":
+        return ""
+    table, name = first["loc"][:-1], str(first["loc"][-1])
+    missing = [str(e["loc"][-1]) for e in errs if e["type"] == "missing" and e["loc"][:-1] == table]
+    close = difflib.get_close_matches(name, missing, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def _reject_non_finite(path: str | Path, data: Any, loc: tuple[Any, ...]) -> None:

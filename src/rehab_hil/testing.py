@@ -10,11 +10,12 @@ from __future__ import annotations
 import socket
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from rehab_hil.hardware.inprocess import InProcessHardware
 from rehab_hil.hardware.open import inprocess_hardware
 
-__all__ = ["CONFIGS", "InProcessHardware", "free_port", "inprocess_rig"]
+__all__ = ["CONFIGS", "InProcessHardware", "free_port", "inprocess_rig", "pid_runtime", "push_runtime"]
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"  # the repository's plant configs
 
@@ -41,3 +42,41 @@ def inprocess_rig(config_path: str | Path = CONFIGS / "finger_extensor.toml", *,
     if configured:
         hw.configure(assembly.firmware_configure(cfg, binding))
     return hw
+
+
+def pid_runtime(cfg, target_deg: float | None = None, *, sine: tuple[float, float, float] | None = None,
+                gains: tuple[float, float, float, float] | None = None) -> Any:
+    """A PID on the encoder angle for the loop (``ControllerRuntime``), as the rig's ``pid``
+    controller builds it, toward a constant ``target_deg`` or along ``sine`` = (offset [deg],
+    amplitude [deg], frequency [Hz]); ``gains`` (kp, ki, kd, derivative filter) override
+    ``[controllers.pid]``. No pre-flight run: tests drive it where they want."""
+    from rehab_hil.control.trajectories import SineReference
+    from rehab_hil.controllers import ControlContext, Controller, Reference
+    from rehab_hil.controllers.pid import PID, PIDSettings, feedback_parts, limit_part
+    from rehab_hil.service.controllers import ControllerRuntime
+
+    ctx = ControlContext.of(cfg)
+    settings = cfg.controllers.get("pid")
+    if gains is not None:
+        settings = PIDSettings(kp_per_deg=gains[0], ki_per_deg_s=gains[1], kd_s_per_deg=gains[2],
+                               derivative_filter_s=gains[3])
+    ref = Reference.step(cfg, target_deg if target_deg is not None else cfg.rig.session.step_deg)
+    if sine is None:
+        return ControllerRuntime(PID.build(ctx, settings, ref))
+    demand = f"{ctx.effort}_demand"
+    parts = [SineReference("reference", rename={"reference": ctx.reference}, offset=sine[0], amplitude=sine[1],
+                           frequency_hz=sine[2]),
+             *feedback_parts(ctx, settings, demand, ctx.effort_bounds), limit_part(ctx, demand)]
+    return ControllerRuntime(Controller("pid", ctx, ref, parts, sums=(demand,)))
+
+
+def push_runtime(cfg, duty: float, on_s: float = 600.0, off_s: float = 0.0) -> Any:
+    """A steady open-loop push at ``duty`` (the ``pulsed`` controller, one long pulse)."""
+    from rehab_hil.controllers import ControlContext, Reference
+    from rehab_hil.controllers.pulsed import Pulsed, PulsedSettings
+    from rehab_hil.service.controllers import ControllerRuntime
+
+    ctx = ControlContext.of(cfg)
+    scale = ctx.ports.actuators[0].duty_scale
+    settings = PulsedSettings(effort=duty * scale, on_s=on_s, off_s=off_s)
+    return ControllerRuntime(Pulsed.build(ctx, settings, Reference.session(cfg)))

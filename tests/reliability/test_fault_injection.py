@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import os
 import threading
 import time
@@ -33,10 +32,11 @@ import pytest
 from rehab_hil.interchange import read_csv
 from rehab_hil.protocol import Fault
 from rehab_hil.service import assembly
-from rehab_hil.service.controllers import Actuator, Command, PIDPosition
+from rehab_hil.service.controllers import Command, ControllerRuntime
 from rehab_hil.service.estimation import State
 from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.runner import LoopService, RunResult
+from rehab_hil.testing import pid_runtime
 
 from .link_proxy import LinkProxy
 
@@ -72,11 +72,11 @@ class Hooked:
         return self.inner(t_s, state)
 
 
-def gentle_pid(binding: Any, dt_s: float) -> PIDPosition:
+def gentle_pid(cfg: Any) -> ControllerRuntime:
     """A PID that keeps the PWM on (a slow sine reference) at a few % duty: the motor moves under
     100 deg/s, so a host that lags 100+ ms on a loaded box (or a 1 s watchdog) cannot carry the iris
     out of its range of motion, and a shared device starts every test inside its range."""
-    return PIDPosition(Actuator(binding), lambda t: 30.0 + 20.0 * math.sin(math.pi * t), 0.05, 0.0, 0.0, 0.0, dt_s)
+    return pid_runtime(cfg, sine=(30.0, 20.0, 0.5), gains=(0.05, 0.0, 0.0, 0.0))
 
 
 @dataclass
@@ -263,7 +263,7 @@ def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenar
                 caplog: pytest.LogCaptureFixture) -> tuple[RunResult, Recorder, Any]:
     conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), watchdog_ms=scenario.watchdog_ms)
     ctx.conf = conf
-    controller = Hooked(gentle_pid(binding, assembly.period_s(cfg)), FAULT_AT_S, lambda: scenario.inject(ctx))
+    controller = Hooked(gentle_pid(cfg), FAULT_AT_S, lambda: scenario.inject(ctx))
     controller.inner(0.0, State(0.0, 0.0, 0.0, {}))  # compile before the device streams
     if ctx.device.kind == "python":  # the shared device: knobs of earlier tests off
         for line in ("drop 0", "corrupt 0", "delay 0"):

@@ -46,7 +46,7 @@ def test_sigkill_mid_recording_leaves_csv_and_mcap_readable_with_every_flushed_s
     out = tmp_path / "rec"
     log = (tmp_path / "stdout.txt").open("wb")
     argv = [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(CONFIG), "--device", "sim", "--lockstep",
-            "--controller", "session", "--duration", "120", "--record", str(out), "--no-display"]
+            "--duration", "120", "--record", str(out), "--no-display"]
     # its own process group: the service and the device it spawns are ours to clean up by that id
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:

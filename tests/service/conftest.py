@@ -12,9 +12,9 @@ from rehab_hil.devices.spawn import spawn_sim_device
 from rehab_hil.hardware import SerialHardware
 from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
-from rehab_hil.service.controllers import Actuator, PIDPosition, constant_reference
 from rehab_hil.service.runner import LoopService
 from rehab_hil.service.supervisor import Supervisor
+from rehab_hil.testing import pid_runtime
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
 
@@ -68,8 +68,7 @@ def home(h: SerialHardware, cfg, binding) -> None:
     conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), enc_min=-10**6, enc_max=10**6)
     base = assembly.build_supervisor(cfg, binding)
     wide = dataclasses.replace(base.limits, min_angle_deg=-1e6, max_angle_deg=1e6)
-    kp, ki, kd, tf = assembly._pid_gains(cfg)
-    ctl = PIDPosition(Actuator(binding), constant_reference(HOME_DEG), kp, ki, kd, tf, assembly.period_s(cfg))
+    ctl = pid_runtime(cfg, HOME_DEG)
     svc = LoopService(h, conf, ctl, assembly.build_estimator(cfg, binding), Supervisor(wide, base.dt_s),
                       assembly.period_s(cfg))
     res = svc.run(1.0, realtime=False, sample_timeout_s=0.5)

@@ -30,7 +30,7 @@ def test_pid_step_on_the_firmware_in_simavr_reaches_the_target_and_ends_with_pwm
         hw = SerialHardware(dev.port)
         hw.connect()
         try:
-            svc = LoopService(hw, conf, assembly.build_controller(cfg, binding, "pid"),
+            svc = LoopService(hw, conf, assembly.build_controller(cfg, "pid", "step"),
                               assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
             res = svc.run(1.5, pacing="device", realtime=True)
         finally:

@@ -1,7 +1,7 @@
 """Shipped sessions stay inside their rig's limits (issue 16 item 6): each plant's default session
-(``rehab-hil run`` with ``--controller session``) runs 60 s on the simulated rig (the firmware's
+(``rehab-hil run`` with its session controller) runs 60 s on the simulated rig (the firmware's
 logic and the plant in process, one sample per command: deterministic) without a single trip. The
-TCP finger's session is pulsed heating, as seed 001's power-input simulations (PIS) are."""
+TCP finger's session is model-based tracking of one slow cycle a minute."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def test_the_default_session_runs_60_s_on_the_simulated_rig_without_a_trip(plant
     cfg = load_config(path)
     binding = get_plant(cfg.plant).device(cfg)
     hw = inprocess_rig(path, configured=False)
-    controller = assembly.build_controller(cfg, binding, "session")
+    controller = assembly.build_controller(cfg)
     duties: list[float] = []
 
     def recording(t_s, state):  # the session's own commands, to check that it really drives

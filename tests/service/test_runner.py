@@ -12,11 +12,11 @@ from rehab_hil import metrics
 from rehab_hil.interchange import read_csv
 from rehab_hil.protocol import Status
 from rehab_hil.service import assembly
-from rehab_hil.service.controllers import Actuator, OpenLoopPWM
 from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.runner import LoopService
 from rehab_hil.service.supervisor import Supervisor
 from rehab_hil.service.thermal import FirstOrderThermal
+from rehab_hil.testing import push_runtime
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("service-shared-device")]
 
@@ -24,7 +24,10 @@ TIMEOUT = 0.5  # lockstep: how long a cycle waits for its sample on a busy machi
 
 
 def service(cfg, binding, hw, controller="pid", supervisor=None, recorder=None, configure=None):
-    ctl = assembly.build_controller(cfg, binding, controller) if isinstance(controller, str) else controller
+    if controller == "session":  # the session's own controller on its cycles
+        ctl = assembly.build_controller(cfg)
+    else:  # a named controller stepping to step_deg
+        ctl = assembly.build_controller(cfg, controller, "step") if isinstance(controller, str) else controller
     return LoopService(hw, configure or assembly.firmware_configure(cfg, binding),
                        ctl, assembly.build_estimator(cfg, binding),
                        supervisor or assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
@@ -77,7 +80,7 @@ def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, bindin
         shared_device.control("input patient_torque_nm 0.2")
     sup = supervisor_with(cfg, binding, **kwargs)
     # the PID towards 59.58 deg for the range of motion; a steady push (duty 0.2) for the others
-    push = OpenLoopPWM(Actuator(binding), 0.2, on_s=100.0, off_s=0.0)
+    push = push_runtime(cfg, 0.2)
     ctl = "pid" if reason == "range_of_motion" else push
     try:
         res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)

@@ -9,10 +9,12 @@ import time
 import numpy as np
 import pytest
 
+from rehab_hil.control.open_loop import DutyMap
+from rehab_hil.controllers import Reference
 from rehab_hil.interchange import read_csv
 from rehab_hil.plants.base import AdcChannel
 from rehab_hil.protocol import Fault, Sample
-from rehab_hil.service.controllers import Actuator, Command, PWMRatio, constant_reference, cycle_reference
+from rehab_hil.service.controllers import Actuator, Command
 from rehab_hil.service.estimation import Estimator, State, adc_to_si, unwrap_delta
 from rehab_hil.service.loop import DeadlineTimer, realtime_setup, realtime_teardown
 from rehab_hil.service.recorder import Record, Recorder, read_mcap
@@ -77,20 +79,26 @@ def test_actuator_maps_signed_effort_to_duty_and_direction(binding):
     assert cmd.direction == 1 << act.input.channel and cmd.enable
 
 
-def test_pwm_ratio_is_linear_between_seed_000_duty_bounds(binding):
-    ctl = PWMRatio(Actuator(binding), constant_reference(0.0), 0.4, 1.0, 0.0, 37.5)
-    assert ctl.duty_for(0.0) == 0.0
-    assert ctl.duty_for(37.5) == pytest.approx(1.0)
-    assert ctl.duty_for(18.75) == pytest.approx(0.7)
-    assert ctl.duty_for(100.0) == pytest.approx(1.0)
+def test_the_duty_map_is_linear_between_seed_000_duty_bounds():
+    p, y = np.array([0.4, 1.0, 0.0, 37.5]), np.zeros(1)
+
+    def duty(angle_deg: float) -> float:
+        DutyMap.output(0.0, np.zeros(0), np.zeros(0), np.array([angle_deg]), p, y)
+        return float(y[0])
+
+    assert duty(0.0) == 0.0
+    assert duty(37.5) == pytest.approx(1.0)
+    assert duty(18.75) == pytest.approx(0.7)
+    assert duty(100.0) == pytest.approx(1.0)
 
 
-def test_cycle_reference_runs_five_cycles_per_minute():
-    ref = cycle_reference(0.0, 40.0, 5.0, 0.25)
+def test_a_session_reference_runs_five_cycles_per_minute_from_a_rest_at_closed():
+    ref = Reference("session", 0.0, 40.0, move_s=3.0, hold_open_s=3.0, hold_closed_s=3.0)
     t = np.arange(0.0, 60.0, 0.01)
-    r = np.array([ref(x) for x in t])
+    r = ref.values(t)
     rises = np.sum((r[1:] >= 39.99) & (r[:-1] < 39.99))
     assert rises == 5
+    assert np.all(r[t < ref.first_open_s] == 0.0) and ref.first_open_s == 3.0
 
 
 def test_supervisor_clamps_duty_and_latches_pwm_off_after_a_trip():

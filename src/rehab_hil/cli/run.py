@@ -47,7 +47,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--sim-plant", type=Path, default=None, metavar="DEVICE.toml",
                    help="simulated devices: the plant config the device runs (default: --config), e.g. one with "
                         "[[effects]] the host's model lacks")
-    p.add_argument("--controller", choices=assembly.CONTROLLERS, default="session")
+    p.add_argument("--controller", default=None, metavar="NAME",
+                   help="the controller (rehab_hil.controllers: model_based, pid, open_loop_map, pulsed; settings in "
+                        "[controllers.NAME]); default: [rig.session] controller")
+    p.add_argument("--reference", choices=assembly.REFERENCES, default="session",
+                   help="what it tracks: the session's open-close cycles, or a step to [rig.session] step_deg")
     p.add_argument("--pacing", choices=("device", "host"), default="device",
                    help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
     p.add_argument("--lockstep", action="store_true", help="sim device: one sample per command (deterministic)")
@@ -176,9 +180,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
     binding = get_plant(cfg.plant).device(cfg)
     try:
-        controller = assembly.build_controller(cfg, binding, args.controller)
+        controller = assembly.build_controller(cfg, args.controller, args.reference, source=str(args.config))
     except assembly.ServiceSetupError as e:
         raise UserError(f"{args.config}: {e}") from None
+    for note in controller.controller.notes:
+        print(f"warning: {note}")
     device = args.device or cfg.rig.port
     device_config = _device_config(args, cfg, device)
     console = Console()
@@ -207,8 +213,9 @@ def run(args: argparse.Namespace) -> int:
             rig_id = args.rig_id or args.telemetry or cfg.plant
             run_dir = new_run_dir(args.record, rig_id)
             meta = session_metadata(plant=cfg.plant, config_path=args.config, device=device, rig_id=rig_id,
-                                    binding=binding, hello=hw.info, controller=args.controller, pacing=args.pacing,
-                                    sim_plant=args.sim_plant, calibration={"force": calibration_summary(cfg)})
+                                    binding=binding, hello=hw.info, controller=controller.controller.name,
+                                    pacing=args.pacing, sim_plant=args.sim_plant,
+                                    calibration={"force": calibration_summary(cfg)})
             write_metadata(run_dir, meta)  # first now: a killed run still says what it ran against
             recorder = Recorder(run_dir, binding, metadata=meta)
             stack.callback(recorder.close)

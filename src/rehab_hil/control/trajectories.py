@@ -9,7 +9,7 @@ import math
 
 from rehab_hil.models.system import Part, njit
 
-__all__ = ["OpenCloseReference", "StepReference", "open_close_reference", "step_reference"]
+__all__ = ["OpenCloseReference", "SineReference", "StepReference", "open_close_reference", "step_reference"]
 
 
 @njit
@@ -50,13 +50,27 @@ class StepReference(Part):
 
 
 class OpenCloseReference(Part):
-    """Repeating open-close cycles between ``closed`` and ``opened`` (any unit)."""
+    """Repeating open-close cycles between ``closed`` and ``opened`` (any unit), the cycle's phase
+    advanced by ``offset_s`` (a session starts in its closed hold: offset = period - hold)."""
 
     outputs = ("reference",)
-    params = ("closed", "opened", "move_s", "hold_open_s", "hold_closed_s")
+    params = ("closed", "opened", "move_s", "hold_open_s", "hold_closed_s", "offset_s")
     feedthrough = False
 
     @staticmethod
     @njit
     def output(t, x, xd, u, p, y):
-        y[0] = open_close_reference(t, p[0], p[1], p[2], p[3], p[4])
+        y[0] = open_close_reference(t + p[5], p[0], p[1], p[2], p[3], p[4])
+
+
+class SineReference(Part):
+    """``offset + amplitude sin(2 pi frequency t)`` (any unit): a smooth test reference."""
+
+    outputs = ("reference",)
+    params = ("offset", "amplitude", "frequency_hz")
+    feedthrough = False
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        y[0] = p[0] + p[1] * math.sin(2.0 * math.pi * p[2] * t)

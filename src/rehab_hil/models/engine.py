@@ -47,7 +47,7 @@ def _gather(layout: Layout, k: int, indent: str) -> list[str]:
             else:
                 refs = [f"uext[{layout.input_names.index(sname)}]"]
             terms += [r if gain == 1.0 else f"({gain!r}) * {r}" for r in refs]
-        lines.append(f"{indent}w[{part.u[0] + i}] = {' + '.join(terms)}")
+        lines.append(f"{indent}w[{part.u[0] + i}] = {' + '.join(terms) or '0.0'}")  # unconnected: zero
     return lines
 
 

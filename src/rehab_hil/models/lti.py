@@ -113,4 +113,7 @@ def lti_part(name: str, tf: control.TransferFunction, *, u0: float = 0.0, y0: fl
 
     params = state_space_params(tf, u0, y0)
     n = sum(1 for k in params if k.startswith("b"))
-    return _CLASSES[n](name, **kwargs, **params)
+    part = _CLASSES[n](name, **kwargs, **params)
+    if params["d"] == 0.0:  # strictly proper: the output does not read the input (no algebraic loop)
+        part.feedthrough = False
+    return part

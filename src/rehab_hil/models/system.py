@@ -49,7 +49,9 @@ class Part:
     """A leaf system with declared ports, states and parameters.
 
     Subclasses set the class attributes and override the kernels with numba functions.
-    ``feedthrough`` says whether ``output`` reads ``u``; it decides evaluation order.
+    ``feedthrough`` says whether ``output`` reads ``u``: True (every input), False (none), or the
+    names of the inputs it reads (as Drake declares direct feedthrough per port; an input only
+    ``update`` reads, like a PID's anti-windup, closes no algebraic loop). It decides evaluation order.
     """
 
     inputs: ClassVar[tuple[str, ...]] = ()
@@ -57,7 +59,7 @@ class Part:
     discrete_states: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[tuple[str, ...]] = ()
     params: ClassVar[tuple[str, ...]] = ()
-    feedthrough: ClassVar[bool] = True
+    feedthrough: ClassVar[bool | tuple[str, ...]] = True
 
     output = staticmethod(_noop)
     derivatives = staticmethod(_noop)
@@ -216,11 +218,11 @@ class Diagram:
         deps: dict[int, set[int]] = {}
         for k, part in enumerate(self.parts):
             deps[k] = set()
-            if part.feedthrough:
-                for terms in part.connections.values():
-                    for sname, _ in terms:
-                        for s in self.producers.get(sname, []):
-                            deps[k].add(slot_owner[s])
+            direct = part.inputs if part.feedthrough is True else part.feedthrough or ()
+            for port in direct:
+                for sname, _ in part.connections[port]:
+                    for s in self.producers.get(sname, []):
+                        deps[k].add(slot_owner[s])
         order: list[int] = []
         state: dict[int, int] = {}
 
@@ -234,7 +236,7 @@ class Diagram:
             for d in sorted(deps[k]):
                 if d != k:
                     visit(d, [*path, k])
-                elif self.parts[k].feedthrough:
+                else:
                     raise DiagramError(f"part {self.parts[k].name!r} feeds its own input")
             state[k] = 2
             order.append(k)

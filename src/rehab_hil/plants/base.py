@@ -134,6 +134,8 @@ class PlantConfig(Section):
     simulation: SimulationSection
     rig: RigSection
     effects: list[EffectSpec] = Field(default_factory=list, description="added model effects")
+    controllers: dict[str, Any] = Field(default_factory=dict, description="controller settings, one "
+                                        "[controllers.<name>] table per controller (rehab_hil.controllers)")
 
 
 class EncoderSection(Section):
@@ -288,10 +290,10 @@ class Plant:
         return tuple(dict.fromkeys([*cls.inputs, *cls.ports(cfg).constants]))
 
     @classmethod
-    def pid_gains(cls, cfg: Any) -> tuple[float, float, float, float] | None:
-        """The rig's position PID on the encoder angle in degrees: (kp, ki, kd, derivative filter
-        [s]) in actuator units per degree; None when the plant has none."""
-        return None
+    def actuator_power_w(cls, cfg: Any, effort: np.ndarray, velocity_rad_s: np.ndarray) -> np.ndarray:
+        """Electrical power into the actuator [W] for an effort on its input (and the joint velocity,
+        for a motor's back-EMF): what a session's energy per cycle sums. Default: not modelled (nan)."""
+        return np.full(np.shape(effort), np.nan)
 
     @classmethod
     def diagram(cls, cfg: Any, extra_parts: Sequence[Part] = (), extra_inputs: Iterable[str] = (),
@@ -396,7 +398,9 @@ def load_config(path: str | Path, expect: str | None = None) -> Any:
     for i, e in enumerate(cfg.effects):
         if e.name not in ok:
             raise ConfigError(path, f"effects.{i}.name", not_applicable_message(e.name, plant, ports))
-    return cfg
+    from rehab_hil.controllers.build import validate_controllers  # controllers build on plants
+
+    return validate_controllers(cfg, path)
 
 
 def run_scenario(spec: type[Plant], cfg: Any, scenario: Scenario,

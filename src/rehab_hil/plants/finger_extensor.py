@@ -31,8 +31,6 @@ import numpy as np
 
 from rehab_hil import metrics
 from rehab_hil.config import Field, Section
-from rehab_hil.control.pid import PIDController
-from rehab_hil.control.trajectories import OpenCloseReference, StepReference
 from rehab_hil.models.dc_motor import DCMotorArmature
 from rehab_hil.models.mechanics import CoulombFriction, HardStop, RotaryInertia, TorsionSpring, ViscousFriction
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
@@ -79,13 +77,6 @@ class TorqueSensorSection(Section):
     offset_counts: float = Field(ge=0.0, le=1023.0, description="ADC counts at zero torque")
 
 
-class PIDSection(Section):
-    kp_v_per_deg: float = Field(ge=0.0, le=1000.0)
-    ki_v_per_deg_s: float = Field(ge=0.0, le=10000.0)
-    kd_v_s_per_deg: float = Field(ge=0.0, le=100.0)
-    derivative_filter_s: float = Field(ge=0.0, le=1.0)
-
-
 class StepScenarioSection(Section):
     start_deg: float = Field(ge=-360.0, le=360.0)
     target_deg: float = Field(ge=-360.0, le=360.0, description="seed 002 Fig. 11: 59.58 deg")
@@ -111,7 +102,6 @@ class FingerExtensorConfig(PlantConfig):
     motor: MotorSection
     encoder: EncoderSection
     torque_sensor: TorqueSensorSection
-    pid: PIDSection
     scenarios: ScenariosSection
 
 
@@ -198,51 +188,46 @@ def linear_model(cfg: FingerExtensorConfig) -> control.StateSpace:
                       outputs=["iris_angle_rad", "motor_current_a"], states=["theta", "omega", "current"])
 
 
-def _pid(cfg: FingerExtensorConfig) -> PIDController:
-    """PID on the encoder angle in degrees; output is the motor voltage, clamped to the supply."""
-    g, v = cfg.pid, cfg.motor.supply_v
-    return PIDController(
-        "pid", connect={"reference": "iris_angle_reference_deg", "measurement": "iris_angle_deg"},
-        rename={"command": "motor_voltage_v"},
-        kp=g.kp_v_per_deg, ki=g.ki_v_per_deg_s, kd=g.kd_v_s_per_deg, derivative_filter_s=g.derivative_filter_s,
-        output_min=-v, output_max=v, dt_s=cfg.simulation.step_s,
-    )
+def _closed_loop(cfg: FingerExtensorConfig, name: str, n_steps: int, reference: object, patient_torque_nm: float,
+                 score: object) -> Scenario:
+    """The rig's controller ``name`` ([controllers.<name>], ``rehab_hil.controllers``) on the model."""
+    from rehab_hil.controllers import build_controller  # controllers build on plants
+
+    ctl = build_controller(cfg, name, reference, check=False)  # type: ignore[arg-type]
+    return Scenario(name, n_steps, parts=ctl.parts, inputs={"patient_torque_nm": patient_torque_nm,
+                                                            **ctl.offline_inputs(n_steps)},
+                    extra_outputs=("iris_angle_reference_deg",), metrics=score, sums=ctl.sums)  # type: ignore[arg-type]
 
 
 def step_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
-                  target_deg: float | None = None, patient_torque_nm: float = 0.0) -> Scenario:
-    """PID step (seed 002 Fig. 11: to 59.58 deg in ~0.3 s, 2.86 deg overshoot)."""
+                  target_deg: float | None = None, patient_torque_nm: float = 0.0,
+                  controller: str = "pid") -> Scenario:
+    """Seed 002 Fig. 11: a step to 59.58 deg (~0.3 s, 2.86 deg overshoot) under the rig's PID."""
+    from rehab_hil.controllers import Reference
+
     sc = cfg.scenarios.step
     target = sc.target_deg if target_deg is None else target_deg
 
     def score(res: SimulationResult) -> dict[str, float]:
         return metrics.step_metrics(res.t, res["iris_angle_deg"], sc.start_deg, target)
 
-    return Scenario(
-        "step", FingerExtensor.n_steps(cfg, duration_s or sc.duration_s),
-        parts=[StepReference("reference", rename={"reference": "iris_angle_reference_deg"},
-                             start=sc.start_deg, target=target, t_step_s=0.0), _pid(cfg)],
-        inputs={"patient_torque_nm": patient_torque_nm},
-        extra_outputs=("iris_angle_reference_deg",), metrics=score,
-    )
+    n = FingerExtensor.n_steps(cfg, duration_s or sc.duration_s)
+    return _closed_loop(cfg, controller, n, Reference.step(cfg, target, sc.start_deg), patient_torque_nm, score)
 
 
 def cycle_scenario(cfg: FingerExtensorConfig, duration_s: float | None = None,
-                   patient_torque_nm: float = 0.0) -> Scenario:
-    """Open-close cycling (seed 002 Fig. 10: 7.89 <-> 121 deg over 30 s)."""
+                   patient_torque_nm: float = 0.0, controller: str = "pid") -> Scenario:
+    """Open-close cycling (seed 002 Fig. 10: 7.89 <-> 121 deg over 30 s) under the rig's PID."""
+    from rehab_hil.controllers import Reference
+
     sc = cfg.scenarios.cycle
 
     def score(res: SimulationResult) -> dict[str, float]:
         return metrics.tracking_metrics(res["iris_angle_reference_deg"], res["iris_angle_deg"])
 
-    return Scenario(
-        "cycle", FingerExtensor.n_steps(cfg, duration_s or sc.duration_s),
-        parts=[OpenCloseReference("reference", rename={"reference": "iris_angle_reference_deg"},
-                                  closed=sc.closed_deg, opened=sc.open_deg, move_s=sc.move_s,
-                                  hold_open_s=sc.hold_open_s, hold_closed_s=sc.hold_closed_s), _pid(cfg)],
-        inputs={"patient_torque_nm": patient_torque_nm},
-        extra_outputs=("iris_angle_reference_deg",), metrics=score,
-    )
+    ref = Reference("session", sc.closed_deg, sc.open_deg, sc.move_s, sc.hold_open_s, sc.hold_closed_s)
+    n = FingerExtensor.n_steps(cfg, duration_s or sc.duration_s)
+    return _closed_loop(cfg, controller, n, ref, patient_torque_nm, score)
 
 
 def steady_angle_rad(cfg: FingerExtensorConfig, voltage_v: float) -> float:
@@ -301,9 +286,14 @@ class FingerExtensor(Plant):
     )
 
     @classmethod
-    def pid_gains(cls, cfg: FingerExtensorConfig) -> tuple[float, float, float, float]:
-        g = cfg.pid
-        return g.kp_v_per_deg, g.ki_v_per_deg_s, g.kd_v_s_per_deg, g.derivative_filter_s
+    def actuator_power_w(cls, cfg: FingerExtensorConfig, effort: np.ndarray,
+                         velocity_rad_s: np.ndarray) -> np.ndarray:
+        """V i with the armature current quasi-static (L/R = 1 ms): i = (V - k_v w) / R (seed 002
+        eq 9); a motor braking back into the bridge draws nothing from the supply (no regeneration)."""
+        m = cfg.motor
+        v = np.asarray(effort, float)
+        return np.maximum(v * (v - m.kv_v_s_per_rad * np.asarray(velocity_rad_s, float)) / m.resistance_ohm, 0.0)
+
     excitation = Excitation(
         inputs=lambda t, rng: {"motor_voltage_v": multisine(t, rng, 2.5, (0.35, 0.8, 1.7), 0.2),
                                "patient_torque_nm": np.zeros_like(t)},

@@ -401,6 +401,17 @@ class SMAExoskeleton(Plant):
         FitParameter("sma.h1_w_per_m2_c", diagram=("sma_thermal.h1_w_per_m2_c",)),
         FitParameter("muscle.max_isometric_force_n", diagram=("muscle.max_isometric_force_n",)),
     )
+
+    @classmethod
+    def actuator_power_w(cls, cfg: SMAExoskeletonConfig, effort: np.ndarray,
+                         velocity_rad_s: np.ndarray) -> np.ndarray:
+        """Joule heating U^2 tau / R of the wire (seed 000 eq 12), tau the PWM duty."""
+        from rehab_hil.models.sma_thermal import wire_geometry
+
+        s = cfg.sma
+        _, r_ohm, _ = wire_geometry(s.radius_m, s.length_m, s.density_kg_m3, s.resistivity_ohm_m)
+        return cfg.drive.supply_voltage_v**2 / r_ohm * np.clip(np.asarray(effort, float), 0.0, 1.0)
+
     excitation = Excitation(
         inputs=lambda t, rng: {"pwm_duty": random_levels(t, rng, (0.4, 0.6, 0.8, 1.0), (1.5, 4.0), 0.4),
                                "supply_voltage_v": np.full_like(t, 32.0)},

@@ -399,6 +399,12 @@ class TcpFinger(Plant):
     build = staticmethod(build)
     ports = staticmethod(ports)
     scenarios = MappingProxyType({"pulse": pulse_scenario, "regular": regular_scenario, "fis": fis_scenario})
+
+    @classmethod
+    def actuator_power_w(cls, cfg: TcpFingerConfig, effort: np.ndarray, velocity_rad_s: np.ndarray) -> np.ndarray:
+        """The actuator input is the electrical power itself (seed 001's PIS)."""
+        return np.maximum(np.asarray(effort, float), 0.0)
+
     excitation = Excitation(
         inputs=lambda t, rng: {"power_w": random_levels(t, rng, (34.0, 40.0, 47.0), (1.0, 4.0), 0.5),
                                "measured_force_n": np.zeros_like(t)},

@@ -10,25 +10,17 @@ from typing import Any
 
 from rehab_hil.calibration import force_limit_counts
 from rehab_hil.hardware.interface import configure_from_config
-from rehab_hil.plants.base import DeviceBinding, get_plant
+from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.protocol import Configure
-from rehab_hil.service.controllers import (
-    Actuator,
-    Controller,
-    OpenLoopPWM,
-    PIDPosition,
-    PWMRatio,
-    constant_reference,
-    cycle_reference,
-)
+from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
-from rehab_hil.service.thermal import FirstOrderThermal
+from rehab_hil.service.thermal import thermal_from_config
 
-__all__ = ["CONTROLLERS", "ServiceSetupError", "build_controller", "build_estimator", "build_supervisor",
+__all__ = ["REFERENCES", "ServiceSetupError", "build_controller", "build_estimator", "build_supervisor",
            "firmware_configure", "force_channels", "period_s"]
 
-CONTROLLERS = ("session", "pid", "pwm", "open-loop")
+REFERENCES = ("session", "step")  # what the controller tracks: the session's cycles, or a step to step_deg
 
 
 class ServiceSetupError(ValueError):
@@ -44,42 +36,24 @@ def force_channels(binding: DeviceBinding) -> tuple[str, ...]:
     return tuple(ch.signal for ch in binding.adc if ch.kind == "force")
 
 
-def _pid_gains(cfg: Any) -> tuple[float, float, float, float]:
-    gains = get_plant(cfg.plant).pid_gains(cfg)
-    if gains is None:
-        raise ServiceSetupError(f"plant {cfg.plant!r} declares no position PID (no [pid] table of gains per "
-                                "degree of encoder angle)")
-    return gains
+def build_controller(cfg: Any, name: str | None = None, reference: str = "session",
+                     source: str = "<config>") -> ControllerRuntime:
+    """The controller ``name`` (default: ``[rig.session] controller``) built for the config's
+    plant (``rehab_hil.controllers``: refused in one line if it does not apply) and ready for the
+    loop; ``reference`` is the session's cycles or a step to ``[rig.session] step_deg``."""
+    from rehab_hil.config import ConfigError
+    from rehab_hil.controllers import ControllerError, Reference
+    from rehab_hil.controllers import build_controller as build
 
-
-def build_controller(cfg: Any, binding: DeviceBinding, name: str) -> Controller:
-    """``session`` (open-close cycles), ``pid`` (step to ``step_deg``), ``pwm`` (PWM ratio for
-    ``step_deg``) or ``open-loop`` (duty profile), from ``[rig.session]``."""
-    ses = cfg.rig.session
-    if ses is None:
+    if cfg.rig.session is None:
         raise ServiceSetupError("the config has no [rig.session] table (what `rehab-hil run` does)")
-    act = Actuator(binding)
-
-    def pid(reference: Any) -> PIDPosition:
-        kp, ki, kd, tf = _pid_gains(cfg)
-        return PIDPosition(act, reference, kp, ki, kd, tf, period_s(cfg))
-
-    def pwm(reference: Any) -> PWMRatio:
-        return PWMRatio(act, reference, ses.pwm_duty_min, ses.pwm_duty_max, ses.pwm_angle_at_duty_min_deg,
-                        ses.pwm_angle_at_duty_max_deg)
-
-    if name == "session" and ses.tracking == "pulsed":
-        return OpenLoopPWM(act, ses.open_loop_duty, ses.open_loop_on_s, ses.open_loop_off_s)
-    if name == "session":
-        ref = cycle_reference(ses.closed_deg, ses.open_deg, ses.cycles_per_minute, ses.move_fraction)
-        return pid(ref) if ses.tracking == "pid" else pwm(ref)
-    if name == "pid":
-        return pid(constant_reference(ses.step_deg))
-    if name == "pwm":
-        return pwm(constant_reference(ses.step_deg))
-    if name == "open-loop":
-        return OpenLoopPWM(act, ses.open_loop_duty, ses.open_loop_on_s, ses.open_loop_off_s)
-    raise ServiceSetupError(f"unknown controller {name!r}; choose from {list(CONTROLLERS)}")
+    if reference not in REFERENCES:
+        raise ServiceSetupError(f"unknown reference {reference!r}; choose from {list(REFERENCES)}")
+    ref = Reference.session(cfg) if reference == "session" else Reference.step(cfg)
+    try:
+        return ControllerRuntime(build(cfg, name, ref, source=source))
+    except (ControllerError, ConfigError) as e:
+        raise ServiceSetupError(str(e)) from None
 
 
 def build_estimator(cfg: Any, binding: DeviceBinding) -> Estimator:
@@ -113,7 +87,7 @@ def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
         force_debounce_s=lim.force_debounce_ms / 1000.0,
         max_disagreement_c=th.max_disagreement_c if th else 25.0, disagreement_s=th.disagreement_s if th else 1.0,
     )
-    thermal = FirstOrderThermal(th.ambient_c, th.rise_at_full_duty_c, th.time_constant_s) if th else None
+    thermal = thermal_from_config(th) if th else None
     return Supervisor(limits, period_s(cfg), force_channels(binding), thermal, estop_input=estop_enabled(cfg),
                       temperature_signal=temperature_channel(binding))
 

@@ -1,37 +1,25 @@
-"""Controllers of the real-time loop: open-loop PWM profile, PID on the encoder angle (seed 002),
-PWM-ratio control of SMA bending (seed 000 Fig. 10) and open-close rehabilitation sessions.
+"""The loop's side of a controller: the command it sends and the runtime that steps a built controller.
 
-A controller maps (time, ``State``) to a ``Command`` of PWM duties and direction bits. It knows the
-plant's I/O binding (which PWM channel drives which plant input) but never the device backend, and
-declares the interfaces it uses in ``claims`` (checked by ``rehab_hil.hardware.contract.on_configure``).
+Controllers themselves are declared in ``rehab_hil.controllers`` (parts from state interfaces to a
+command interface, the same for simulation and the rig). Here ``ControllerRuntime`` steps one in
+the real-time loop with dt from device time, and ``Actuator`` turns its effort on the plant's
+actuator input into a PWM duty and direction bit (the command interface's conversion), so a
+controller never knows the device backend.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
-from rehab_hil.control.pid import PID
-from rehab_hil.control.trajectories import open_close_reference
-from rehab_hil.hardware.contract import Claims
+import numpy as np
+
+from rehab_hil.interfaces import Claims
 from rehab_hil.plants.base import DeviceBinding, DutyInput
 from rehab_hil.service.estimation import State
 
-__all__ = [
-    "SAFE_COMMAND",
-    "Actuator",
-    "Command",
-    "Controller",
-    "OpenLoopPWM",
-    "PIDPosition",
-    "PWMRatio",
-    "constant_reference",
-    "cycle_reference",
-]
-
-Reference = Callable[[float], float]  # time [s] -> reference angle [deg]
+__all__ = ["SAFE_COMMAND", "Actuator", "Command", "Controller", "ControllerRuntime"]
 
 
 @dataclass(frozen=True)
@@ -87,79 +75,71 @@ class Actuator:
         return Command((duties[0], duties[1]), (1 << ch) if reverse else 0, True, reference_deg)
 
 
-def constant_reference(angle_deg: float) -> Reference:
-    return lambda t: angle_deg
+class ControllerRuntime:
+    """A built controller (``rehab_hil.controllers``) stepped by the loop: the state interfaces in,
+    a ``Command`` out. dt is the device time since the last step (a loop behind a USB bridge
+    controls once per burst of samples), so the PID integrates and differentiates over the time
+    that passed. Continuous states (an observer) are advanced over that interval with the inputs
+    of the previous step, the effort that was applied, before the new sample is taken. No
+    allocation per step beyond the returned command."""
 
+    def __init__(self, controller: Any) -> None:
+        from rehab_hil.controllers.base import DT
 
-def cycle_reference(closed_deg: float, open_deg: float, cycles_per_minute: float,
-                    move_fraction: float) -> Reference:
-    """Open-close cycles at ``cycles_per_minute`` (seed 000: 5); each move takes ``move_fraction``
-    of a cycle, the rest is split between holding open and holding closed."""
-    period = 60.0 / cycles_per_minute
-    move = move_fraction * period
-    hold = 0.5 * (period - 2.0 * move)
-    return lambda t: open_close_reference(t, closed_deg, open_deg, move, hold, hold)
-
-
-class OpenLoopPWM:
-    """A repeating duty profile: ``on_duty`` for ``on_s``, then 0 for ``off_s``. On a signed
-    (H-bridge) input every other push runs reversed, so a motor goes out and back."""
-
-    def __init__(self, actuator: Actuator, on_duty: float, on_s: float, off_s: float) -> None:
-        self.actuator, self.on_duty, self.on_s, self.period = actuator, on_duty, on_s, on_s + off_s
-        self.claims = Claims(command=(actuator.signal,))
-
-    def reset(self) -> None:
-        pass
-
-    def __call__(self, t_s: float, state: State) -> Command:
-        n, tc = divmod(t_s, self.period)
-        reverse = self.actuator.input.signed and int(n) % 2 == 1
-        return self.actuator.duty_command(self.on_duty if tc < self.on_s else 0.0, reverse)
-
-
-class PIDPosition:
-    """PID on the encoder angle in degrees (the shared ``pid_step``); the output is the effort on
-    the actuator's plant input (volts for the Finger Extensor), clamped to what PWM can apply."""
-
-    def __init__(self, actuator: Actuator, reference: Reference, kp: float, ki: float, kd: float,
-                 derivative_filter_s: float, dt_s: float) -> None:
-        self.actuator, self.reference = actuator, reference
-        self.claims = Claims(command=(actuator.signal,), state=(actuator.angle_signal,))
-        self.pid = PID(kp, ki, kd, derivative_filter_s, actuator.min_effort, actuator.max_effort, dt_s)
+        ctx = controller.ctx
+        self.controller = controller
+        self.claims = controller.claims
+        self.actuator = Actuator(ctx.binding, ctx.effort)
+        system = controller.diagram.compile(ctx.period_s, 1)
+        self._engine = system.engine
+        self._params = system.params.copy()
+        self._x0, self._xd0 = system.x0, system.xd0
+        self._ws = system.workspace()
+        self._slots = system.out_slots([ctx.effort, ctx.reference])
+        self._y = np.zeros(2)
+        names = system.input_names
+        self._period = ctx.period_s
+        self._i_angle = names.index(ctx.angle) if ctx.angle in names else -1
+        self._i_velocity = names.index(ctx.velocity) if ctx.velocity in names else -1
+        self._i_dt = names.index(DT) if DT in names else -1
+        self._analog = [(names.index(s), s) for s in ctx.analog if s in names]
+        plan = controller.plan
+        self._plan = plan
+        self._tables = [(names.index(s), np.asarray(v, float)) for s, v in (plan.signals.items() if plan else ())
+                        if s in names]
+        self._u = np.zeros(max(len(names), 1))
+        for name, value in controller.constants.items():
+            if name in names:
+                self._u[names.index(name)] = value
+        self._u_prev = self._u.copy()
+        self.reset()
 
     def reset(self) -> None:
-        self.pid.reset()
+        self._x = self._x0.copy()
+        self._xd = self._xd0.copy()
+        self._t_last: float | None = None
 
     def __call__(self, t_s: float, state: State) -> Command:
-        ref = self.reference(t_s)
-        return self.actuator.command(self.pid(ref, state.angle_deg), ref)
-
-
-class PWMRatio:
-    """Open-loop PWM-ratio control of SMA bending (seed 000 sec B, Fig. 10): at thermal equilibrium
-    the bending angle rises about linearly with the PWM ratio between ``duty_min`` (0.4) and
-    ``duty_max`` (1.0). A reference at or below the angle reached at ``duty_min`` gets duty 0
-    (the wire cools and the finger returns)."""
-
-    def __init__(self, actuator: Actuator, reference: Reference, duty_min: float, duty_max: float,
-                 angle_at_duty_min_deg: float, angle_at_duty_max_deg: float) -> None:
-        if not angle_at_duty_max_deg > angle_at_duty_min_deg:
-            raise ValueError("angle_at_duty_max_deg must exceed angle_at_duty_min_deg")
-        self.actuator, self.reference = actuator, reference
-        self.claims = Claims(command=(actuator.signal,))  # open loop: no state read
-        self.d0, self.d1 = duty_min, duty_max
-        self.a0, self.a1 = angle_at_duty_min_deg, angle_at_duty_max_deg
-
-    def reset(self) -> None:
-        pass
-
-    def duty_for(self, angle_deg: float) -> float:
-        if angle_deg <= self.a0:
-            return 0.0
-        frac = min((angle_deg - self.a0) / (self.a1 - self.a0), 1.0)
-        return self.d0 + (self.d1 - self.d0) * frac
-
-    def __call__(self, t_s: float, state: State) -> Command:
-        ref = self.reference(t_s)
-        return self.actuator.duty_command(self.duty_for(ref), False, ref)
+        u, e = self._u, self._engine
+        sig, w, stage, xdn = self._ws
+        last = self._t_last
+        dt = self._period if last is None or t_s <= last else t_s - last
+        if last is not None and t_s > last:  # the interval just past, with the effort that was applied
+            e.integrate(last, self._x, self._xd, self._u_prev, self._params, dt, 1, sig, w, stage)
+        if self._i_angle >= 0:
+            u[self._i_angle] = state.angle_deg
+        if self._i_velocity >= 0:
+            u[self._i_velocity] = state.velocity_rad_s
+        for i, name in self._analog:
+            u[i] = state.analog.get(name, 0.0)
+        if self._i_dt >= 0:
+            u[self._i_dt] = dt
+        if self._tables:
+            k = self._plan.index(t_s)
+            for i, table in self._tables:
+                u[i] = table[k]
+        e.sample(t_s, self._x, self._xd, u, self._params, sig, w, xdn)
+        e.read_outputs(self._slots, sig, self._y)
+        self._u_prev[:] = u
+        self._t_last = t_s
+        return self.actuator.command(float(self._y[0]), float(self._y[1]))

@@ -120,7 +120,8 @@ class LoopService:
         cycles = 0
         rt: RealtimeReport | None = None
         stop_reason = "duration reached"
-        self.controller(0.0, State(0.0, 0.0, 0.0, {}))  # warm up: numba kernels load before the watchdog runs
+        for t in (0.0, self.period_s):  # warm up: numba kernels (sample, integrate) load before the watchdog runs
+            self.controller(t, State(t, 0.0, 0.0, {}))
         self.controller.reset()
         if realtime:  # before CONFIGURE: a full GC pass can take longer than the firmware watchdog
             rt = realtime_setup()

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from rehab_hil.protocol import Fault, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command
 from rehab_hil.service.estimation import State
-from rehab_hil.service.thermal import FirstOrderThermal
+from rehab_hil.service.thermal import ModalThermal
 
 __all__ = ["SafetyEvent", "Supervisor", "SupervisorLimits"]
 
@@ -59,7 +59,7 @@ class Supervisor:
     """Judges every cycle; ``filter`` turns a controller's command into what may be sent."""
 
     def __init__(self, limits: SupervisorLimits, dt_s: float, force_signals: tuple[str, ...] = (),
-                 thermal: FirstOrderThermal | None = None, *, estop_input: bool = False,
+                 thermal: ModalThermal | None = None, *, estop_input: bool = False,
                  temperature_signal: str | None = None) -> None:
         self.limits, self.dt_s, self.force_signals, self.thermal = limits, dt_s, force_signals, thermal
         self.estop_input, self.temperature_signal = estop_input, temperature_signal

@@ -1,0 +1,170 @@
+"""Model-based tracking: feedforward learned on the plant model + PID feedback + (for a heated
+actuator) the model's thermal part as an observer and a temperature ceiling -> effort limit.
+
+    reference --> feedforward table (ILC on the model) --+
+              \\                                          +--> demand --> limit --> actuator
+               +--> PID on the encoder angle ------------+         ^
+    observer (the model's thermal part on the applied effort) --> ceiling (cut)
+
+The feedforward comes from the composed plant model, ``[[effects]]`` included
+(``controllers/feedforward.py``), never from numbers in a config: ``augmented.toml`` from the
+discrepancy workflow changes it by itself. The reference is first clipped to what the model can
+hold (``controllers/reachable.py``). For an SMA wire or a TCP coil, which only heat and cool
+passively, the learned table heats ahead of the bend and lets the wire cool ahead of the release;
+the ceiling keeps the observed temperature under the plan's peak plus a margin (the feedback may
+not heat further than the bend needs), and the PID's integrator stops while the limit or the
+ceiling cuts its demand (anti-windup).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rehab_hil.config import Field, Section
+from rehab_hil.control.limits import TemperatureCeiling
+from rehab_hil.controllers.base import ControlContext, Controller, ControllerSpec, Plan, Reference, closed_loop_system
+from rehab_hil.controllers.feedforward import LearningSettings, cached, fingerprint, learn
+from rehab_hil.controllers.observer import OBSERVER, temperature_signal, thermal_slice
+from rehab_hil.controllers.pid import feedback_parts, limit_part
+from rehab_hil.controllers.reachable import reachable_range
+from rehab_hil.models.sensors import Gain
+from rehab_hil.plants.base import compose
+
+__all__ = ["ModelBased", "ModelBasedSettings"]
+
+_PERIODS = 2  # a periodic table learns on two cycles from rest: the second is the steady state
+PLAN_VERSION = 1  # part of the cache key: bump when the learning or the chain changes what a plan is
+
+
+class ModelBasedSettings(Section):
+    """Feedback gains around the learned feedforward, and how the feedforward is learned."""
+
+    kp_per_deg: float = Field(ge=0.0, le=1000.0, description="feedback proportional gain [actuator unit / deg]")
+    ki_per_deg_s: float = Field(ge=0.0, le=10000.0, description="feedback integral gain [actuator unit / (deg s)]")
+    kd_s_per_deg: float = Field(ge=0.0, le=100.0, description="feedback derivative gain [actuator unit s / deg]")
+    derivative_filter_s: float = Field(ge=0.0, le=1.0, description="derivative low-pass time constant [s]")
+    learning_gain_per_deg: float = Field(gt=0.0, le=1000.0, description="ILC gain: feedforward change per degree "
+                                         "of error [actuator unit / deg]")
+    learning_lead_s: float = Field(ge=0.0, le=10.0, description="ILC lead: the error this much later moves the "
+                                   "feedforward now (the plant's lag) [s]")
+    learning_filter_hz: float = Field(gt=0.0, le=200.0, description="ILC Q-filter cutoff (zero phase) [Hz]")
+    learning_iterations: int = Field(ge=1, le=1000, description="ILC trials on the model")
+    learning_leak: float = Field(ge=0.0, lt=1.0, description="ILC pull of the feedforward toward zero per "
+                                 "trial where the error is within tolerance (least effort that tracks) [0..1)")
+    learning_tolerance_deg: float = Field(default=0.25, gt=0.0, le=10.0, description="error the leak accepts "
+                                          "[deg]")
+    temperature_budget_c: float | None = Field(default=None, gt=-50.0, le=1000.0, description="hottest the "
+                                               "model's actuator may be held (heated actuators; default: the "
+                                               "rig's temperature limit): the reference is clipped to what the "
+                                               "model reaches within it, and the ceiling never exceeds it [C]")
+    temperature_margin_c: float = Field(default=10.0, gt=0.0, le=100.0, description="ceiling above the plan's "
+                                        "peak observed temperature (heated actuators) [C]")
+    ceiling_band_c: float = Field(default=5.0, gt=0.0, le=50.0, description="the ceiling cuts the authority "
+                                  "linearly over this band below it [C]")
+
+
+class ModelBased(ControllerSpec):
+    name = "model_based"
+    summary = "feedforward learned on the model + PID feedback (+ thermal observer and ceiling)"
+    settings = ModelBasedSettings
+
+    @classmethod
+    def refuse(cls, ctx: ControlContext) -> str | None:
+        return None if ctx.binding.encoder_signal else "it needs an encoder, and the plant's rig has none"
+
+    @classmethod
+    def build(cls, ctx: ControlContext, settings: ModelBasedSettings, reference: Reference) -> Controller:
+        notes: list[str] = []
+        limit_c = ctx.cfg.rig.limits.max_temperature_c
+        if settings.temperature_budget_c is not None:
+            limit_c = min(limit_c, settings.temperature_budget_c)
+        lo, hi = reachable_range(ctx, limit_c)
+        reference, warning = reference.clipped(lo, hi)
+        if warning:
+            notes.append(warning)
+        periodic = reference.kind == "session"
+        periods = _PERIODS if periodic else 1
+        n = ctx.plant.n_steps(ctx.cfg, reference.period_s)  # the table: one period (a step: one horizon)
+        ff = f"{ctx.effort}_feedforward"
+        temp = temperature_signal(ctx.ports)
+        observer = (thermal_slice(compose(ctx.plant, ctx.cfg), ctx.effort, temp, ctx.ports.constants,
+                                  _mechanical(ctx)) if temp else None)
+
+        def make(table: np.ndarray, ceiling_c: float, plan_extra: dict[str, Any] | None = None) -> Controller:
+            demand = f"{ctx.effort}_demand"
+            span = ctx.effort_bounds[1] - ctx.effort_bounds[0]
+            parts = [reference.part(ctx.reference),
+                     Gain("feedforward", connect={"u": ff}, rename={"y": demand}, gain=1.0),
+                     *feedback_parts(ctx, settings, demand, (-span, span))]
+            cut = None
+            if observer is not None:
+                cut = "temperature_cut"
+                parts += [*observer, TemperatureCeiling("ceiling", connect={"temperature_c": OBSERVER + temp},
+                                                        rename={"cut": cut}, ceiling_c=ceiling_c,
+                                                        band_c=settings.ceiling_band_c)]
+            parts.append(limit_part(ctx, demand, cut))
+            extra = plan_extra or {}
+            plan = Plan(ctx.step_s, reference.period_s if periodic else ctx.step_s, {ff: table},
+                        extra.get("predicted", {}),
+                        extra.get("figures", {}))
+            return Controller(cls.name, ctx, reference, parts, plan=plan, constants=_read_constants(ctx, observer),
+                              sums=(demand,), notes=notes)
+
+        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(), settings.model_dump(), reference,
+                          reference.first_open_s, periods)
+        learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, temp,
+                                                      observer))
+        ceiling_c = limit_c
+        if observer is not None:
+            ceiling_c = min(float(learned["peak_observed_c"][0]) + settings.temperature_margin_c, limit_c)
+        figures = {k: float(learned[k][0]) for k in ("model_rmse_deg", "model_max_error_deg", "model_first_rmse_deg",
+                                                     "model_first_max_error_deg", "trials", "peak_observed_c")}
+        predicted = {"angle_deg": learned["angle_deg"], "effort": learned["effort"]}
+        if observer is not None:
+            predicted["temperature_c"] = learned["temperature_c"]
+        return make(learned["feedforward"], ceiling_c, {"predicted": predicted,
+                                                        "figures": {**figures, "ceiling_c": ceiling_c,
+                                                                    "reachable_lo_deg": lo,
+                                                                    "reachable_hi_deg": hi}})
+
+
+def _read_constants(ctx: ControlContext, observer: list | None) -> dict[str, float]:
+    """The plant constants the observer reads (the SMA's supply voltage)."""
+    read = {s for p in observer or () for terms in p.connections.values() for s, _ in terms}
+    return {k: v for k, v in ctx.ports.constants.items() if k in read}
+
+
+def _mechanical(ctx: ControlContext) -> tuple[str, ...]:
+    return tuple(s for ax in ctx.ports.axes for s in (ax.angle, ax.velocity, ax.torque))
+
+
+def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings, temp: str | None,
+           observer: list | None) -> dict[str, np.ndarray]:
+    """Learn the feedforward on the closed loop of the provisional controller (ceiling at the rig's
+    limit), then run the best table once more for the model's predictions (its last period)."""
+    ctx = provisional.ctx
+    system, feed = closed_loop_system(provisional)
+    given = {k: v for k, v in feed(n * periods).items() if k in system.input_names}
+    ff = next(iter(provisional.plan.signals)) if provisional.plan else ""
+    t_obs = OBSERVER + temp if observer is not None and temp else None
+    outs = [ctx.reference, ctx.angle, ctx.effort, *([t_obs] if t_obs else [])]
+
+    def run(u: np.ndarray) -> Any:
+        return system.simulate(n * periods, {**given, ff: u}, outputs=outs)
+
+    def simulate(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = run(u)
+        return r[ctx.reference], r[ctx.angle]
+
+    s = LearningSettings(settings.learning_gain_per_deg, settings.learning_lead_s, settings.learning_filter_hz,
+                         settings.learning_iterations, settings.learning_leak, settings.learning_tolerance_deg)
+    table, figures = learn(simulate, n, ctx.step_s, ctx.effort_bounds, s, periods)
+    final = run(np.tile(table, periods))
+    peak = float(np.max(final[t_obs])) if t_obs else float("nan")
+    out = {"feedforward": table, "angle_deg": final[ctx.angle][-n:], "effort": final[ctx.effort][-n:],
+           "peak_observed_c": np.array([peak]), **{k: np.array([v]) for k, v in figures.items()}}
+    if t_obs:
+        out["temperature_c"] = final[t_obs][-n:]
+    return out

@@ -1,0 +1,107 @@
+"""What a rehabilitation session did, cycle by cycle: tracking, range of motion, time to open and
+to close, peak actuator temperature and electrical energy (the figures a therapist and a rig
+owner compare across sessions and controllers).
+
+A cycle of the open-close reference (``rehab_hil.controllers.Reference``) starts closed, moves
+open over ``move_s``, holds, moves back and holds. "Reached" means within ``REACH_SHARE`` of the
+span from the target. The same function serves the live loop (one cycle at a time, after the
+command is out), the run summary, ``metadata.json`` and the offline benchmark.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["REACH_SHARE", "CycleMetrics", "cycle_metrics", "session_summary"]
+
+REACH_SHARE = 0.05  # within 5 % of the span from the target counts as reached
+
+
+@dataclass(frozen=True)
+class CycleMetrics:
+    """One open-close cycle (angles in deg, times in s from the start of each move)."""
+
+    index: int
+    start_s: float
+    rmse_deg: float
+    max_error_deg: float
+    rom_deg: float  # range of motion reached: largest minus smallest angle
+    time_to_open_s: float  # nan: never reached
+    time_to_closed_s: float
+    peak_temperature_c: float  # the actuator temperature estimate (nan: none)
+    energy_j: float  # electrical energy into the actuator
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def _reach_time(t: np.ndarray, angle: np.ndarray, target: float, tol: float, since: float) -> float:
+    after = t >= since - 1e-12
+    hit = np.flatnonzero(after & (np.abs(angle - target) <= tol))
+    return float(t[hit[0]] - since) if hit.size else math.nan
+
+
+def cycle_metrics(t: np.ndarray, reference: np.ndarray, angle: np.ndarray, power_w: np.ndarray,
+                  temperature_c: np.ndarray | None, period_s: float, move_s: float, closed_deg: float,
+                  open_deg: float, complete_only: bool = True) -> list[CycleMetrics]:
+    """Metrics of each cycle in the record (``t`` from the session's start, samples in order);
+    ``complete_only`` drops a last cycle the record cuts short."""
+    t, reference, angle, power_w = (np.asarray(a, float) for a in (t, reference, angle, power_w))
+    temp = None if temperature_c is None else np.asarray(temperature_c, float)
+    if t.size == 0:
+        return []
+    tol = REACH_SHARE * abs(open_deg - closed_deg)
+    hold = 0.5 * (period_s - 2.0 * move_s)
+    n_cycles = math.floor((t[-1] + 1e-9) / period_s) + 1
+    out = []
+    for c in range(n_cycles):
+        t0 = c * period_s
+        sel = (t >= t0) & (t < t0 + period_s)
+        if not sel.any():
+            continue
+        if complete_only and t[sel][-1] < t0 + period_s - 2.0 * _step(t):
+            break
+        tc, rc, ac, pc = t[sel], reference[sel], angle[sel], power_w[sel]
+        ok = np.isfinite(rc) & np.isfinite(ac)
+        err = (ac - rc)[ok]
+        dt = np.diff(tc, append=tc[-1] + _step(t))
+        tempc = temp[sel] if temp is not None else None
+        out.append(CycleMetrics(
+            index=c, start_s=float(t0),
+            rmse_deg=float(np.sqrt(np.mean(err**2))) if err.size else math.nan,
+            max_error_deg=float(np.max(np.abs(err))) if err.size else math.nan,
+            rom_deg=float(np.nanmax(ac) - np.nanmin(ac)),
+            time_to_open_s=_reach_time(tc, ac, open_deg, tol, t0),
+            time_to_closed_s=_reach_time(tc, ac, closed_deg, tol, t0 + move_s + hold),
+            peak_temperature_c=float(np.nanmax(tempc)) if tempc is not None and np.isfinite(tempc).any()
+            else math.nan,
+            energy_j=float(np.sum(np.nan_to_num(pc) * dt)),
+        ))
+    return out
+
+
+def _step(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t))) if t.size > 1 else 0.0
+
+
+def session_summary(cycles: Sequence[CycleMetrics]) -> dict[str, float]:
+    """The session in a few figures: mean per-cycle values, worst error, hottest cycle."""
+    if not cycles:
+        return {"cycles": 0.0}
+
+    def mean(key: str) -> float:
+        v = np.array([getattr(c, key) for c in cycles], float)
+        return float(np.nanmean(v)) if np.isfinite(v).any() else math.nan
+
+    def worst(key: str) -> float:
+        v = np.array([getattr(c, key) for c in cycles], float)
+        return float(np.nanmax(v)) if np.isfinite(v).any() else math.nan
+
+    return {"cycles": float(len(cycles)), "rmse_deg": mean("rmse_deg"), "max_error_deg": worst("max_error_deg"),
+            "rom_deg": mean("rom_deg"), "time_to_open_s": mean("time_to_open_s"),
+            "time_to_closed_s": mean("time_to_closed_s"), "peak_temperature_c": worst("peak_temperature_c"),
+            "energy_per_cycle_j": mean("energy_j")}
