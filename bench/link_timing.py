@@ -34,9 +34,9 @@ from rehab_hil.hardware import open_rig
 from rehab_hil.plants import get_plant, load_config
 from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service import assembly
-from rehab_hil.service.controllers import Actuator, OpenLoopPWM
 from rehab_hil.service.estimation import State
 from rehab_hil.service.runner import LoopService
+from rehab_hil.testing import push_runtime
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "finger_extensor.toml"
@@ -82,7 +82,7 @@ def session(kind: str, config: Path, duration_s: float) -> dict[str, Any]:
         tap = Tap(hw)
         sup = assembly.build_supervisor(cfg, binding)
         sup.limits = dataclasses.replace(sup.limits, link_loss_periods=1000)  # measure, do not stop
-        svc = LoopService(hw, conf, assembly.build_controller(cfg, binding, "session"),
+        svc = LoopService(hw, conf, assembly.build_controller(cfg, source=str(config)),
                           assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
         res = svc.run(duration_s, pacing="device", realtime=True)
     gaps = np.diff(tap.arrivals) * 1e3 if len(tap.arrivals) > 1 else np.array([np.nan])
@@ -108,7 +108,7 @@ def heating_trip(kind: str, config: Path, limit_s: float = 2.0) -> dict[str, Any
     with open_rig(kind, config, connect_timeout_s=15.0) as hw:
         sup = assembly.build_supervisor(cfg, binding)
         sup.limits = dataclasses.replace(sup.limits, max_heating_s=limit_s, link_loss_periods=1000)
-        ctl = OpenLoopPWM(Actuator(binding), 0.05, 100.0, 0.0)
+        ctl = push_runtime(cfg, 0.05, 100.0, 0.0)
         svc = LoopService(hw, conf, ctl, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
         t0 = time.perf_counter()
         res = svc.run(limit_s + 3.0, pacing="device", realtime=True)
@@ -146,7 +146,7 @@ def host_stall(kind: str, config: Path, watchdog_ms: int = 100, pause_s: float =
         tap = Tap(hw)
         sup = assembly.build_supervisor(cfg, binding)
         sup.limits = dataclasses.replace(sup.limits, link_loss_periods=5000)
-        ctl = Stall(OpenLoopPWM(Actuator(binding), 0.05, 100.0, 0.0), 0.5, pause_s)
+        ctl = Stall(push_runtime(cfg, 0.05, 100.0, 0.0), 0.5, pause_s)
         svc = LoopService(hw, conf, ctl, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
         res = svc.run(2.0, pacing="device", realtime=True)
     last_cmd_us, off_us = None, None
@@ -176,7 +176,7 @@ def link_loss(kind: str, config: Path) -> dict[str, Any]:
         hw.connect(timeout=15.0)
         sup = assembly.build_supervisor(cfg, binding)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
-                          assembly.build_controller(cfg, binding, "session"), assembly.build_estimator(cfg, binding),
+                          assembly.build_controller(cfg, source=str(config)), assembly.build_estimator(cfg, binding),
                           sup, assembly.period_s(cfg))
         tripped: list[float] = []
         threading.Timer(1.0, dev.control, args=("stall 3000",)).start()

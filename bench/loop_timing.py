@@ -35,7 +35,7 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
     conf = assembly.firmware_configure(cfg, binding)
     if watchdog_ms is not None:
         conf = dataclasses.replace(conf, watchdog_ms=watchdog_ms)
-    controller = assembly.build_controller(cfg, binding, "session")
+    controller = assembly.build_controller(cfg, source=str(config))  # [rig.session] controller, open-close cycles
     with open_rig("sim", config) as hw:
         on_configure(binding, hw.info, controller.claims)
         tel = None

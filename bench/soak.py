@@ -46,9 +46,10 @@ from rehab_hil.plants import (  # noqa: E402
     load_config,
 )
 from rehab_hil.service import assembly  # noqa: E402
-from rehab_hil.service.controllers import Actuator, Command, PIDPosition  # noqa: E402
+from rehab_hil.service.controllers import Command  # noqa: E402
 from rehab_hil.service.estimation import State  # noqa: E402
 from rehab_hil.service.runner import LoopService  # noqa: E402
+from rehab_hil.testing import pid_runtime  # noqa: E402
 
 # kind -> expected outcome: "continue" (the session must run on) or the host's trip reason
 FAULTS: dict[str, str] = {
@@ -245,8 +246,8 @@ def main(argv: list[str] | None = None) -> int:
             if pending_recovery is not None:
                 recovered[pending_recovery] += 1
                 pending_recovery = None
-            pid = PIDPosition(Actuator(binding), lambda t: 30.0 + 20.0 * math.sin(0.5 * math.pi * t),
-                              0.05, 0.0, 0.0, 0.0, period)
+            # PID along 30 + 20 sin(0.5 pi t) deg (0.25 Hz), kp 0.05 per deg, no I or D
+            pid = pid_runtime(cfg, sine=(30.0, 20.0, 0.25), gains=(0.05, 0.0, 0.0, 0.0))
             controller = Hooked(pid, at_s if kind else math.inf,
                                 (lambda k=kind: inject(k, rig, host_stall_s)) if kind else (lambda: None))
             assert rig.hw is not None
