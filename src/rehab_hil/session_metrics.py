@@ -11,12 +11,12 @@ command is out), the run summary, ``metadata.json`` and the offline benchmark.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-__all__ = ["REACH_SHARE", "CycleMetrics", "cycle_metrics", "session_summary"]
+__all__ = ["REACH_SHARE", "CycleMetrics", "SessionMeter", "cycle_metrics", "session_summary"]
 
 REACH_SHARE = 0.05  # within 5 % of the span from the target counts as reached
 
@@ -105,3 +105,49 @@ def session_summary(cycles: Sequence[CycleMetrics]) -> dict[str, float]:
             "rom_deg": mean("rom_deg"), "time_to_open_s": mean("time_to_open_s"),
             "time_to_closed_s": mean("time_to_closed_s"), "peak_temperature_c": worst("peak_temperature_c"),
             "energy_per_cycle_j": mean("energy_j")}
+
+
+class SessionMeter:
+    """Per-cycle figures while a session runs: the loop adds each controlled sample (after its
+    command is out) and ``poll`` returns a cycle's metrics once that cycle has ended. Arrays are
+    preallocated for the session; one cycle's figures cost a few numpy passes every cycle period."""
+
+    def __init__(self, capacity: int, period_s: float, move_s: float, first_open_s: float, closed_deg: float,
+                 open_deg: float, power_w: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
+        self.period_s, self.move_s, self.first_open_s = period_s, move_s, first_open_s
+        self.closed_deg, self.open_deg, self.power_w = closed_deg, open_deg, power_w
+        n = max(1, capacity)
+        self._cols = np.full((6, n), np.nan)  # t, reference, angle, effort, velocity, temperature
+        self.n = 0
+        self._done_upto = 0  # samples already part of a reported cycle
+        self._next_end = first_open_s + period_s
+        self.cycles: list[CycleMetrics] = []
+
+    def add(self, t_s: float, reference_deg: float, angle_deg: float, effort: float, velocity_rad_s: float,
+            temperature_c: float) -> None:
+        if self.n < self._cols.shape[1]:
+            self._cols[:, self.n] = (t_s, reference_deg, angle_deg, effort, velocity_rad_s, temperature_c)
+            self.n += 1
+
+    def poll(self) -> CycleMetrics | None:
+        """The cycle that has just ended (a sample past its end added), else None."""
+        if self.n == 0 or self._cols[0, self.n - 1] < self._next_end:
+            return None
+        start, end = self._next_end - self.period_s, self._next_end
+        self._next_end += self.period_s
+        c = self._cols[:, self._done_upto:self.n]
+        inside = (c[0] >= start) & (c[0] < end)
+        self._done_upto += int(np.searchsorted(c[0], end))
+        if inside.sum() < 2:
+            return None
+        c = c[:, inside]
+        found = cycle_metrics(c[0] - start, c[1], c[2], self.power_w(c[3], c[4]), c[5], self.period_s, self.move_s,
+                              self.closed_deg, self.open_deg, complete_only=False)
+        if not found:
+            return None
+        cycle = replace(found[0], index=len(self.cycles), start_s=float(start))
+        self.cycles.append(cycle)
+        return cycle
+
+    def summary(self) -> dict[str, float]:
+        return session_summary(self.cycles)

@@ -131,6 +131,14 @@ def summary_table(r: RunResult) -> Table:
     t.add_row("cycles / samples / gaps / reboots", f"{r.cycles} / {r.samples} / {r.sample_gaps} / {r.reboots}")
     for k, v in r.tracking.items():
         t.add_row(f"tracking {k}", f"{v:.4g}" + (" deg" if k in ("mae", "rmse", "max_abs_error") else ""))
+    s = r.session
+    if s.get("cycles"):
+        t.add_row("open-close cycles", f"{s['cycles']:.0f} complete")
+        t.add_row("per cycle: RMSE / max error", f"{s['rmse_deg']:.3g} / {s['max_error_deg']:.3g} deg")
+        t.add_row("per cycle: range of motion", f"{s['rom_deg']:.3g} deg")
+        t.add_row("per cycle: time to open / closed", f"{s['time_to_open_s']:.3g} / {s['time_to_closed_s']:.3g} s")
+        t.add_row("peak est. temperature / energy per cycle",
+                  f"{s['peak_temperature_c']:.4g} C / {s['energy_per_cycle_j']:.4g} J")
     tm = r.timing
     label = "lateness" if r.pacing == "host" else "reaction (sample in -> command out)"
     t.add_row(f"{label} p50/p99/p99.9/max",
@@ -227,7 +235,8 @@ def run(args: argparse.Namespace) -> int:
             stack.callback(telemetry.close)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
                           assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
-                          assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink)
+                          assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink,
+                          meter=assembly.build_meter(cfg, controller, args.duration))
         if telemetry is not None:
             telemetry.watch(svc, hw)
         previous = {s: signal.signal(s, lambda n, f: svc.request_stop(signal.Signals(n).name))

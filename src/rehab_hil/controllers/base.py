@@ -310,12 +310,14 @@ class Controller:
 
 
 def closed_loop(controller: Controller, duration_s: float, *, params: Mapping[str, float] | None = None,
-                inputs: Mapping[str, np.ndarray | float] | None = None,
-                outputs: Sequence[str] = ()) -> SimulationResult:
+                inputs: Mapping[str, np.ndarray | float] | None = None, outputs: Sequence[str] = (),
+                plant_cfg: Any = None) -> SimulationResult:
     """The controller composed with its plant model (the config's ``[[effects]]`` included) in one
-    diagram, simulated for ``duration_s`` from rest: the offline twin of a session. ``inputs``
-    overrides plan tables or plant inputs (arrays per step); ``params`` sets ``"part.param"``."""
-    system, feed = closed_loop_system(controller)
+    diagram, simulated for ``duration_s`` from rest: the offline twin of a session. ``plant_cfg``
+    puts another config's plant under it (the same plant with effects the controller's model lacks,
+    as ``--sim-plant`` does on a simulated rig). ``inputs`` overrides plan tables or plant inputs
+    (arrays per step); ``params`` sets ``"part.param"``."""
+    system, feed = closed_loop_system(controller, plant_cfg)
     n = controller.ctx.plant.n_steps(controller.ctx.cfg, duration_s)
     given = {**feed(n), **(inputs or {})}
     p = system.params.copy()
@@ -326,18 +328,22 @@ def closed_loop(controller: Controller, duration_s: float, *, params: Mapping[st
     return system.simulate(n, {k: v for k, v in given.items() if k in system.input_names}, outputs=record, params=p)
 
 
-def closed_loop_system(controller: Controller) -> tuple[Any, Callable[[int], dict[str, Any]]]:
+def closed_loop_system(controller: Controller, plant_cfg: Any = None) -> tuple[Any, Callable[[int], dict[str, Any]]]:
     """The compiled plant + controller diagram and a function giving its inputs for ``n`` steps."""
     ctx = controller.ctx
-    plant_parts = compose(ctx.plant, ctx.cfg)
+    cfg = ctx.cfg if plant_cfg is None else plant_cfg
+    if cfg.plant != ctx.cfg.plant:
+        raise ControllerError(f"a {ctx.cfg.plant!r} controller cannot drive a {cfg.plant!r} plant")
+    plant_parts = compose(ctx.plant, cfg)
     extra = (DT, *controller.plan_signals, *controller.constants)
-    diagram = Diagram([*plant_parts, *controller.parts], inputs=(*ctx.plant.external_inputs(ctx.cfg), *extra),
-                      sums=(*ctx.ports.sums, *controller.sums))
-    step_s, substeps = ctx.plant.step(ctx.cfg)
+    diagram = Diagram([*plant_parts, *controller.parts], inputs=(*ctx.plant.external_inputs(cfg), *extra),
+                      sums=(*ctx.plant.ports(cfg).sums, *controller.sums))
+    step_s, substeps = ctx.plant.step(cfg)
     system = diagram.compile(step_s, substeps)
+    constants = ctx.plant.ports(cfg).constants
 
     def feed(n: int) -> dict[str, Any]:
-        return {**ctx.ports.constants, **controller.offline_inputs(n)}
+        return {**constants, **controller.offline_inputs(n)}
 
     return system, feed
 

@@ -39,9 +39,10 @@ class LearningSettings:
     """ILC settings: gain [effort per deg], lead [s], Q-filter cutoff [Hz], trials, leak per trial."""
 
     def __init__(self, gain_per_deg: float, lead_s: float, filter_hz: float, iterations: int, leak: float,
-                 tolerance_deg: float = 0.25) -> None:
+                 tolerance_deg: float = 0.25, release_lead_s: float | None = None) -> None:
         self.gain_per_deg, self.lead_s, self.filter_hz = gain_per_deg, lead_s, filter_hz
         self.iterations, self.leak, self.tolerance_deg = int(iterations), leak, tolerance_deg
+        self.release_lead_s = lead_s if release_lead_s is None else release_lead_s
 
 
 def learn(simulate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: int, step_s: float,
@@ -57,6 +58,7 @@ def learn(simulate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: in
     periodic = periods > 1
     u = np.zeros(n)
     lead = max(0, round(s.lead_s / step_s))
+    release = max(0, round(s.release_lead_s / step_s))
     b, a = butter(2, min(s.filter_hz * 2.0 * step_s, 0.99))
     best: tuple[float, np.ndarray, dict[str, float]] = (np.inf, u.copy(), {})
     for _ in range(max(1, s.iterations)):
@@ -69,16 +71,23 @@ def learn(simulate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: in
             best = (rmse, u.copy(), {"model_rmse_deg": rmse, "model_max_error_deg": float(np.max(np.abs(e))),
                                      "model_first_rmse_deg": float(np.sqrt(np.mean(first**2))),
                                      "model_first_max_error_deg": float(np.max(np.abs(first)))})
-        if periodic:
-            shifted = np.roll(e, -lead)
-        else:
-            shifted = np.concatenate([e[lead:], np.full(lead, e[-1])]) if lead else e
+        shifted = _ahead(e, lead, periodic)
+        if release != lead:  # too far along: the effort must drop this much earlier (a wire cools slower)
+            back = _ahead(e, release, periodic)
+            shifted = np.where(back < 0.0, np.minimum(shifted, back), np.maximum(shifted, 0.0))
         # the leak acts only where tracking is within tolerance: it finds the least effort that
         # still tracks without biasing the error where the effort is needed
         v = u + s.gain_per_deg * shifted - s.leak * u * (np.abs(shifted) < s.tolerance_deg)
         v = filtfilt(b, a, np.tile(v, 3))[n:2 * n] if periodic else filtfilt(b, a, v)  # zero phase
         u = np.clip(v, lo, hi)
     return best[1], {**best[2], "trials": float(max(1, s.iterations))}
+
+
+def _ahead(e: np.ndarray, lead: int, periodic: bool) -> np.ndarray:
+    """The error ``lead`` steps later (wrapped around a period, or holding the last value)."""
+    if not lead:
+        return e
+    return np.roll(e, -lead) if periodic else np.concatenate([e[lead:], np.full(lead, e[-1])])
 
 
 def fingerprint(*parts: Any) -> str:

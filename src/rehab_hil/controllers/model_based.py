@@ -35,7 +35,7 @@ from rehab_hil.plants.base import compose
 __all__ = ["ModelBased", "ModelBasedSettings"]
 
 _PERIODS = 2  # a periodic table learns on two cycles from rest: the second is the steady state
-PLAN_VERSION = 1  # part of the cache key: bump when the learning or the chain changes what a plan is
+PLAN_VERSION = 2  # part of the cache key: bump when the learning or the chain changes what a plan is
 
 
 class ModelBasedSettings(Section):
@@ -49,6 +49,9 @@ class ModelBasedSettings(Section):
                                          "of error [actuator unit / deg]")
     learning_lead_s: float = Field(ge=0.0, le=10.0, description="ILC lead: the error this much later moves the "
                                    "feedforward now (the plant's lag) [s]")
+    learning_release_lead_s: float | None = Field(default=None, ge=0.0, le=10.0, description="ILC lead for "
+                                                  "errors the effort must drop to fix (a heated actuator cools "
+                                                  "passively, slower than it heats) [s]; unset: learning_lead_s")
     learning_filter_hz: float = Field(gt=0.0, le=200.0, description="ILC Q-filter cutoff (zero phase) [Hz]")
     learning_iterations: int = Field(ge=1, le=1000, description="ILC trials on the model")
     learning_leak: float = Field(ge=0.0, lt=1.0, description="ILC pull of the feedforward toward zero per "
@@ -159,7 +162,8 @@ def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSe
         return r[ctx.reference], r[ctx.angle]
 
     s = LearningSettings(settings.learning_gain_per_deg, settings.learning_lead_s, settings.learning_filter_hz,
-                         settings.learning_iterations, settings.learning_leak, settings.learning_tolerance_deg)
+                         settings.learning_iterations, settings.learning_leak, settings.learning_tolerance_deg,
+                         settings.learning_release_lead_s)
     table, figures = learn(simulate, n, ctx.step_s, ctx.effort_bounds, s, periods)
     final = run(np.tile(table, periods))
     peak = float(np.max(final[t_obs])) if t_obs else float("nan")

@@ -10,14 +10,15 @@ from typing import Any
 
 from rehab_hil.calibration import force_limit_counts
 from rehab_hil.hardware.interface import configure_from_config
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.plants.base import DeviceBinding, get_plant
 from rehab_hil.protocol import Configure
 from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.service.thermal import thermal_from_config
+from rehab_hil.session_metrics import SessionMeter
 
-__all__ = ["REFERENCES", "ServiceSetupError", "build_controller", "build_estimator", "build_supervisor",
+__all__ = ["REFERENCES", "ServiceSetupError", "build_controller", "build_estimator", "build_meter", "build_supervisor",
            "firmware_configure", "force_channels", "period_s"]
 
 REFERENCES = ("session", "step")  # what the controller tracks: the session's cycles, or a step to step_deg
@@ -54,6 +55,17 @@ def build_controller(cfg: Any, name: str | None = None, reference: str = "sessio
         return ControllerRuntime(build(cfg, name, ref, source=source))
     except (ControllerError, ConfigError) as e:
         raise ServiceSetupError(str(e)) from None
+
+
+def build_meter(cfg: Any, controller: ControllerRuntime, duration_s: float) -> SessionMeter | None:
+    """Per-cycle session figures (``session_metrics``) for a controller tracking open-close cycles;
+    None for a step. Energy from the plant's own actuator power (``Plant.actuator_power_w``)."""
+    ref = controller.controller.reference
+    if ref.kind != "session":
+        return None
+    plant = get_plant(cfg.plant)
+    return SessionMeter(round(duration_s / period_s(cfg)) + 1, ref.period_s, ref.move_s, ref.first_open_s,
+                        ref.closed_deg, ref.open_deg, lambda effort, vel: plant.actuator_power_w(cfg, effort, vel))
 
 
 def build_estimator(cfg: Any, binding: DeviceBinding) -> Estimator:

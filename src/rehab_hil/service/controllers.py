@@ -68,6 +68,12 @@ class Actuator:
         u = effort if self.input.signed else max(effort, 0.0)
         return self.duty_command(min(abs(u) / self.input.scale, 1.0), u < 0.0, reference_deg)
 
+    def effort(self, cmd: Command) -> float:
+        """The effort a command applies on this actuator's input (the inverse of ``command``)."""
+        ch = self.input.channel
+        sign = -1.0 if self.input.signed and cmd.direction >> ch & 1 else 1.0
+        return sign * cmd.duty[ch] * self.input.scale if cmd.enable else 0.0
+
     def duty_command(self, duty: float, reverse: bool = False, reference_deg: float = math.nan) -> Command:
         ch = self.input.channel
         duties = [0.0, 0.0]

@@ -31,6 +31,7 @@ from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.protocol import DUTY_FULL, Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State
+from rehab_hil.session_metrics import CycleMetrics
 
 __all__ = ["GENERIC_FIELDS", "Record", "Recorder", "csv_columns", "generic_fields", "read_mcap"]
 
@@ -54,6 +55,9 @@ class Record:
     command: Command
     command_seq: int
     temperature_c: float
+
+
+CYCLE_FIELDS = tuple(CycleMetrics.__dataclass_fields__)
 
 
 def csv_columns(binding: DeviceBinding) -> list[str]:
@@ -122,6 +126,7 @@ class Recorder:
                         "properties": {"time_s": {"type": "number"}, "kind": {"type": "string"},
                                        "detail": {"type": "string"}}}).encode())
         self._ch_event = self._mcap.register_channel("/rig/event", "json", ev_schema)
+        self._ch_cycle = self._channel("/rig/cycle", "rehab_hil.Cycle", list(CYCLE_FIELDS))
         if metadata:
             self._mcap.add_metadata("rehab_hil.session", _metadata_strings(metadata))
         self._mcap.flush()
@@ -150,6 +155,14 @@ class Recorder:
         """Log a safety or link event (from the loop thread, outside the timed section)."""
         try:
             self._q.put_nowait(("event", (time_s, kind, detail)))
+        except queue.Full:
+            self.dropped += 1
+
+    def cycle(self, metrics: dict[str, float]) -> None:
+        """One finished open-close cycle's figures (``session_metrics.CycleMetrics``), outside the
+        timed section."""
+        try:
+            self._q.put_nowait(("cycle", metrics))
         except queue.Full:
             self.dropped += 1
 
@@ -194,6 +207,12 @@ class Recorder:
         return self._wall0_ns + int(host_time_s * 1e9)
 
     def _write(self, item: Record | tuple[str, Any]) -> None:
+        if isinstance(item, tuple) and item[0] == "cycle":
+            now = self._log_time(time.perf_counter())
+            self._mcap.add_message(self._ch_cycle, log_time=now, publish_time=now, sequence=int(item[1]["index"]),
+                                   data=json.dumps({k: _clean(float(v)) for k, v in item[1].items()}).encode())
+            self.messages += 1
+            return
         if isinstance(item, tuple):
             t, kind, detail = item[1]
             now = self._log_time(time.perf_counter())

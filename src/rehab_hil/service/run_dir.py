@@ -116,4 +116,5 @@ def result_metadata(result: Any, rows: int) -> dict[str, Any]:
         "reboots": result.reboots, "tracking": result.tracking, "timing": result.timing, "link": result.link,
         "safety_events": [{"t_s": e.t_s, "reason": e.reason, "detail": e.detail} for e in result.events],
         "pwm_off_at_end": result.pwm_off_at_end,
+        "session": result.session, "session_cycles": result.session_cycles,
     }

@@ -28,6 +28,7 @@ from rehab_hil.service.loop import DeadlineTimer, RealtimeReport, TimingStats, r
 from rehab_hil.service.recorder import Record, Recorder
 from rehab_hil.service.supervisor import SafetyEvent, Supervisor
 from rehab_hil.service.telemetry import NullSink, TelemetrySink
+from rehab_hil.session_metrics import SessionMeter
 
 __all__ = ["LoopService", "Progress", "RunResult"]
 
@@ -47,6 +48,7 @@ class Progress:
     samples: int = 0
     missed: int = 0
     tripped: str = ""
+    last_cycle: dict[str, float] = field(default_factory=dict)  # the last finished open-close cycle's figures
 
 
 @dataclass
@@ -70,6 +72,8 @@ class RunResult:
     final_sample: Sample | None
     stop_reason: str
     files: list[str] = field(default_factory=list)
+    session: dict[str, float] = field(default_factory=dict)  # per-cycle figures summed up (session_metrics)
+    session_cycles: list[dict[str, float]] = field(default_factory=list)
 
     @property
     def pwm_off_at_end(self) -> bool:
@@ -82,10 +86,13 @@ class LoopService:
 
     def __init__(self, hw: HardwareInterface, configure: Configure, controller: Controller, estimator: Estimator,
                  supervisor: Supervisor, period_s: float, recorder: Recorder | None = None,
-                 telemetry: TelemetrySink | None = None) -> None:
+                 telemetry: TelemetrySink | None = None, meter: SessionMeter | None = None) -> None:
         self.hw, self.configure_msg, self.controller = hw, configure, controller
         self.estimator, self.supervisor, self.period_s = estimator, supervisor, period_s
         self.recorder, self.telemetry = recorder, telemetry or NullSink()
+        self.meter = meter
+        actuator = getattr(controller, "actuator", None)
+        self._effort_of = actuator.effort if actuator is not None else (lambda cmd: math.nan)
         self.progress = Progress()
         self._stop_reason = ""
         self._seq = -1
@@ -166,6 +173,8 @@ class LoopService:
                     break
                 reaction.add(time.perf_counter() - self.hw.last_sample_time)
                 self._offer(t_s, cmd)
+                if self.meter is not None:
+                    self._meter(t_s, state, cmd)
                 if cycles < n_max:
                     refs[cycles], angles[cycles] = cmd.reference_deg, state.angle_deg
                 cycles += 1
@@ -192,6 +201,8 @@ class LoopService:
             telemetry_dropped=int(getattr(self.telemetry, "dropped", 0)), final_sample=self._final,
             stop_reason=f"safety trip: {self.supervisor.events[0].reason}" if self.supervisor.events else stop_reason,
             files=[str(self.recorder.csv_path), str(self.recorder.mcap_path)] if self.recorder else [],
+            session=self.meter.summary() if self.meter else {},
+            session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
         )
 
     # ------------------------------------------------------------------------------------------
@@ -257,6 +268,18 @@ class LoopService:
         if self.recorder is not None:
             self.recorder.offer(rec)
         self.telemetry.offer(rec)
+
+    def _meter(self, t_s: float, state: State, cmd: Command) -> None:
+        """After the command is out: the session meter's sample, and a finished cycle's figures to
+        the recording (MCAP ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
+        assert self.meter is not None
+        self.meter.add(t_s, cmd.reference_deg, state.angle_deg, self._effort_of(cmd), state.velocity_rad_s,
+                       self.supervisor.temperature_c)
+        cycle = self.meter.poll()
+        if cycle is not None:
+            self.progress.last_cycle = cycle.as_dict()
+            if self.recorder is not None:
+                self.recorder.cycle(cycle.as_dict())
 
     def _update_progress(self, t_s: float, state: State, cmd: Command) -> None:
         p = self.progress

@@ -76,6 +76,8 @@ def loop_stats(service: Any, hw: Any) -> Callable[[], dict[str, Any]]:
     def stats() -> dict[str, Any]:
         p = service.progress
         out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "missed", "tripped")}
+        if getattr(p, "last_cycle", None):
+            out["cycle"] = p.last_cycle  # the last finished open-close cycle (session_metrics)
         link = getattr(hw, "stats", None)
         if link is not None:
             d = link.as_dict()
