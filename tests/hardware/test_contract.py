@@ -160,7 +160,8 @@ def test_open_rig_sim_connects_to_the_python_device_on_a_pty(cfg, binding) -> No
 def test_rehab_hil_run_on_the_inprocess_device(capsys: pytest.CaptureFixture[str]) -> None:
     from rehab_hil.cli import main
 
-    code = main(["run", "--config", str(CONFIG), "--device", "inprocess", "--controller", "pid", "--reference", "step", "--duration", "0.5",
+    code = main(["run", "--config", str(CONFIG), "--device", "inprocess", "--controller", "pid", "--reference", "step",
+                 "--duration", "0.5",
                  "--no-display"])
     assert code == 0, capsys.readouterr()
     out = capsys.readouterr().out
