@@ -37,15 +37,17 @@ def main() -> dict:
     step_s, substeps = spec.step(cfg)
     n = int(SIM_SECONDS / step_s)
     results = {}
+    cycle = spec.scenarios["cycle"](cfg)  # the rig's pid controller on open-close cycles
     cases = {
-        "plant_open_loop": (spec.build(cfg), {"motor_voltage_v": 6.0}),
-        "closed_loop_pid_cycle": ([*spec.build(cfg), *spec.scenarios["cycle"](cfg).parts], {}),
+        "plant_open_loop": (spec.build(cfg), {"motor_voltage_v": 6.0}, ()),
+        "closed_loop_pid_cycle": ([*spec.build(cfg), *cycle.parts], dict(cycle.inputs), cycle.sums),
     }
-    for name, (parts, inputs) in cases.items():
+    for name, (parts, inputs, sums) in cases.items():
         t0 = time.perf_counter()
-        # in the closed loop the PID produces motor_voltage_v, so only patient_torque_nm is external
-        system = Diagram(parts, inputs=("motor_voltage_v", "patient_torque_nm"),
-                         sums=spec.ports(cfg).sums).compile(step_s, substeps)
+        # in the closed loop the PID produces motor_voltage_v; patient_torque_nm and the controller's
+        # dt_s are external
+        system = Diagram(parts, inputs=tuple(dict.fromkeys(("motor_voltage_v", "patient_torque_nm", *inputs))),
+                         sums=(*spec.ports(cfg).sums, *sums)).compile(step_s, substeps)
         system.simulate(10, inputs)
         load_s = time.perf_counter() - t0
         walls = measure(system, n, inputs)
