@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from rehab_hil import metrics
-from rehab_hil.controllers import Reference, build_controller, closed_loop
+from rehab_hil.controllers import Reference, build_controller, closed_loop, offline_session
 from rehab_hil.controllers.observer import OBSERVER
 from rehab_hil.plants import load_config
-from rehab_hil.session_metrics import cycle_metrics, session_summary
 from rehab_hil.testing import CONFIGS
 
 from .conftest import effect, with_text
@@ -21,13 +20,7 @@ pytestmark = pytest.mark.slow
 
 def session(ctl, cycles: int = 3, plant_cfg=None) -> dict[str, float]:
     """Per-cycle figures of ``cycles`` cycles on the model, the first (from rest) left out."""
-    ref, ctx = ctl.reference, ctl.ctx
-    res = closed_loop(ctl, ref.first_open_s + cycles * ref.period_s, plant_cfg=plant_cfg)
-    effort = res[ctx.effort]
-    power = ctx.plant.actuator_power_w(ctx.cfg, effort, np.zeros_like(effort))
-    found = cycle_metrics(res.t - ref.first_open_s, res[ctx.reference], res[ctx.angle], power, None,
-                          ref.period_s, ref.move_s, ref.closed_deg, ref.open_deg)
-    return session_summary(found[1:])
+    return offline_session(ctl, cycles, plant_cfg)[1]
 
 
 def test_sma_model_based_tracks_within_2_deg_on_half_the_energy_of_the_open_loop_map(sma):

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 __all__ = ["SUBCOMMANDS", "UserError", "main"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
-SUBCOMMANDS = ["simulate", "run", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record", "ports",
-               "flash", "router", "foxglove", "doctor", "calibrate"]
+SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
+               "ports", "flash", "router", "foxglove", "doctor", "calibrate"]
 
 
 class UserError(Exception):
@@ -25,10 +25,11 @@ class UserError(Exception):
 def _user_errors() -> tuple[type[BaseException], ...]:
     from rehab_hil.calibration import ForceLimitError
     from rehab_hil.config import ConfigError
+    from rehab_hil.controllers.base import ControllerError
     from rehab_hil.interchange import CsvError
     from rehab_hil.models.system import DiagramError
 
-    return (UserError, ConfigError, CsvError, DiagramError, ForceLimitError)
+    return (UserError, ConfigError, ControllerError, CsvError, DiagramError, ForceLimitError)
 
 
 def build_parser() -> argparse.ArgumentParser:

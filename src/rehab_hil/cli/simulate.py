@@ -17,7 +17,13 @@ from rehab_hil.plants.base import run_scenario
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate a plant scenario and write the interchange CSV")
     p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--scenario", required=True, help="scenario name (plant-specific, e.g. step, cycle)")
+    p.add_argument("--scenario", default=None, help="scenario name (plant-specific, e.g. step, cycle)")
+    p.add_argument("--controller", default=None, metavar="NAME",
+                   help="instead of a scenario: a session of this controller (rehab_hil.controllers; 'session' = "
+                        "[rig.session] controller) composed with the plant model; --effect then changes the plant "
+                        "only, as a rig with an effect the controller's model lacks")
+    p.add_argument("--reference", choices=("session", "step"), default="session",
+                   help="with --controller: the session's open-close cycles or a step to [rig.session] step_deg")
     p.add_argument("--duration", type=float, default=None, help="duration [s] (default: from the config)")
     p.add_argument("--out", type=Path, default=None, help="CSV to write")
     p.add_argument("--effect", action="append", default=[], metavar="NAME:KEY=VALUE,...",
@@ -30,6 +36,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     spec = get_plant(cfg.plant)
+    if args.out is not None and args.out.is_dir():
+        raise UserError(f"--out {args.out} is a directory; give the CSV file to write")
+    if (args.scenario is None) == (args.controller is None):
+        raise UserError("give --scenario NAME (an offline experiment) or --controller NAME (a session), not both")
+    if args.controller is not None:
+        return _controlled(args, cfg)
     if args.effect:
         cfg = _with_effects(cfg, args.effect)
     if args.scenario not in spec.scenarios:
@@ -53,6 +65,36 @@ def run(args: argparse.Namespace) -> int:
     if scenario.metrics:
         for k, v in scenario.metrics(res).items():
             print(f"  {k:24s} {v:12.4f}")
+    if args.out:
+        write_csv(args.out, res.t, res.signals)
+        print(f"wrote {args.out} ({len(res.t)} rows, columns: time_s, {', '.join(res.signals)})")
+    return 0
+
+
+def _controlled(args: argparse.Namespace, cfg: Any) -> int:
+    """A session on the model: the controller built from the config, the plant with ``--effect``."""
+    from rehab_hil.controllers import Reference, build_controller, closed_loop, offline_session
+
+    plant_cfg = _with_effects(cfg, args.effect) if args.effect else None
+    name = None if args.controller == "session" else args.controller
+    ref = Reference.session(cfg) if args.reference == "session" else Reference.step(cfg)
+    ctl = build_controller(cfg, name, ref, source=str(args.config))
+    for note in ctl.notes:
+        print(f"warning: {note}")
+    t0 = time.perf_counter()
+    if ref.kind == "session":
+        cycles = 3 if args.duration is None else max(1, round((args.duration - ref.first_open_s) / ref.period_s))
+        res, figures = offline_session(ctl, cycles, plant_cfg)
+        print(f"{cfg.plant} / {ctl.name} session: {cycles} cycles after a {ref.first_open_s:g} s rest, "
+              f"{res.t[-1]:.1f} s simulated in {time.perf_counter() - t0:.3f} s wall; per cycle (first left out):")
+    else:
+        from rehab_hil import metrics
+
+        res = closed_loop(ctl, args.duration or ref.period_s, plant_cfg=plant_cfg)
+        figures = metrics.step_metrics(res.t, res[ctl.ctx.angle], ref.start_deg, ref.open_deg)
+        print(f"{cfg.plant} / {ctl.name} step to {ref.open_deg:g} deg:")
+    for k, v in {**figures, **(ctl.plan.figures if ctl.plan else {})}.items():
+        print(f"  {k:28s} {v:12.4f}")
     if args.out:
         write_csv(args.out, res.t, res.signals)
         print(f"wrote {args.out} ({len(res.t)} rows, columns: time_s, {', '.join(res.signals)})")

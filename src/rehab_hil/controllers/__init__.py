@@ -15,9 +15,10 @@ from rehab_hil.controllers.base import (
     controller_names,
     controllers,
     get_controller,
+    offline_session,
 )
 from rehab_hil.controllers.build import build_controller, preflight, settings_for, validate_controllers
 
 __all__ = ["DT", "ControlContext", "Controller", "ControllerError", "ControllerSpec", "Plan", "Reference",
-           "build_controller", "closed_loop", "controller_names", "controllers", "get_controller", "preflight",
-           "settings_for", "validate_controllers"]
+           "build_controller", "closed_loop", "controller_names", "controllers", "get_controller", "offline_session",
+           "preflight", "settings_for", "validate_controllers"]

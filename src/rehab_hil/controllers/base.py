@@ -43,6 +43,7 @@ __all__ = [
     "controller_names",
     "controllers",
     "get_controller",
+    "offline_session",
 ]
 
 DT = "dt_s"  # the controller's input: device time since its last step [s]
@@ -346,6 +347,28 @@ def closed_loop_system(controller: Controller, plant_cfg: Any = None) -> tuple[A
         return {**constants, **controller.offline_inputs(n)}
 
     return system, feed
+
+
+def offline_session(controller: Controller, cycles: int = 3, plant_cfg: Any = None,
+                    outputs: Sequence[str] = ()) -> tuple[SimulationResult, dict[str, float]]:
+    """``cycles`` open-close cycles of the controller on the model (after its rest at closed) and
+    the per-cycle figures of all but the first (from rest), as a session reports them."""
+    from rehab_hil.service.thermal import thermal_from_config
+    from rehab_hil.session_metrics import cycle_metrics, session_summary
+
+    ref, ctx = controller.reference, controller.ctx
+    cfg = ctx.cfg if plant_cfg is None else plant_cfg
+    res = closed_loop(controller, ref.first_open_s + cycles * ref.period_s, plant_cfg=plant_cfg, outputs=outputs)
+    effort = res[ctx.effort]
+    power = ctx.plant.actuator_power_w(cfg, effort, np.zeros_like(effort))
+    th = cfg.rig.thermal
+    temp = None
+    if th is not None:  # the host's estimate, as the supervisor computes it on the rig
+        est, scale = thermal_from_config(th), ctx.ports.actuators[0].duty_scale
+        temp = np.array([est.step(abs(u) / scale, ctx.step_s) for u in effort])
+    found = cycle_metrics(res.t - ref.first_open_s, res[ctx.reference], res[ctx.angle], power, temp, ref.period_s,
+                          ref.move_s, ref.closed_deg, ref.open_deg)
+    return res, session_summary(found[1:] if len(found) > 1 else found)
 
 
 # --- declarations and their registry --------------------------------------------------------
