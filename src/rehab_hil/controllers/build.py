@@ -27,7 +27,7 @@ from rehab_hil.service.thermal import thermal_from_config
 
 __all__ = ["PREFLIGHT_MAX_S", "build_controller", "preflight", "settings_for", "validate_controllers"]
 
-PREFLIGHT_MAX_S = 30.0  # the pre-flight run covers one reference period, at most this long [s]
+PREFLIGHT_MAX_S = 120.0  # the pre-flight run covers the rest and one reference period, at most this long [s]
 
 
 def validate_controllers(cfg: Any, path: Any) -> Any:
