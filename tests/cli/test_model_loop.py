@@ -142,3 +142,21 @@ def test_hidden_coulomb_friction_behind_the_real_firmware_in_simavr_is_found(tmp
     report = _discrepancy(host, run, tmp_path / "report", capsys)
     assert [c["effect"] for c in report["chosen"]] == ["coulomb_friction"]
     assert report["chosen"][0]["params"]["level_nm"] == pytest.approx(0.03, rel=0.2)
+
+
+@pytest.mark.slow
+def test_the_model_loop_improves_what_the_rig_does_an_augmented_model_halves_the_tracking_error(tmp_path, capsys):
+    """Issue 22 item 4: a rig whose SMA driver has a dead zone the host's model lacks -> a session with
+    the nominal model's controller -> discrepancy names it -> a session with the augmented model's
+    controller on the same rig tracks at least twice as well (its feedforward pays the dead zone)."""
+    rig = _with_effect(SMA, tmp_path / "rig_plant.toml", "actuator_dead_zone", "width_duty = 0.08")
+    before = _session(SMA, tmp_path / "before", capsys, device="inprocess", sim_plant=rig, duration=40.0)
+    report = _discrepancy(SMA, before, tmp_path / "report", capsys)
+    assert "actuator_dead_zone" in [c["effect"] for c in report["chosen"]]
+    augmented = tmp_path / "report" / "augmented.toml"
+    after = _session(augmented, tmp_path / "after", capsys, device="inprocess", sim_plant=rig, duration=40.0)
+    b, a = (json.loads((run / "metadata.json").read_text()) for run in (before, after))
+    assert b["controller"] == a["controller"] == "model_based"
+    assert len(b["session_cycles"]) == len(a["session_cycles"]) == 2  # 4.8 s rest + 3 x 12 s cycles > 40 s
+    assert a["safety_events"] == [] and b["safety_events"] == []
+    assert a["session"]["rmse_deg"] <= 0.5 * b["session"]["rmse_deg"], (b["session"], a["session"])

@@ -19,7 +19,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.firmware,
                                  reason=str(avr_device.unavailable_reason()))]
 
 
-def test_pid_step_on_the_firmware_in_simavr_reaches_the_target_and_ends_with_pwm_off(cfg, binding):
+def test_the_model_based_step_on_the_firmware_in_simavr_reaches_the_target_and_ends_with_pwm_off(cfg, binding):
     # simavr runs in real time on a shared VM: the watchdog and link-loss budgets are widened so
     # that scheduler stalls of the test machine do not end the session; the control is unchanged.
     conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), watchdog_ms=500)
@@ -30,7 +30,7 @@ def test_pid_step_on_the_firmware_in_simavr_reaches_the_target_and_ends_with_pwm
         hw = SerialHardware(dev.port)
         hw.connect()
         try:
-            svc = LoopService(hw, conf, assembly.build_controller(cfg, "pid", "step"),
+            svc = LoopService(hw, conf, assembly.build_controller(cfg, "model_based", "step"),
                               assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
             res = svc.run(1.5, pacing="device", realtime=True)
         finally:
