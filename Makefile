@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	rm -f $(VENV)/.installed-* && touch $@
 
 run: $(STAMP)
-	$(BIN)/rehab-hil run --config configs/sma_exoskeleton.toml --device sim --duration 24 --record out/
+	$(BIN)/rehab-hil run --config configs/sma_exoskeleton.toml --device sim --duration 30 --record out/
 
 test: $(STAMP) toolchain firmware harness
 	$(BIN)/ruff check .
