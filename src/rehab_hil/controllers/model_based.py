@@ -27,7 +27,7 @@ from rehab_hil.control.limits import TemperatureCeiling
 from rehab_hil.controllers.base import ControlContext, Controller, ControllerSpec, Plan, Reference, closed_loop_system
 from rehab_hil.controllers.feedforward import LearningSettings, cached, fingerprint, learn
 from rehab_hil.controllers.observer import OBSERVER, temperature_signal, thermal_slice
-from rehab_hil.controllers.pid import feedback_parts, limit_part
+from rehab_hil.controllers.pid import PID, feedback_parts, limit_part
 from rehab_hil.controllers.reachable import reachable_range
 from rehab_hil.models.sensors import Gain
 from rehab_hil.plants.base import compose
@@ -73,9 +73,7 @@ class ModelBased(ControllerSpec):
     summary = "feedforward learned on the model + PID feedback (+ thermal observer and ceiling)"
     settings = ModelBasedSettings
 
-    @classmethod
-    def refuse(cls, ctx: ControlContext) -> str | None:
-        return None if ctx.binding.encoder_signal else "it needs an encoder, and the plant's rig has none"
+    refuse = PID.refuse  # the same feedback on the encoder angle: the same requirement
 
     @classmethod
     def build(cls, ctx: ControlContext, settings: ModelBasedSettings, reference: Reference) -> Controller:
