@@ -28,16 +28,17 @@ def free_port() -> int:
 
 
 def inprocess_rig(config_path: str | Path = CONFIGS / "finger_extensor.toml", *, configured: bool = True,
-                  hello: Mapping[str, int] | None = None) -> InProcessHardware:
+                  hello: Mapping[str, int] | None = None, bursts: tuple[int, ...] = (1,)) -> InProcessHardware:
     """An in-process rig on the plant of ``config_path``, connected and, when ``configured``, given
     the config's CONFIGURE (ACTIVE: each ``write_command`` returns the next sample at once).
-    ``hello`` overrides fields of the device's HELLO (a different firmware version, fewer channels)."""
+    ``hello`` overrides fields of the device's HELLO (a different firmware version, fewer channels);
+    ``bursts`` are the sample periods each command runs, cycled (a USB bridge's 2-3 at a time)."""
     from rehab_hil.plants import get_plant, load_config
     from rehab_hil.service import assembly
 
     cfg = load_config(config_path)
     binding = get_plant(cfg.plant).device(cfg)
-    hw = inprocess_hardware(binding, hello=hello)
+    hw = inprocess_hardware(binding, hello=hello, bursts=bursts)
     hw.connect()
     if configured:
         hw.configure(assembly.firmware_configure(cfg, binding))

@@ -127,3 +127,12 @@ def test_the_runtime_takes_dt_from_device_time_so_a_bursty_loop_integrates_the_s
     v_ms, v_burst = every_ms.actuator.effort(out_ms), bursty.actuator.effort(out_burst)
     assert v_ms == pytest.approx(10.0 * 1.0, rel=0.01)  # ki x error x time
     assert v_burst == pytest.approx(v_ms, rel=0.01)
+
+
+def test_a_model_whose_angle_does_not_answer_the_effort_is_refused_for_model_based_control(tmp_path):
+    """A 0.5 V supply cannot warm the wire to its transformation: the model has no inverse on the
+    range, and the model-based controller says so instead of learning nothing."""
+    weak = load_config(with_text(CONFIGS / "sma_exoskeleton.toml", tmp_path / "weak.toml",
+                                 replace=("supply_voltage_v = 32.0", "supply_voltage_v = 0.5")))
+    with pytest.raises(ControllerError, match=r"does not respond to pwm_duty.*no inverse on the range"):
+        build_controller(weak, "model_based")

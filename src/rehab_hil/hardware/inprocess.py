@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Protocol
 
 from rehab_hil.devices.core import DeviceCore, Readings
@@ -40,10 +40,12 @@ class PlantPort(Protocol):
 
 class InProcessHardware(HardwareInterface):
     """A lockstep device in this process; ``hello`` overrides fields of the device's HELLO (e.g.
-    ``{"protocol_version": 2}`` or ``{"n_pwm": 1}``) to play a different firmware."""
+    ``{"protocol_version": 2}`` or ``{"n_pwm": 1}``) to play a different firmware. ``bursts``: the
+    sample periods each COMMAND runs, cycled (``(2, 2, 3)`` delivers samples as the Uno's USB bridge
+    does, 2-3 at a time, the host controlling once per burst; deterministically)."""
 
     def __init__(self, plant: PlantPort, encoder_counts_per_rev: int, *,
-                 hello: Mapping[str, int] | None = None) -> None:
+                 hello: Mapping[str, int] | None = None, bursts: Sequence[int] = (1,)) -> None:
         super().__init__()
         self.plant = plant
         self.core = DeviceCore(encoder_counts_per_rev)
@@ -54,6 +56,10 @@ class InProcessHardware(HardwareInterface):
             raise ValueError(f"unknown HELLO fields {sorted(unknown)}")
         self._tx_seq = 0
         self._sent: tuple[int, float] | None = None  # the last COMMAND (seq, perf_counter) until echoed
+        if not bursts or any(int(b) < 1 for b in bursts):
+            raise ValueError(f"bursts must be sample counts >= 1, got {tuple(bursts)}")
+        self._bursts = tuple(int(b) for b in bursts)
+        self._burst_i = 0
 
     # ---- lifecycle ----------------------------------------------------------------------------
 
@@ -124,7 +130,9 @@ class InProcessHardware(HardwareInterface):
             self._sent = (seq, time.perf_counter())
         self._receive(core.on_frame(Frame(seq, msg)))
         if isinstance(msg, Command) and core.streaming:
-            for _ in range(core.divider):
+            periods = self._bursts[self._burst_i % len(self._bursts)]
+            self._burst_i += 1
+            for _ in range(core.divider * periods):
                 enc, a0, a1 = self.plant.tick(core.duty, core.direction)
                 self._receive(core.tick(Readings(enc, a0, a1, self.estop_pin)))
         return seq

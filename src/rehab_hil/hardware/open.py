@@ -9,7 +9,7 @@ loop of the simulated backends.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
@@ -24,12 +24,13 @@ RIG_KINDS = ("sim", "avr", "inprocess")  # anything else is a serial path
 
 
 def inprocess_hardware(binding: Any, *, adc_noise_counts: float = 0.0, seed: int = 0,
-                       hello: Mapping[str, int] | None = None) -> InProcessHardware:
-    """``InProcessHardware`` on a plant's rig binding (``DeviceBinding``), not yet connected."""
+                       hello: Mapping[str, int] | None = None, bursts: Sequence[int] = (1,)) -> InProcessHardware:
+    """``InProcessHardware`` on a plant's rig binding (``DeviceBinding``), not yet connected; ``bursts``:
+    sample periods per COMMAND, cycled (a USB bridge's bursts, deterministically)."""
     from rehab_hil.devices.plant_io import PlantIO  # the model framework: imported only when needed
 
     plant = PlantIO(binding, adc_noise_counts=adc_noise_counts, seed=seed)
-    return InProcessHardware(plant, binding.encoder_counts_per_rev, hello=hello)
+    return InProcessHardware(plant, binding.encoder_counts_per_rev, hello=hello, bursts=bursts)
 
 
 @contextmanager
