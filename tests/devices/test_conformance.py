@@ -88,7 +88,7 @@ def lockstep_rig(backend: str, device_pool: Callable[..., Any]) -> Iterator[tupl
     _quiet(hw)
 
 
-def _next(hw: SerialHardware, timeout: float = 2.0) -> Sample:
+def _next(hw: SerialHardware, timeout: float = 10.0) -> Sample:  # lockstep: generous on a busy machine
     s = hw.read_sample(timeout)
     assert s is not None, f"no SAMPLE within {timeout} s"
     return s
