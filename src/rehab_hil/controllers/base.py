@@ -29,7 +29,7 @@ from rehab_hil.control.trajectories import OpenCloseReference, StepReference, op
 from rehab_hil.interfaces import Claims
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import Diagram, DiagramError, Part, SimulationResult
-from rehab_hil.plants.base import DeviceBinding, Plant, compose, get_plant
+from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
 
 __all__ = [
     "DT",
@@ -169,10 +169,6 @@ class Reference:
         """When the first opening move starts: a session begins at rest, in its closed hold, so an
         actuator that lags (a wire heating from ambient) can start the bend on time [s]."""
         return self.hold_closed_s if self.kind == "session" else 0.0
-
-    @property
-    def span_deg(self) -> float:
-        return abs(self.open_deg - (self.closed_deg if self.kind == "session" else self.start_deg))
 
     def part(self, signal: str) -> Part:
         """The reference as the head of the controller's chain."""
@@ -335,10 +331,9 @@ def closed_loop_system(controller: Controller, plant_cfg: Any = None) -> tuple[A
     cfg = ctx.cfg if plant_cfg is None else plant_cfg
     if cfg.plant != ctx.cfg.plant:
         raise ControllerError(f"a {ctx.cfg.plant!r} controller cannot drive a {cfg.plant!r} plant")
-    plant_parts = compose(ctx.plant, cfg)
-    extra = (DT, *controller.plan_signals, *controller.constants)
-    diagram = Diagram([*plant_parts, *controller.parts], inputs=(*ctx.plant.external_inputs(cfg), *extra),
-                      sums=(*ctx.plant.ports(cfg).sums, *controller.sums))
+    diagram = ctx.plant.diagram(cfg, controller.parts, extra_inputs=(DT, *controller.plan_signals,
+                                                                      *controller.constants),
+                                extra_sums=controller.sums)
     step_s, substeps = ctx.plant.step(cfg)
     system = diagram.compile(step_s, substeps)
     constants = ctx.plant.ports(cfg).constants

@@ -15,8 +15,6 @@ import numpy as np
 from rehab_hil.controllers.base import ControlContext, ControllerError
 from rehab_hil.controllers.feedforward import cached, fingerprint
 from rehab_hil.controllers.observer import temperature_signal
-from rehab_hil.models.system import Diagram
-from rehab_hil.plants.base import compose
 
 __all__ = ["SETTLE_S", "reachable_range"]
 
@@ -41,8 +39,7 @@ def reachable_range(ctx: ControlContext, temperature_limit_c: float | None = Non
 
 def _compute(ctx: ControlContext, settle_s: float, limit_c: float) -> tuple[float, float]:
     cfg, plant = ctx.cfg, ctx.plant
-    system = Diagram(compose(plant, cfg), inputs=plant.external_inputs(cfg), sums=ctx.ports.sums).compile(
-        *plant.step(cfg))
+    system = plant.diagram(cfg).compile(*plant.step(cfg))
     n = plant.n_steps(cfg, settle_s)
     temp = temperature_signal(ctx.ports)
     outs = [ctx.angle, *([temp] if temp else [])]
