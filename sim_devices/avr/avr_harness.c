@@ -5,7 +5,7 @@
  * stdout: line 1 is the pty path; every later line is a reply (see README.md). simavr's log
  * and stray printf()s go to stderr (fd 1 is redirected there; replies use a dup of the original).
  *
- * Usage: avr_harness [-f] [-l LOCKSTEP_US] [-e EDGE_US] [-b BOOT.hex] [-r] [-u] [-v] firmware.elf
+ * Usage: avr_harness [-f] [-k] [-l LOCKSTEP_US] [-e EDGE_US] [-b BOOT.hex] [-r] [-u] [-v] firmware.elf
  *   -f  free-running: do not throttle simulated time to the wall clock
  *   -b  load a bootloader (Intel hex, e.g. optiboot at 0x7E00) with the sketch and start there
  *       (BOOTRST fuse programmed, as on an Uno)
@@ -14,6 +14,9 @@
  *       firmware set in UBRR0/U2X0) into its 2-byte receive buffer; a byte completing while 2 are
  *       unread is lost (data overrun, counted in rx_dropped), instead of simavr's 64-byte FIFO
  *   -l  lockstep: stop every LOCKSTEP_US of simulated time, print a T line, wait for G
+ *   -k  host-paced (virtual time, with -f): simulated time stops after each SAMPLE, ACK or HELLO the AVR
+ *       sends and runs again when a whole frame from the host has arrived, so device time advances
+ *       only as the host allows (the Python device's lockstep clock), whatever the machine's load
  *   -e  simulated time between two generated encoder edges (default 50 us = 20,000 counts/s;
  *       closer edges can fall within one interrupt latency and be lost, see README.md)
  *   -v  pass simavr's warnings to stderr
@@ -69,7 +72,7 @@
 
 static avr_t *avr;
 static int reply_fd = -1, pty_master = -1, pty_slave = -1;
-static int verbose = 0, free_running = 0, reset_on_open = 0, uart_real = 0;
+static int verbose = 0, free_running = 0, reset_on_open = 0, uart_real = 0, host_paced = 0;
 static int host_open = 0;
 static const char *boot_hex = NULL;
 static uint32_t boot_pc = 0;
@@ -79,6 +82,20 @@ static uint32_t lockstep_us = 0, edge_us = 50;
 static avr_irq_t *uart_in_irq, *pin_irq[8], *adc_irq;
 static volatile int xoff = 0;
 static volatile sig_atomic_t stop = 0;
+
+/* -k: the frame the AVR is sending (its COBS-encoded type byte sits at offset 2, since the packet's
+ * version and type bytes are never 0), the host frame being received, and the host frames the
+ * firmware has not answered yet: COMMANDs (answered by the first SAMPLE that echoes the newest one,
+ * or shows a latched fault, which makes the firmware ignore them) and requests (answered one by one
+ * by a HELLO, HEARTBEAT or ACK). */
+static uint8_t dev_frame[80];
+static size_t dev_frame_len = 0;
+static uint16_t last_command_seq = 0;
+static uint8_t host_frame[80];
+static size_t host_frame_len = 0;
+static uint64_t owed_commands = 0, owed_requests = 0;
+static int boot_hello = 1;             /* the HELLO the firmware sends at boot answers nobody */
+static int gate_closed = 0;            /* simulated time stopped until the next host frame */
 
 static uint8_t rx_buf[4096];          /* pty -> AVR, waiting for room in the UART fifo */
 static size_t rx_len = 0;
@@ -99,10 +116,94 @@ static void logger(avr_t *a, const int level, const char *fmt, va_list ap) {
     if (verbose && level <= LOG_WARNING) vfprintf(stderr, fmt, ap);
 }
 
+/* Frame types (docs/protocol.md) that answer a host frame: a HELLO (HELLO_REQ), a SAMPLE (a COMMAND
+ * while streaming), a HEARTBEAT (HEARTBEAT) and an ACK (CONFIGURE, CLEAR, SET_ENCODER, ESTOP). */
+#define T_HELLO 0x81
+#define T_SAMPLE 0x82
+#define T_HEARTBEAT 0x84
+#define T_ACK 0x85
+
+#define T_COMMAND 0x03
+
+#define SAMPLE_STATUS 25          /* packet offsets of SAMPLE.status and .cmd_seq_echo (u16 LE) */
+#define SAMPLE_ECHO 29
+#define STATUS_FAULT_LATCHED 0x04
+
+static size_t cobs_decode(const uint8_t *enc, size_t n, uint8_t *dec, size_t cap);
+
+/* -k: simulated time stops when the firmware has answered every host frame, until the host speaks
+ * again. A COMMAND while not streaming gets no answer: time then runs until a SAMPLE answers it. */
+static void on_frame_sent(const uint8_t *enc, size_t n) {
+    uint8_t dec[80];
+    size_t len = cobs_decode(enc, n, dec, sizeof dec);
+    if (len < 6) return;
+    uint8_t type = dec[1];
+    if (type == T_SAMPLE) {
+        if (len < SAMPLE_ECHO + 2) return;
+        uint16_t status = (uint16_t)(dec[SAMPLE_STATUS] | (dec[SAMPLE_STATUS + 1] << 8));
+        uint16_t echo = (uint16_t)(dec[SAMPLE_ECHO] | (dec[SAMPLE_ECHO + 1] << 8));
+        if (echo == last_command_seq || (status & STATUS_FAULT_LATCHED)) owed_commands = 0;
+    } else if (type == T_HELLO && boot_hello) {
+        boot_hello = 0;
+        return;
+    } else if (type == T_HELLO || type == T_HEARTBEAT || type == T_ACK) {
+        if (owed_requests) owed_requests--;
+    } else {
+        return;
+    }
+    if (!owed_commands && !owed_requests) gate_closed = 1;
+}
+
+/* CRC-16/CCITT-FALSE, as the protocol (and the firmware) computes it. */
+static uint16_t crc16(const uint8_t *d, size_t n) {
+    uint16_t crc = 0xFFFF;
+    for (size_t i = 0; i < n; i++) {
+        crc ^= (uint16_t)d[i] << 8;
+        for (int b = 0; b < 8; b++) crc = (crc & 0x8000) ? (uint16_t)((crc << 1) ^ 0x1021) : (uint16_t)(crc << 1);
+    }
+    return crc;
+}
+
+/* COBS-decodes one frame (without its 0x00); returns the packet's length, 0 if malformed. */
+static size_t cobs_decode(const uint8_t *enc, size_t n, uint8_t *dec, size_t cap) {
+    size_t out = 0, i = 0;
+    while (i < n) {
+        uint8_t code = enc[i++];
+        if (!code) return 0;
+        for (uint8_t k = 1; k < code; k++) { if (i >= n || out >= cap) return 0; dec[out++] = enc[i++]; }
+        if (code < 0xFF && i < n) { if (out >= cap) return 0; dec[out++] = 0; }
+    }
+    return out;
+}
+
+/* One whole host frame: a valid packet is owed an answer; the firmware drops an invalid one. */
+static void on_host_frame(const uint8_t *enc, size_t n) {
+    uint8_t dec[80];
+    size_t out = cobs_decode(enc, n, dec, sizeof dec);
+    if (out < 6 || dec[0] != 1) return;
+    if (crc16(dec, out - 2) != (uint16_t)(dec[out - 2] | (dec[out - 1] << 8))) return;
+    if (dec[1] == T_COMMAND) { owed_commands++; last_command_seq = (uint16_t)(dec[2] | (dec[3] << 8)); }
+    else owed_requests++;
+}
+static void on_host_bytes(const uint8_t *d, size_t n) {
+    for (size_t i = 0; i < n; i++) {
+        if (d[i]) { if (host_frame_len < sizeof host_frame) host_frame[host_frame_len++] = d[i]; else host_frame_len = sizeof host_frame; continue; }
+        if (host_frame_len && host_frame_len < sizeof host_frame) on_host_frame(host_frame, host_frame_len);
+        host_frame_len = 0;
+    }
+}
+
 static void on_uart_out(avr_irq_t *irq, uint32_t value, void *param) {
     (void)irq; (void)param;
     if (tx_len < sizeof tx_buf) tx_buf[tx_len++] = (uint8_t)value;
     else tx_dropped++;
+    if (!host_paced) return;
+    if (value) {
+        if (dev_frame_len < sizeof dev_frame) dev_frame[dev_frame_len++] = (uint8_t)value;
+        return;
+    }
+    if (dev_frame_len && dev_frame_len < sizeof dev_frame) on_frame_sent(dev_frame, dev_frame_len);
+    dev_frame_len = 0;
 }
 static void on_xoff(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)param; xoff = value != 0; }
 static void on_xon(avr_irq_t *irq, uint32_t value, void *param) { (void)irq; (void)param; if (value) xoff = 0; }
@@ -172,6 +273,11 @@ static void apply_workarounds(void) {
     avr_cycle_timer_cancel(avr, encoder_timer, NULL);
     encoder_kick();
     xoff = 0;
+    gate_closed = 0;  /* -k: a reset interrupts any frame and forgets what was owed */
+    dev_frame_len = 0;
+    owed_commands = owed_requests = 0;
+    host_frame_len = 0;
+    boot_hello = 1;
 }
 
 /* PWM duty of one Timer1 channel from the registers (simavr 1.6 does not model the waveform):
@@ -252,7 +358,10 @@ static void pump_pty(void) {
      * held while the firmware has not enabled its receiver yet (before Serial.begin). */
     if (rx_len < sizeof rx_buf) {
         ssize_t r = read(pty_master, rx_buf + rx_len, sizeof rx_buf - rx_len);
-        if (r > 0) rx_len += (size_t)r;
+        if (r > 0) {
+            if (host_paced) on_host_bytes(rx_buf + rx_len, (size_t)r);
+            rx_len += (size_t)r;
+        }
     }
     if (uart_real) {
         if (rx_len && (avr->data[R_UCSR0B] & (1 << RXEN0_BIT)) && !avr_cycle_timer_status(avr, uart_feed, NULL))
@@ -297,9 +406,11 @@ static int handle_line(char *line) {
             if (sscanf(line + 1, "%li", &a) == 1 && a >= 0 && a <= (long)avr->ramend)
                 reply("M %ld %u\n", a, avr->data[a]);
             return 0;
-        case 'U':  /* UART diagnostics: bytes waiting for the UART, XOFF, UCSR0A, UCSR0B (-u: bytes fed, overruns) */
-            reply("U %zu %d 0x%02x 0x%02x %llu %llu\n", rx_len, xoff, avr->data[R_UCSR0B - 1], avr->data[R_UCSR0B],
-                  (unsigned long long)rx_fed, (unsigned long long)rx_overrun);
+        case 'U':  /* UART diagnostics: bytes waiting for the UART, XOFF, UCSR0A, UCSR0B, (-u) bytes fed, overruns,
+                    * (-k) COMMANDs and requests not answered yet, whether time stands still */
+            reply("U %zu %d 0x%02x 0x%02x %llu %llu %llu %llu %d\n", rx_len, xoff, avr->data[R_UCSR0B - 1],
+                  avr->data[R_UCSR0B], (unsigned long long)rx_fed, (unsigned long long)rx_overrun,
+                  (unsigned long long)owed_commands, (unsigned long long)owed_requests, gate_closed);
             return 0;
         case 'R':  /* external reset (the RESET pin); never from a cycle timer: it crashed simavr */
             external_reset();
@@ -403,20 +514,31 @@ static void throttle(void) {
     ppoll(p, 2, &ts, NULL);
 }
 
+/* -k, while time stands still: sleep until the host or the driver writes (a pty nobody has open
+ * reports a hang-up at once, so then sleep a millisecond instead of spinning). */
+static void wait_for_io(void) {
+    struct pollfd p[2] = {{.fd = 0, .events = POLLIN}, {.fd = pty_master, .events = POLLIN}};
+    if (poll(p, 2, 100) > 0 && (p[1].revents & POLLHUP) && !(p[0].revents & POLLIN) && !(p[1].revents & POLLIN)) {
+        struct timespec ms = {.tv_sec = 0, .tv_nsec = 1000000};
+        nanosleep(&ms, NULL);
+    }
+}
+
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
 int main(int argc, char **argv) {
     int opt;
-    while ((opt = getopt(argc, argv, "fl:e:b:ruv")) != -1) {
+    while ((opt = getopt(argc, argv, "fkl:e:b:ruv")) != -1) {
         switch (opt) {
             case 'f': free_running = 1; break;
+            case 'k': host_paced = 1; free_running = 1; break;
             case 'l': lockstep_us = (uint32_t)strtoul(optarg, NULL, 10); break;
             case 'e': edge_us = (uint32_t)strtoul(optarg, NULL, 10); if (!edge_us) edge_us = 1; break;
             case 'v': verbose = 1; break;
             case 'b': boot_hex = optarg; break;
             case 'r': reset_on_open = 1; break;
             case 'u': uart_real = 1; break;
-            default: fprintf(stderr, "usage: %s [-f] [-l lockstep_us] [-e edge_us] [-v] firmware.elf\n", argv[0]); return 2;
+            default: fprintf(stderr, "usage: %s [-f] [-k] [-l lockstep_us] [-e edge_us] [-v] firmware.elf\n", argv[0]); return 2;
         }
     }
     if (optind >= argc) { fprintf(stderr, "avr_harness: no firmware ELF given\n"); return 2; }
@@ -467,9 +589,19 @@ int main(int argc, char **argv) {
     clock_gettime(CLOCK_MONOTONIC, &wall0);
     uint64_t next_step = lockstep_us;
     while (!stop) {
+        if (gate_closed) {  /* -k: time stands still until a whole host frame has arrived */
+            pump_pty();
+            if (reset_on_open) watch_port_open();
+            if (!owed_commands && !owed_requests) {
+                wait_for_io();
+                read_stdin(0);
+                continue;
+            }
+            gate_closed = 0;
+        }
         avr_cycle_count_t end = avr->cycle + SLICE_US * CYC_PER_US;
         if (lockstep_us && end > next_step * CYC_PER_US) end = next_step * CYC_PER_US;
-        while (avr->cycle < end) {
+        while (avr->cycle < end && !gate_closed) {
             int st = avr_run(avr);
             if (st == cpu_Done || st == cpu_Crashed) {
                 fprintf(stderr, "avr_harness: AVR %s at pc 0x%04x\n", st == cpu_Done ? "stopped" : "crashed", avr->pc);

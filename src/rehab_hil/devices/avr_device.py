@@ -37,7 +37,7 @@ __all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spa
 
 ROOT = Path(__file__).resolve().parents[3]
 ADC_REF_MV = 5000
-CLOCKS = ("realtime", "free")
+CLOCKS = ("realtime", "free", "lockstep")
 
 
 def default_paths() -> tuple[Path, Path]:
@@ -77,8 +77,8 @@ def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_
                      ready_timeout_s: float = 120.0, usb_bridge: bool | None = None) -> AvrDeviceProcess:
     """Start the firmware in simavr behind the plant of ``config_path``; returns once its pty is ready.
 
-    ``clock``: "realtime" (simulated time throttled to the wall clock) or "free" (as fast as the
-    simulator runs). ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge
+    ``clock``: "realtime" (simulated time throttled to the wall clock), "free" (as fast as the
+    simulator runs) or "lockstep" (virtual time paced by the host's frames; see the module docstring). ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge
     model between. Build first: ``make firmware harness``."""
     if clock not in CLOCKS:
         raise ValueError(f"the avr device supports clock {CLOCKS}, not {clock!r}")
@@ -230,6 +230,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_h = [str(harness), "-l", "1000", "-e", str(args.edge_us)]
     if args.clock == "free":
         argv_h.append("-f")
+    elif args.clock == "lockstep":
+        argv_h.append("-k")
     if args.uno:
         argv_h += ["-b", str(optiboot_path()), "-u"]
     estop = cfg.rig.estop
