@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
-.PHONY: run test lint bench firmware harness toolchain upload clean
+.PHONY: run test lint bench firmware harness toolchain browser upload clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 run: $(STAMP)
 	$(BIN)/rehab-hil run --config configs/sma_exoskeleton.toml --device sim --duration 30 --record out/
 
-test: $(STAMP) toolchain firmware harness
+test: $(STAMP) toolchain browser firmware harness
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
@@ -32,6 +32,10 @@ lint: $(STAMP)
 # AVR toolchain + simavr (Debian packages; installs them when missing and running as root).
 toolchain:
 	sh scripts/install_toolchain.sh
+
+# Debian's Chromium, the headless browser the HTML report tests open reports in (root installs it when missing).
+browser:
+	sh scripts/install_browser.sh
 
 # The Arduino Uno firmware (firmware/build/rehab_fw.elf/.hex); prints flash/RAM use.
 firmware: toolchain

@@ -15,7 +15,7 @@ __all__ = ["SUBCOMMANDS", "UserError", "main"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
-               "ports", "flash", "router", "foxglove", "doctor", "calibrate"]
+               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report"]
 
 
 class UserError(Exception):
