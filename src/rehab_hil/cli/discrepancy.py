@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,20 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def _check_out(out: Path) -> None:
+    """``--out`` must be a directory this process can write (made now if missing)."""
+    from rehab_hil.cli import UserError
+
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: a file, not a directory (the report is several files)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot create: {e.strerror}") from None
+    if not os.access(out, os.W_OK):
+        raise UserError(f"--out {out}: not writable")
+
+
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -48,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
     from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.report.discrepancy import discrepancy_page
     from rehab_hil.rig_recording import load_recording
 
     if not 1 <= args.max_effects <= 5:
@@ -62,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     for note in loaded.notes:
         print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
     check_recording(plant, rec, loaded.source)
+    _check_out(Path(args.out))  # before the fit: a bad --out must not lose its result
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())
@@ -70,12 +87,13 @@ def run(args: argparse.Namespace) -> int:
         res = find_missing_effects(cfg, rec, loaded.source, progress,
                                    Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
         progress.start("writing report", None)
-        write_report(res, Path(args.config), Path(args.data), Path(args.out))
+        rep = write_report(res, Path(args.config), Path(args.data), Path(args.out))
+        discrepancy_page(res, rep).write(Path(args.out) / "report.html")
     print(f"{res.plant}: {res.conclusion} ({res.wall_s:.1f} s)")
     for f in res.chosen:
         print("  " + f.effect + ": " + ", ".join(f"{k} = {v:.4g} ± {f.stderr[k]:.2g}" for k, v in f.params.items()))
     before, after = res.metrics("nominal"), res.metrics("augmented")
     for c in res.channels:
         print(f"  {c:24s} RMSE {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g}")
-    print(f"wrote {args.out}/report.json, report.md, *.png, augmented.toml")
+    print(f"wrote {args.out}/report.json, report.md, report.html, *.png, augmented.toml")
     return 0
