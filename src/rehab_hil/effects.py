@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from rehab_hil.models.axis_parts import ConstantLoad
 from rehab_hil.models.effect_parts import (
     DELAY_SLOTS,
     ActuatorDeadZone,
@@ -52,6 +53,7 @@ class EffectParam:
     linear: bool = True
     off: float | None = 0.0
     grid: tuple[float, ...] = ()
+    axis_scaled: bool = False  # a force or torque (or a damping): scales with the axis's ``force_scale``
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,10 @@ class Attachment:
 
 
 TRUE_SUFFIX = "_true"  # a sensed signal's true value, once a sensor effect takes the name over
+# a force-valued parameter (``EffectParam.axis_scaled``) scales with its axis's ``force_scale`` (a finger
+# joint: 1, tenths of a newton metre; a 350 N prismatic drive: 350); a config may give it up to this
+# many times its library bound (the fits use the bound times the axis's own scale)
+AXIS_SCALE_LIMIT = 1.0e4
 
 
 @dataclass(frozen=True)
@@ -107,7 +113,10 @@ class Effect:
         large its torques are)."""
         port = self.port(ports)
         over = port.typical if isinstance(port, AxisPort) else {}
-        return tuple(replace(p, typical=over.get(f"{self.name}.{p.name}", p.typical)) for p in self.params)
+        k = port.force_scale if isinstance(port, AxisPort) else 1.0
+        scaled = [replace(p, lower=p.lower * k, upper=p.upper * k, typical=p.typical * k) if p.axis_scaled and k != 1.0
+                  else p for p in self.params]
+        return tuple(replace(p, typical=over.get(f"{self.name}.{p.name}", p.typical)) for p in scaled)
 
     def defaults(self) -> dict[str, float]:
         return {p.name: p.typical for p in self.params}
@@ -129,6 +138,10 @@ def _coulomb(axis: AxisPort, step_s: float) -> Attachment:
 
 def _viscous(axis: AxisPort, step_s: float) -> Attachment:
     return Attachment(connect={"velocity_rad_s": axis.velocity}, output_to=axis.torque)
+
+
+def _viscous_like_load(axis: AxisPort, step_s: float) -> Attachment:
+    return Attachment(output_to=axis.torque)
 
 
 def _joint(axis: AxisPort, step_s: float) -> Attachment:
@@ -167,17 +180,24 @@ EFFECTS: dict[str, Effect] = {
     for e in [
         Effect(
             "coulomb_friction", CoulombFriction,
-            (EffectParam("level_nm", 0.0, 1.0, 0.02),),
+            (EffectParam("level_nm", 0.0, 1.0, 0.02, axis_scaled=True),),
             "seed 002 eq 6 (F_c sgn(theta')); seed 001 blames friction",
             "extra Coulomb friction with stiction on the joint axis",
             "axis", _coulomb,
         ),
         Effect(
             "viscous_friction", ViscousFriction,
-            (EffectParam("damping_nm_s_per_rad", 0.0, 0.5, 0.02),),
+            (EffectParam("damping_nm_s_per_rad", 0.0, 0.5, 0.02, axis_scaled=True),),
             "seed 002 eq 6-8 (V_c, B_v)",
             "extra viscous friction on the joint axis",
             "axis", _viscous,
+        ),
+        Effect(
+            "constant_load", ConstantLoad,
+            (EffectParam("level_nm", -1.0, 1.0, 0.01, axis_scaled=True),),
+            "Janot, Gautier and Brunot 2019, EMPS eq 1 (the offset)",
+            "a constant force or torque against the axis (gravity on a tilted axis, a cable's pull, a drive offset)",
+            "axis", _viscous_like_load,
         ),
         Effect(
             "backlash", Backlash,
@@ -196,8 +216,8 @@ EFFECTS: dict[str, Effect] = {
         ),
         Effect(
             "contact_spring_damper", ContactSpringDamper,
-            (EffectParam("stiffness_nm_per_rad", 0.0, 20.0, 0.5),
-             EffectParam("damping_nm_s_per_rad", 0.0, 2.0, 0.02),
+            (EffectParam("stiffness_nm_per_rad", 0.0, 20.0, 0.5, axis_scaled=True),
+             EffectParam("damping_nm_s_per_rad", 0.0, 2.0, 0.02, axis_scaled=True),
              EffectParam("contact_angle_rad", -0.5, 3.0, 0.5, linear=False, off=None,
                          grid=(0.0, 0.4, 0.8, 1.2, 1.6))),
             "seed 000 eq 18-28 and Table 4 (contact force k dx + c dx', k and c by regression)",
@@ -267,8 +287,9 @@ def check_spec(name: str, params: Mapping[str, float]) -> dict[str, float]:
     for k, v in params.items():
         p = eff.param(k)
         v = float(v)
-        if not (p.lower <= v <= p.upper):
-            raise ValueError(f"effect {name!r}: {k} = {v} is outside [{p.lower}, {p.upper}]")
+        lo, hi = (p.lower * AXIS_SCALE_LIMIT, p.upper * AXIS_SCALE_LIMIT) if p.axis_scaled else (p.lower, p.upper)
+        if not (lo <= v <= hi):
+            raise ValueError(f"effect {name!r}: {k} = {v} is outside [{lo:g}, {hi:g}]")
         out[k] = v
     return out
 

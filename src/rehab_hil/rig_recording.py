@@ -100,7 +100,16 @@ def read_recording(path: str | Path) -> LoadedRecording:
 def load_recording(path: str | Path, plant: Any, cfg: Any) -> LoadedRecording:
     """``read_recording`` for ``plant`` under ``cfg``: a run of another plant (its metadata says) is
     refused, and model inputs a rig does not record are filled from the config's constants."""
-    loaded = read_recording(path)
+    if Path(path).suffix.lower() == ".mat":  # a lab logger's file: the config's [import] mapping reads it
+        from rehab_hil.importing import read_mapped
+
+        mapping = getattr(cfg, "import_", None)
+        if mapping is None:
+            raise CsvError(path, None, "a .mat file needs an [import] table in the plant config (which variable is "
+                                       "which signal), or convert it first with `rehab-hil import --mapping`")
+        loaded = LoadedRecording(read_mapped(path, mapping, "[import] of the config"), Path(path), [], None)
+    else:
+        loaded = read_recording(path)
     meta, rec = loaded.metadata, loaded.recording
     if meta and meta.get("plant") not in (None, plant.name):
         raise CsvError(loaded.source.parent / METADATA_FILE, None,

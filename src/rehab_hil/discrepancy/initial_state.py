@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.optimize import least_squares
 
+from rehab_hil.control.cascade import LOOP_PREFIX
 from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
 from rehab_hil.discrepancy.verdict import SPREAD_SHARE
 
@@ -109,6 +110,8 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     target = replay.measured_grid[:, 0] / replay.scale
     matched: dict[int, int] = {}  # channel -> state
     for c in range(C.shape[0]):
+        if replay.channels[c] not in replay.spec.outputs:  # a replayed loop's effort is no state of the plant
+            continue
         row = np.abs(C[c])
         norm = float(np.linalg.norm(row))
         if norm > 1e-9 and row.max() >= MATCH_SHARE * norm and np.isfinite(target[c]):
@@ -127,7 +130,8 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     # nuisance: unmatched states and the nominal parts' discrete memory
     free_x = [i for i in range(x.size) if i not in states and hi[i] > lo[i]]  # a state the drive never moves stays
     dnames = s.diagram.discrete_state_names
-    free_xd = [i for i, n in enumerate(dnames) if not n.startswith(CANDIDATE_PREFIX + "_")]
+    # the candidates' memory starts from its input; a replayed controller's from the record (closed_loop)
+    free_xd = [i for i, n in enumerate(dnames) if not n.startswith((CANDIDATE_PREFIX + "_", LOOP_PREFIX + "_"))]
     n_win = max(2, min(int(np.searchsorted(replay.t, WINDOW_S)), n_train))
     estimated: dict[str, float] = {}
     if free_x or free_xd:

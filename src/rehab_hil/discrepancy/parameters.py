@@ -54,11 +54,20 @@ def parameter_terms(replay: Replay) -> list[ParameterTerm]:
     out = []
     P = replay.nominal_params()
     for fp in replay.spec.fit_parameters:
+        if _value_or_none(replay.cfg, fp.config_key) is None:  # a key this config does not use (a rotary
+            continue                                           # axis's inertia on a linear one)
         idx = [replay.system.diagram.param_index(q) for q in fp.diagram]
         idx += [replay.input_scale_index(u) for u in fp.inputs if u in replay.system.input_names]
         if idx:
             out.append(ParameterTerm(fp, tuple(idx), tuple(float(P[i]) for i in idx)))
     return out
+
+
+def _value_or_none(cfg: Any, key: str) -> Any:
+    obj = cfg
+    for part in key.split("."):
+        obj = getattr(obj, part, None)
+    return obj
 
 
 def config_value(cfg: Any, key: str) -> float:

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from rehab_hil.control.cascade import loop_parts
+from rehab_hil.discrepancy.closed_loop import describe_loop, recorded_loop
 from rehab_hil.discrepancy.verdict import noise_floor
 from rehab_hil.effects import Effect, applicable, attach
 from rehab_hil.interchange import CsvError, Recording
@@ -99,24 +101,39 @@ class Replay:
     # dead zone 4 % (an independent SMA record). Weighing every channel by its noise alone silences
     # a motor current with 0.01 A noise, which tells a 13 ms delay from a larger rotor inertia.
     fit_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
+    loop: str = ""  # the closed-loop replay used (the recorded controller), "" when the effort was replayed
 
     @classmethod
-    def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>") -> Replay:
+    def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>",
+              closed_loop: bool = True) -> Replay:
+        """Bind ``rec`` to the plant's augmented diagram. With ``closed_loop`` and a config that declares
+        the ``[recorded_controller]`` whose reference and effort the record carries, the loop is replayed
+        from the reference: the controller's parts drive the plant input, and the recorded effort is
+        compared as an output channel (``closed_loop.py``)."""
         channels = check_recording(spec, rec, path)
         step_s, substeps = spec.step(cfg)
         ports = spec.ports(cfg)
         candidates = applicable(ports)
         parts = attach(spec.name, ports, step_s, compose(spec, cfg), [(e.name, e.disabled()) for e in candidates],
                        prefix=CANDIDATE_PREFIX)
-        system = Diagram(parts, inputs=spec.external_inputs(cfg), sums=ports.sums).compile(step_s, substeps)
+        signals = dict(rec.signals)
+        ext, sums, loop_text = spec.external_inputs(cfg), ports.sums, ""
+        loop = recorded_loop(cfg, rec) if closed_loop else None
+        if loop is not None:
+            for d in loop.disturbances:  # a record without the disturbance had none
+                signals.setdefault(d, np.zeros(rec.t.size))
+            parts = [*parts, *loop_parts(loop, float(signals[loop.feedback][0]))]
+            ext, sums = (*ext, loop.reference, *loop.disturbances), (*sums, loop.effort)
+            channels = [*channels, loop.effort]
+            loop_text = describe_loop(loop)
+        system = Diagram(parts, inputs=ext, sums=sums).compile(step_s, substeps)
         t = rec.t - rec.t[0]
         n = int(np.floor(t[-1] / step_s + 1e-9)) + 2
         grid = np.arange(n) * step_s
-        inputs = {k: np.interp(grid, t, rec.signals[k]) for k in spec.inputs
-                  if k in system.input_names and k in rec.signals}
+        inputs = {k: np.interp(grid, t, signals[k]) for k in system.input_names if k in signals}
         pos = t / step_s
         idx = np.minimum(np.floor(pos).astype(np.int64), n - 2)
-        measured = {c: np.asarray(rec.signals[c], float) for c in channels}
+        measured = {c: np.asarray(signals[c], float) for c in channels}
         scale = np.array([max(float(np.std(measured[c])), 1e-9) for c in channels])
         U = system.input_matrix(n, inputs)
         mgrid = np.vstack([np.interp(grid, t, measured[c]) for c in channels])
@@ -128,7 +145,7 @@ class Replay:
                 scale[k] = max(scale[k], 1.0 / adc[c][1])
         weight = scale / np.maximum(scale, NOISY_SPREAD * np.array([noise_floor(measured[c]) for c in channels]))
         return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx,
-                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc, fit_weight=weight)
+                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc, fit_weight=weight, loop=loop_text)
 
     @property
     def n_steps(self) -> int:

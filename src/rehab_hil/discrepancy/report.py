@@ -80,7 +80,8 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
             "set_from_data": init.set_from_data if init else {}, "estimated": init.estimated if init else {},
             "summary": init.describe() if init else [],
         },
-        "replay": {"mode": res.mode, "segment_s": SEGMENT_S if res.mode == "shooting" else None, **res.drift},
+        "replay": {"mode": res.mode, "segment_s": SEGMENT_S if res.mode == "shooting" else None, **res.drift,
+                   "loop": res.extras["replay"].loop or "open loop: the recorded plant inputs drive the model"},
         "aliases": [{"round": a.round, "chosen": a.chosen, "other": a.other, "delta_bic": a.delta_bic,
                      "experiment": a.experiment, "sentence": a.sentence()} for a in res.aliases],
         "unexplained": {"channels": res.unexplained, "where": res.unexplained_where},
@@ -187,8 +188,9 @@ def _markdown(rep: dict[str, Any]) -> str:
         L.append(f"- `{c['effect']}`: {ps} ({c['description']}; {c['seed']})")
     for a in rep["aliases"]:
         L.append(f"- round {a['round']}: {a['sentence']}")
-    L += ["", f"Replay: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
-              f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
+    L += ["", f"Replay: {rep['replay']['loop']}.",
+          f"Mode: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
+          f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
               + ("; ".join(rep["initial_state"]["summary"]) or "the config's rest state") + "."]
     L += ["", "| channel | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut |",
           "|---|---|---|---|---|---|---|---|"]

@@ -67,6 +67,7 @@ class Options:
     max_effects: int = 3  # rounds of the search (effects and parameters chosen)
     mode: str = "auto"  # "auto", "open" or "shooting" (docs/discrepancy.md)
     parameters: bool = True  # the plant's declared nominal parameters are candidates too
+    closed_loop: bool = True  # replay a record from its reference under the config's [recorded_controller]
 
 
 def _score(replay: Replay, sim: dict[str, np.ndarray], hold: slice, n_params: int, frac: float):
@@ -96,7 +97,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     options = options or Options()
     spec = get_plant(cfg.plant)
     progress.start("replay nominal model", 1)
-    replay = Replay.build(spec, cfg, rec, data_path)
+    replay = Replay.build(spec, cfg, rec, data_path, closed_loop=options.closed_loop)
     N = replay.t.size
     n_train = max(2, min(round((1.0 - options.holdout_fraction) * N),
                          int(np.searchsorted(replay.t, options.fit_max_s))))
@@ -104,6 +105,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     P0 = replay.nominal_params()
     initial = estimate_initial_state(replay, P0, n_train)
     mode, open_rms, shoot_rms = choose_mode(replay, P0, n_train)
+    if replay.loop:  # the replayed controller keeps the model on the reference: nothing drifts to re-anchor
+        mode = "open"
     replay.mode = mode if options.mode == "auto" else options.mode
     nominal = replay.simulate(P0)
     progress.advance()
@@ -169,7 +172,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         chosen_terms.append(next(t for t in terms if t.name == pick.fit.effect))
         chosen = joint.get(pick.fit.effect) or [*chosen, pick.fit]
         initial = estimate_initial_state(replay, chosen[-1].P, n_train)  # the start under the augmented model
-        if options.mode == "auto":  # drift may dominate once the largest discrepancy is explained
+        if options.mode == "auto" and not replay.loop:  # drift may dominate once the largest discrepancy is explained
             replay.mode = choose_mode(replay, chosen[-1].P, n_train)[0]
         # every chosen term is refitted jointly, from the new start state: the terms were fitted from
         # the previous one (the nominal model's, in the first round: a supply 8 % low makes it estimate

@@ -21,7 +21,7 @@ __all__ = ["PORT_KINDS", "ActuatorPort", "AxisPort", "HeatPort", "MeasuredPort",
 PortKind = Literal["actuator", "axis", "finger_axis", "encoder", "adc", "heat", "transformation_temperature"]
 PORT_KINDS: tuple[str, ...] = ("actuator", "axis", "finger_axis", "encoder", "adc", "heat",
                                "transformation_temperature")
-MeasuredKind = Literal["angle", "force", "torque", "temperature", "current"]
+MeasuredKind = Literal["angle", "position", "force", "torque", "temperature", "current", "voltage"]
 
 
 @dataclass(frozen=True)
@@ -68,6 +68,10 @@ class AxisPort:
     stick_velocity_rad_s: float = 0.01
     stick_damping_nm_s_per_rad: float = 0.0
     typical: Mapping[str, float] = field(default_factory=dict)
+    # force-valued effect parameters (``EffectParam.axis_scaled``: friction, loads, contact) scale their
+    # bounds and typical value by this: 1 for a finger joint (N m), the peak drive force [N] or torque
+    # [N m] for a generic drive axis (``plants/motor_axis.py``), so Coulomb friction of 20 N is in range
+    force_scale: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,9 @@ import numpy as np
 
 from rehab_hil.config import ConfigError, Field, RigSection, Section, SimulationSection, load_toml, model_validator
 from rehab_hil.config import validate as validate_config
+from rehab_hil.control.cascade import RecordedControllerSection
 from rehab_hil.effects import applicable, attach, check_spec, not_applicable_message
+from rehab_hil.importing import ImportMapping
 from rehab_hil.interfaces import CommandInterface, StateInterface
 from rehab_hil.models.ports import MeasuredPort, Ports
 from rehab_hil.models.system import Diagram, Part, SimulationResult
@@ -136,6 +138,11 @@ class PlantConfig(Section):
     effects: list[EffectSpec] = Field(default_factory=list, description="added model effects")
     controllers: dict[str, Any] = Field(default_factory=dict, description="controller settings, one "
                                         "[controllers.<name>] table per controller (rehab_hil.controllers)")
+    recorded_controller: RecordedControllerSection | None = Field(None, description="the controller that produced "
+                                                                  "this plant's closed-loop records: the discrepancy "
+                                                                  "workflow replays the loop from the reference")
+    import_: ImportMapping | None = Field(None, alias="import", description="how a lab's logger files map onto "
+                                          "the model's signals (rehab_hil.importing; rehab-hil import)")
 
 
 class EncoderSection(Section):
