@@ -15,7 +15,7 @@ __all__ = ["SUBCOMMANDS", "UserError", "main"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
-               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report"]
+               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report", "import_data"]
 
 
 class UserError(Exception):
@@ -42,15 +42,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+STDIN_CLOSED = ("standard input closed while waiting for an answer: run it on a terminal, or pass --yes "
+                "where the command has it")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except _user_errors() as e:  # an argument's own check (argparse type=) said what is wrong
+        command = next((a for a in (sys.argv[1:] if argv is None else argv) if a in SUBCOMMANDS), "")
+        print(f"rehab-hil {command}: error: {e}".replace("  ", " "), file=sys.stderr)
+        return 2
     try:
         return int(args._run(args) or 0)
     except _user_errors() as e:
         print(f"rehab-hil {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except EOFError:  # input() on a closed standard input, or Ctrl-D at a prompt
+        print(f"\nrehab-hil {args.command}: error: {STDIN_CLOSED}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"rehab-hil {args.command}: interrupted", file=sys.stderr)
+        print(f"\nrehab-hil {args.command}: interrupted", file=sys.stderr)
         return 130
 
 

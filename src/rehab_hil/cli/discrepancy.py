@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="report directory to write")
     p.add_argument("--max-effects", type=int, default=2, help="most effects to add in turn (default 2)")
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
+    p.add_argument("--validate", type=Path, default=None, metavar="DATA",
+                   help="another record of the same plant: the nominal and the augmented model are scored on it "
+                        "(fit on --data, validate on DATA)")
     return p
 
 
@@ -78,6 +81,13 @@ def run(args: argparse.Namespace) -> int:
     for note in loaded.notes:
         print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
     check_recording(plant, rec, loaded.source)
+    val_rec = None
+    if args.validate is not None:
+        val_loaded = load_recording(args.validate, plant, cfg)
+        for note in val_loaded.notes:
+            print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
+        check_recording(plant, val_loaded.recording, val_loaded.source)
+        val_rec = val_loaded.recording
     _check_out(Path(args.out))  # before the fit: a bad --out must not lose its result
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -86,6 +96,11 @@ def run(args: argparse.Namespace) -> int:
         progress = RichProgress(bar)
         res = find_missing_effects(cfg, rec, loaded.source, progress,
                                    Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+        if val_rec is not None:
+            from rehab_hil.discrepancy.validation import validate
+
+            progress.start("validating on the second record", None)
+            res.validation = validate(res, cfg, val_rec, args.validate)
         progress.start("writing report", None)
         rep = write_report(res, Path(args.config), Path(args.data), Path(args.out))
         discrepancy_page(res, rep).write(Path(args.out) / "report.html")
@@ -95,5 +110,7 @@ def run(args: argparse.Namespace) -> int:
     before, after = res.metrics("nominal"), res.metrics("augmented")
     for c in res.channels:
         print(f"  {c:24s} RMSE {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g}")
+    for line in res.validation.lines() if res.validation is not None else []:
+        print(line)
     print(f"wrote {args.out}/report.json, report.md, report.html, *.png, augmented.toml")
     return 0

@@ -80,6 +80,8 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
             "set_from_data": init.set_from_data if init else {}, "estimated": init.estimated if init else {},
             "summary": init.describe() if init else [],
         },
+        "validation": res.validation.as_dict() if res.validation is not None else None,
+        "joint_identification": res.joint.as_dict() if res.joint is not None else None,
         "replay": {"mode": res.mode, "segment_s": SEGMENT_S if res.mode == "shooting" else None, **res.drift,
                    "loop": res.extras["replay"].loop or "open loop: the recorded plant inputs drive the model"},
         "aliases": [{"round": a.round, "chosen": a.chosen, "other": a.other, "delta_bic": a.delta_bic,

@@ -83,6 +83,8 @@ class Result:
     aliases: list[Alias] = field(default_factory=list)
     unexplained: dict[str, dict[str, float]] = field(default_factory=dict)  # channel -> rms, floor, ...
     unexplained_where: dict[str, Any] = field(default_factory=dict)
+    validation: Any = None  # validation.Validation: scored on a second record (--validate)
+    joint: Any = None  # identify.JointIdentification: every nominal parameter fitted together
 
     @property
     def named(self) -> list[str]:
