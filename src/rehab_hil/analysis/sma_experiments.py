@@ -140,13 +140,34 @@ def report(cfg: sx.SMAExoskeletonConfig) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    cfg = load_config(argv[0] if argv else "configs/sma_exoskeleton.toml")
+    """``python -m rehab_hil.analysis.sma_experiments [CONFIG] [OUT.json]``: every model-vs-paper figure."""
+    import argparse
+
+    from rehab_hil.config import ConfigError
+
+    ap = argparse.ArgumentParser(prog="python -m rehab_hil.analysis.sma_experiments",
+                                 description="the SMA exoskeleton model against every figure of seed 000: prints the "
+                                             "regression table and the figures as JSON")
+    ap.add_argument("config", nargs="?", default="configs/sma_exoskeleton.toml", help="the SMA exoskeleton config")
+    ap.add_argument("out", nargs="?", type=Path, default=None, help="also write the JSON to this file")
+    args = ap.parse_args(argv)
+    try:
+        cfg = load_config(args.config)
+    except ConfigError as e:
+        print(f"{ap.prog}: error: {e}", file=sys.stderr)
+        return 2
+    if args.out is not None and args.out.is_dir():
+        print(f"{ap.prog}: error: {args.out} is a directory; give the JSON file to write", file=sys.stderr)
+        return 2
     out = report(cfg)
     print(out.pop("regression_table"))
     print(json.dumps(out, indent=1, default=str))
-    if len(argv) > 1:
-        Path(argv[1]).write_text(json.dumps(out, indent=1, default=str))
+    if args.out is not None:
+        try:
+            args.out.write_text(json.dumps(out, indent=1, default=str))
+        except OSError as e:
+            print(f"{ap.prog}: error: {args.out}: cannot write: {e.strerror}", file=sys.stderr)
+            return 2
     return 0
 
 

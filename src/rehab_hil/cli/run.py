@@ -10,6 +10,7 @@ and ESTOP before the exit.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import threading
 import time
@@ -158,9 +159,27 @@ def summary_table(r: RunResult) -> Table:
     if not r.events:
         t.add_row("safety events", "none")
     t.add_row("device PWM off at end", "yes" if r.pwm_off_at_end else "[red]NO")
-    for f in r.files:
-        t.add_row("recorded", f)
     return t
+
+
+def recorded_line(r: RunResult) -> str | None:
+    """The run directory once, in full, and the files in it (outside the table: never cut short)."""
+    if not r.files:
+        return None
+    folder = Path(r.files[0]).resolve().parent
+    return f"recorded: {folder}/ ({', '.join(Path(f).name for f in r.files)})"
+
+
+def _check_record_root(root: Path) -> None:
+    """``--record DIR`` must be a folder this process can write, checked before anything connects."""
+    if root.exists() and not root.is_dir():
+        raise UserError(f"--record {root}: a file, not a folder (each run makes a new folder inside it)")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--record {root}: cannot create: {e.strerror}") from None
+    if not os.access(root, os.W_OK | os.X_OK):
+        raise UserError(f"--record {root}: not writable")
 
 
 def _device_config(args: argparse.Namespace, cfg: Any, device: str) -> Path:
@@ -195,6 +214,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {note}")
     device = args.device or cfg.rig.port
     device_config = _device_config(args, cfg, device)
+    if args.record:
+        _check_record_root(args.record)
     console = Console()
     lockstep = args.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
     with ExitStack() as stack:
@@ -219,7 +240,10 @@ def run(args: argparse.Namespace) -> int:
         recorder = None
         if args.record:
             rig_id = args.rig_id or args.telemetry or cfg.plant
-            run_dir = new_run_dir(args.record, rig_id)
+            try:
+                run_dir = new_run_dir(args.record, rig_id)
+            except OSError as e:
+                raise UserError(f"--record {args.record}: cannot make the run folder: {e}") from None
             meta = session_metadata(plant=cfg.plant, config_path=args.config, device=device, rig_id=rig_id,
                                     binding=binding, hello=hw.info, controller=controller.controller.name,
                                     pacing=args.pacing, sim_plant=args.sim_plant,
@@ -275,4 +299,6 @@ def run(args: argparse.Namespace) -> int:
             result[0].files.append(str(run_dir / METADATA_FILE))
     time.sleep(0)
     console.print(summary_table(result[0]))
+    if (line := recorded_line(result[0])) is not None:
+        print(line)
     return 1 if result[0].events and result[0].events[0].reason != "stop_request" else 0
