@@ -83,6 +83,10 @@ class ImportMapping(Section):
         return self
 
 
+class _MappingFile(Section):
+    import_: ImportMapping = Field(alias="import")
+
+
 def load_mapping(path: str | Path) -> ImportMapping:
     """An ``[import]`` table from a TOML file (a mapping file, or a plant config that has one)."""
     from rehab_hil.config import ConfigError, load_toml, validate
@@ -90,7 +94,7 @@ def load_mapping(path: str | Path) -> ImportMapping:
     data = load_toml(path)
     if not isinstance(data.get("import"), dict):
         raise ConfigError(path, "import", "missing table (the mapping: time or sample_time_s, signals)")
-    return validate(path, data["import"], ImportMapping, prefix="import.")
+    return validate(path, {"import": data["import"]}, _MappingFile).import_
 
 
 def _variables(path: Path) -> dict[str, np.ndarray]:
