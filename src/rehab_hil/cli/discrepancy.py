@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from rehab_hil.cli import UserError
+    from rehab_hil.cli.data_path import missing_channels, resolve_data
     from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
@@ -76,10 +77,14 @@ def run(args: argparse.Namespace) -> int:
     # check the inputs before the progress display starts, so a user error prints one line only
     cfg = load_config(args.config)
     plant = get_plant(cfg.plant)
+    args.data = resolve_data(Path(args.data), "discrepancy")
     loaded = load_recording(args.data, plant, cfg)
     rec = loaded.recording
     for note in loaded.notes:
         print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
+    for c in missing_channels(plant, cfg, rec.signals):
+        print(f"rehab-hil discrepancy: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
+              "records): the analysis runs without it", file=sys.stderr)
     check_recording(plant, rec, loaded.source)
     val_rec = None
     if args.validate is not None:

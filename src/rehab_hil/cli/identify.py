@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from rehab_hil.cli import UserError
+from rehab_hil.cli.data_path import resolve_data
 from rehab_hil.identification import IdentificationError, compare_orders, format_table
 from rehab_hil.rig_recording import read_recording
 
@@ -44,7 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     orders = parse_range(args.orders, "--orders", 1, 6)
     zeros = None if args.zeros is None else parse_range(args.zeros, "--zeros", 0, 6)
-    loaded = read_recording(args.data)
+    loaded = read_recording(resolve_data(args.data, "identify"))
     for note in loaded.notes:
         print(f"rehab-hil identify: warning: {note}", file=sys.stderr)
     rec = loaded.recording

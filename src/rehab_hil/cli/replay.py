@@ -20,6 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from rehab_hil.cli.data_path import missing_channels, resolve_data
     from rehab_hil.discrepancy.replay import Replay, channel_metrics, check_recording
     from rehab_hil.interchange import write_csv
     from rehab_hil.plants import get_plant, load_config
@@ -27,9 +28,12 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config)
     plant = get_plant(cfg.plant)
-    loaded = load_recording(args.data, plant, cfg)
+    loaded = load_recording(resolve_data(args.data, "replay"), plant, cfg)
     for note in loaded.notes:
         print(f"rehab-hil replay: warning: {note}", file=sys.stderr)
+    for c in missing_channels(plant, cfg, loaded.recording.signals):
+        print(f"rehab-hil replay: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
+              "records): compared without it", file=sys.stderr)
     check_recording(plant, loaded.recording, loaded.source)
     replay = Replay.build(plant, cfg, loaded.recording, loaded.source)
     model = replay.simulate(replay.nominal_params())

@@ -1,0 +1,43 @@
+"""What ``--data`` names, as a person types it: a run directory, its run.csv / run.mcap, an
+interchange CSV, or the ``--record`` folder itself, whose newest run is taken (and said so) --
+and the channels the analysis needs but the record lacks, named."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["missing_channels", "resolve_data"]
+
+RUN_FILES = ("run.csv", "run.mcap")
+
+
+def _is_run(d: Path) -> bool:
+    return d.is_dir() and any((d / f).is_file() for f in RUN_FILES)
+
+
+def resolve_data(path: Path, command: str) -> Path:
+    """``path``, or the newest run directory inside it when it is a folder of runs (run directories
+    start with their UTC start time): that choice is printed to standard error."""
+    if not path.is_dir() or _is_run(path):
+        return path
+    runs = sorted(d for d in path.iterdir() if _is_run(d))
+    if not runs:
+        return path  # the reader names the empty folder
+    newest = runs[-1]
+    others = f"; the other {len(runs) - 1}: " + ", ".join(d.name for d in runs[-2::-1][:5]) + \
+        (" ..." if len(runs) > 6 else "") if len(runs) > 1 else ""
+    what = f"holds {len(runs)} runs: using the newest" if len(runs) > 1 else "holds one run: using it"
+    print(f"rehab-hil {command}: --data {path} {what}, {newest}{others}", file=sys.stderr)
+    return newest
+
+
+def missing_channels(plant: Any, cfg: Any, signals: dict[str, Any]) -> list[str]:
+    """The plant outputs a rig records (its encoder angle, its sensors) that ``signals`` lacks."""
+    try:
+        binding = plant.device(cfg)
+    except Exception:  # a plant without a rig binding: every output is optional
+        return []
+    wanted = [binding.angle_output, *(ch.signal for ch in binding.adc)]
+    return [c for c in dict.fromkeys(wanted) if c in plant.outputs and c not in signals]
