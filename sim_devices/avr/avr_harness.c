@@ -5,7 +5,7 @@
  * stdout: line 1 is the pty path; every later line is a reply (see README.md). simavr's log
  * and stray printf()s go to stderr (fd 1 is redirected there; replies use a dup of the original).
  *
- * Usage: avr_harness [-f] [-k] [-l LOCKSTEP_US] [-e EDGE_US] [-b BOOT.hex] [-r] [-u] [-v] firmware.elf
+ * Usage: avr_harness [-f] [-k] [-d DELAY_US] [-l LOCKSTEP_US] [-e EDGE_US] [-b BOOT.hex] [-r] [-u] [-v] firmware.elf
  *   -f  free-running: do not throttle simulated time to the wall clock
  *   -b  load a bootloader (Intel hex, e.g. optiboot at 0x7E00) with the sketch and start there
  *       (BOOTRST fuse programmed, as on an Uno)
@@ -17,6 +17,8 @@
  *   -k  host-paced (virtual time, with -f): simulated time stops after each SAMPLE, ACK or HELLO the AVR
  *       sends and runs again when a whole frame from the host has arrived, so device time advances
  *       only as the host allows (the Python device's lockstep clock), whatever the machine's load
+ *   -d  with -u: each burst of host bytes reaches the UART after 0..D us of simulated time (a fixed
+ *       pseudo-random sequence): the host's reaction time, at any phase of the tick, in virtual time
  *   -e  simulated time between two generated encoder edges (default 50 us = 20,000 counts/s;
  *       closer edges can fall within one interrupt latency and be lost, see README.md)
  *   -v  pass simavr's warnings to stderr
@@ -78,6 +80,8 @@ static const char *boot_hex = NULL;
 static uint32_t boot_pc = 0;
 static avr_uart_t *uart0;                     /* for its receive FIFO's fill level (-u) */
 static uint64_t rx_overrun = 0, rx_fed = 0;
+static uint64_t rx_frames_hit = 0;            /* frames, as the firmware delimits them, that lost a byte */
+static int frame_hit = 0;
 static uint32_t lockstep_us = 0, edge_us = 50;
 static avr_irq_t *uart_in_irq, *pin_irq[8], *adc_irq;
 static volatile int xoff = 0;
@@ -85,16 +89,18 @@ static volatile sig_atomic_t stop = 0;
 
 /* -k: the frame the AVR is sending (its COBS-encoded type byte sits at offset 2, since the packet's
  * version and type bytes are never 0), the host frame being received, and the host frames the
- * firmware has not answered yet: COMMANDs (answered by the first SAMPLE that echoes the newest one,
- * or shows a latched fault, which makes the firmware ignore them) and requests (answered one by one
- * by a HELLO, HEARTBEAT or ACK). */
+ * firmware has not answered yet. */
 static uint8_t dev_frame[80];
 static size_t dev_frame_len = 0;
-static uint16_t last_command_seq = 0;
 static uint8_t host_frame[80];
 static size_t host_frame_len = 0;
-static uint64_t owed_commands = 0, owed_requests = 0;
+/* Answers owed, by kind: a SAMPLE (to COMMANDs), a HELLO (HELLO_REQ), an ACK (CONFIGURE, ESTOP,
+ * CLEAR, SET_ENCODER), a HEARTBEAT (HEARTBEAT). Counted per kind, so an answer the harness did not
+ * count (a request the bootloader ate, bytes sent before the sketch booted) cannot stand for another. */
+enum { OWE_SAMPLE, OWE_HELLO, OWE_ACK, OWE_HEARTBEAT, OWE_KINDS };
+static uint64_t owed[OWE_KINDS];
 static int boot_hello = 1;             /* the HELLO the firmware sends at boot answers nobody */
+static uint32_t host_delay_us = 0, last_sample_time_us = 0;  /* -d */
 static int gate_closed = 0;            /* simulated time stopped until the next host frame */
 
 static uint8_t rx_buf[4096];          /* pty -> AVR, waiting for room in the UART fifo */
@@ -125,33 +131,39 @@ static void logger(avr_t *a, const int level, const char *fmt, va_list ap) {
 
 #define T_COMMAND 0x03
 
-#define SAMPLE_STATUS 25          /* packet offsets of SAMPLE.status and .cmd_seq_echo (u16 LE) */
-#define SAMPLE_ECHO 29
-#define STATUS_FAULT_LATCHED 0x04
 
 static size_t cobs_decode(const uint8_t *enc, size_t n, uint8_t *dec, size_t cap);
 
+static int nothing_owed(void) {
+    for (int k = 0; k < OWE_KINDS; k++) if (owed[k]) return 0;
+    return 1;
+}
+
 /* -k: simulated time stops when the firmware has answered every host frame, until the host speaks
- * again. A COMMAND while not streaming gets no answer: time then runs until a SAMPLE answers it. */
+ * again. A SAMPLE answers the COMMANDs before it (the firmware streams on its own timer: one sent
+ * right after the previous SAMPLE is applied by the next tick; one that lands later, or is lost to a
+ * receive overrun, is not echoed, and the host sends on, as its loop does every period). A COMMAND
+ * while not streaming gets no answer: time then runs until a SAMPLE comes. The HELLO sent at boot
+ * starts afresh: what was sent before belonged to the bootloader or to the reset. */
 static void on_frame_sent(const uint8_t *enc, size_t n) {
     uint8_t dec[80];
     size_t len = cobs_decode(enc, n, dec, sizeof dec);
     if (len < 6) return;
-    uint8_t type = dec[1];
-    if (type == T_SAMPLE) {
-        if (len < SAMPLE_ECHO + 2) return;
-        uint16_t status = (uint16_t)(dec[SAMPLE_STATUS] | (dec[SAMPLE_STATUS + 1] << 8));
-        uint16_t echo = (uint16_t)(dec[SAMPLE_ECHO] | (dec[SAMPLE_ECHO + 1] << 8));
-        if (echo == last_command_seq || (status & STATUS_FAULT_LATCHED)) owed_commands = 0;
-    } else if (type == T_HELLO && boot_hello) {
-        boot_hello = 0;
-        return;
-    } else if (type == T_HELLO || type == T_HEARTBEAT || type == T_ACK) {
-        if (owed_requests) owed_requests--;
-    } else {
-        return;
+    switch (dec[1]) {
+        case T_SAMPLE:
+            if (len < 8) return;
+            last_sample_time_us = (uint32_t)(dec[4] | (dec[5] << 8) | (dec[6] << 16) | ((uint32_t)dec[7] << 24));
+            owed[OWE_SAMPLE] = 0;
+            break;
+        case T_HELLO:
+            if (boot_hello) { boot_hello = 0; memset(owed, 0, sizeof owed); }
+            else if (owed[OWE_HELLO]) owed[OWE_HELLO]--;
+            break;
+        case T_ACK: if (owed[OWE_ACK]) owed[OWE_ACK]--; break;
+        case T_HEARTBEAT: if (owed[OWE_HEARTBEAT]) owed[OWE_HEARTBEAT]--; break;
+        default: return;
     }
-    if (!owed_commands && !owed_requests) gate_closed = 1;
+    if (nothing_owed()) gate_closed = 1;
 }
 
 /* CRC-16/CCITT-FALSE, as the protocol (and the firmware) computes it. */
@@ -182,8 +194,15 @@ static void on_host_frame(const uint8_t *enc, size_t n) {
     size_t out = cobs_decode(enc, n, dec, sizeof dec);
     if (out < 6 || dec[0] != 1) return;
     if (crc16(dec, out - 2) != (uint16_t)(dec[out - 2] | (dec[out - 1] << 8))) return;
-    if (dec[1] == T_COMMAND) { owed_commands++; last_command_seq = (uint16_t)(dec[2] | (dec[3] << 8)); }
-    else owed_requests++;
+    switch (dec[1]) {
+        case 0x01: owed[OWE_HELLO]++; break;                             /* HELLO_REQ */
+        case 0x02: case 0x05: case 0x06: case 0x07: owed[OWE_ACK]++; break;  /* CONFIGURE ESTOP CLEAR SET_ENCODER */
+        case T_COMMAND:
+            owed[OWE_SAMPLE] = 1;
+            break;
+        case 0x04: owed[OWE_HEARTBEAT]++; break;                         /* HEARTBEAT */
+        default: break;                                                  /* the firmware drops it */
+    }
 }
 static void on_host_bytes(const uint8_t *d, size_t n) {
     for (size_t i = 0; i < n; i++) {
@@ -275,7 +294,7 @@ static void apply_workarounds(void) {
     xoff = 0;
     gate_closed = 0;  /* -k: a reset interrupts any frame and forgets what was owed */
     dev_frame_len = 0;
-    owed_commands = owed_requests = 0;
+    memset(owed, 0, sizeof owed);
     host_frame_len = 0;
     boot_hello = 1;
 }
@@ -317,10 +336,28 @@ static avr_cycle_count_t uart_feed(avr_t *a, avr_cycle_count_t when, void *param
     (void)a; (void)param;
     if (!rx_len || !(avr->data[R_UCSR0B] & (1 << RXEN0_BIT))) return 0;  /* idle: pump_pty restarts it */
     unsigned unread = (unsigned)(uart0->input.write - uart0->input.read) & (uart_fifo_fifo_size - 1);
-    if (unread >= 2) rx_overrun++;  /* DOR: the 328P holds 2 unread bytes, this one is lost */
-    else { avr_raise_irq(uart_in_irq, rx_buf[0]); rx_fed++; }
+    if (unread >= 2) { rx_overrun++; frame_hit = 1; }  /* DOR: the 328P holds 2 unread bytes, this one is lost */
+    else {
+        avr_raise_irq(uart_in_irq, rx_buf[0]);
+        rx_fed++;
+        /* a lost delimiter merges two frames into one: counted where the firmware's frame ends */
+        if (rx_buf[0] == 0 && frame_hit) { rx_frames_hit++; frame_hit = 0; }
+    }
     memmove(rx_buf, rx_buf + 1, --rx_len);
     return rx_len ? when + uart_byte_cycles() : 0;
+}
+
+/* -d: the host's reaction time, 0..host_delay_us of simulated time per burst of host bytes, drawn
+ * from a hash of the device time of the firmware's last SAMPLE: in virtual time (-k) a reply lands at
+ * any phase of the firmware's tick, and at the same phases on every run, however many requests the
+ * host needed to connect. */
+static avr_cycle_count_t host_delay_cycles(void) {
+    if (!host_delay_us) return 0;
+    uint32_t x = last_sample_time_us * 2654435761u + 0x9E3779B9u;
+    x ^= x << 13;
+    x ^= x >> 17;
+    x ^= x << 5;
+    return (avr_cycle_count_t)(x % (host_delay_us + 1)) * CYC_PER_US;
 }
 
 static void reply(const char *fmt, ...) {
@@ -339,11 +376,12 @@ static void reply(const char *fmt, ...) {
     }
 }
 
-/* T sim_us duty0 duty1 dir enc_pos resets tx_dropped rx_dropped */
+/* T sim_us duty0 duty1 dir enc_pos resets tx_dropped rx_dropped rx_frames_hit */
 static void report_state(void) {
     uint8_t dir = (uint8_t)(((avr->data[R_PORTB] & 0x01) ? 1 : 0) | ((avr->data[R_PORTD] & 0x80) ? 2 : 0));
-    reply("T %llu %u %u %u %ld %u %llu %llu\n", (unsigned long long)sim_us(), pwm_duty(0), pwm_duty(1), dir,
-          (long)enc_pos, resets, (unsigned long long)tx_dropped, (unsigned long long)(rx_dropped + rx_overrun));
+    reply("T %llu %u %u %u %ld %u %llu %llu %llu\n", (unsigned long long)sim_us(), pwm_duty(0), pwm_duty(1), dir,
+          (long)enc_pos, resets, (unsigned long long)tx_dropped, (unsigned long long)(rx_dropped + rx_overrun),
+          (unsigned long long)rx_frames_hit);
 }
 
 static void pump_pty(void) {
@@ -365,7 +403,7 @@ static void pump_pty(void) {
     }
     if (uart_real) {
         if (rx_len && (avr->data[R_UCSR0B] & (1 << RXEN0_BIT)) && !avr_cycle_timer_status(avr, uart_feed, NULL))
-            avr_cycle_timer_register(avr, uart_byte_cycles(), uart_feed, NULL);
+            avr_cycle_timer_register(avr, uart_byte_cycles() + host_delay_cycles(), uart_feed, NULL);
         return;
     }
     size_t fed = 0;
@@ -410,7 +448,11 @@ static int handle_line(char *line) {
                     * (-k) COMMANDs and requests not answered yet, whether time stands still */
             reply("U %zu %d 0x%02x 0x%02x %llu %llu %llu %llu %d\n", rx_len, xoff, avr->data[R_UCSR0B - 1],
                   avr->data[R_UCSR0B], (unsigned long long)rx_fed, (unsigned long long)rx_overrun,
-                  (unsigned long long)owed_commands, (unsigned long long)owed_requests, gate_closed);
+                  (unsigned long long)owed[OWE_SAMPLE], (unsigned long long)(owed[OWE_HELLO] + owed[OWE_ACK] + owed[OWE_HEARTBEAT]),
+                  gate_closed);
+            return 0;
+        case 'H':  /* H us: the host's reaction time from now on (as -d) */
+            if (sscanf(line + 1, "%ld", &a) == 1 && a >= 0) host_delay_us = (uint32_t)a;
             return 0;
         case 'R':  /* external reset (the RESET pin); never from a cycle timer: it crashed simavr */
             external_reset();
@@ -528,17 +570,18 @@ static void on_signal(int sig) { (void)sig; stop = 1; }
 
 int main(int argc, char **argv) {
     int opt;
-    while ((opt = getopt(argc, argv, "fkl:e:b:ruv")) != -1) {
+    while ((opt = getopt(argc, argv, "fkl:e:b:d:ruv")) != -1) {
         switch (opt) {
             case 'f': free_running = 1; break;
             case 'k': host_paced = 1; free_running = 1; break;
+            case 'd': host_delay_us = (uint32_t)strtoul(optarg, NULL, 10); break;
             case 'l': lockstep_us = (uint32_t)strtoul(optarg, NULL, 10); break;
             case 'e': edge_us = (uint32_t)strtoul(optarg, NULL, 10); if (!edge_us) edge_us = 1; break;
             case 'v': verbose = 1; break;
             case 'b': boot_hex = optarg; break;
             case 'r': reset_on_open = 1; break;
             case 'u': uart_real = 1; break;
-            default: fprintf(stderr, "usage: %s [-f] [-k] [-l lockstep_us] [-e edge_us] [-v] firmware.elf\n", argv[0]); return 2;
+            default: fprintf(stderr, "usage: %s [-f] [-k] [-d delay_us] [-l lockstep_us] [-e edge_us] [-v] firmware.elf\n", argv[0]); return 2;
         }
     }
     if (optind >= argc) { fprintf(stderr, "avr_harness: no firmware ELF given\n"); return 2; }
@@ -592,7 +635,7 @@ int main(int argc, char **argv) {
         if (gate_closed) {  /* -k: time stands still until a whole host frame has arrived */
             pump_pty();
             if (reset_on_open) watch_port_open();
-            if (!owed_commands && !owed_requests) {
+            if (nothing_owed()) {
                 wait_for_io();
                 read_stdin(0);
                 continue;

@@ -109,12 +109,17 @@ def _fresh(hw: SerialHardware) -> Sample:
 
 
 def _step(hw: SerialHardware, command: Command) -> tuple[int, Sample]:
-    """Lockstep: one COMMAND and the SAMPLE that answers it: the first that echoes it, or shows a
-    latched fault (the device then ignores commands). The Python device answers with its next
-    sample; the firmware streams on its own timer, so a sample of the tick before it parsed the
-    COMMAND may come first; its harness stops virtual time only at the answer (avr_harness -k)."""
-    seq = hw.send_command(command)
-    return seq, _until(hw, lambda s: s.cmd_seq_echo == seq or bool(s.status & Status.FAULT_LATCHED), 10)
+    """Lockstep: one COMMAND and the SAMPLE that answers it, the first that echoes it or shows a
+    latched fault (the device then ignores commands). The Python device applies a COMMAND before its
+    sample; the firmware streams on its own timer and applies one that lands late in a tick at the
+    next, so its sample may not echo it yet: the host then sends it again, as its loop would."""
+    hw.discard_pending()  # the firmware streamed while a request was pending: samples from before
+    for _ in range(10):
+        seq = hw.send_command(command)
+        s = _next(hw)
+        if s.cmd_seq_echo == seq or s.status & Status.FAULT_LATCHED:
+            return seq, s
+    raise AssertionError(f"{command} was not applied in ten sample periods (last: {s})")
 
 
 @dataclass

@@ -77,7 +77,7 @@ class Harness:
         self.send("S")
         f = self.line().split()
         assert f[0] == "T", f
-        keys = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped")
+        keys = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped", "rx_frames_hit")
         return dict(zip(keys, map(int, f[1:]), strict=True))
 
     def stderr(self) -> str:

@@ -78,8 +78,9 @@ def spawn_avr_device(config_path: str | Path, clock: str = "realtime", *, extra_
     """Start the firmware in simavr behind the plant of ``config_path``; returns once its pty is ready.
 
     ``clock``: "realtime" (simulated time throttled to the wall clock), "free" (as fast as the
-    simulator runs) or "lockstep" (virtual time paced by the host's frames; see the module docstring). ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge
-    model between. Build first: ``make firmware harness``."""
+    simulator runs) or "lockstep" (virtual time paced by the host's frames; see the module docstring).
+    ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge model between.
+    Build first: ``make firmware harness``."""
     if clock not in CLOCKS:
         raise ValueError(f"the avr device supports clock {CLOCKS}, not {clock!r}")
     harness, elf = default_paths()
@@ -144,7 +145,8 @@ class _Driver(ControlChannel):
             self._send("R")
         elif cmd == "status" and not args:
             f = self.last_t.split()
-            fields = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped")
+            fields = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped",
+                      "rx_frames_hit")
             kv = " ".join(f"{k}={v}" for k, v in zip(fields, f[1:], strict=False))
             return f"ok ticks={self.ticks} {kv}"
         else:
