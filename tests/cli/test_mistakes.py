@@ -147,3 +147,13 @@ def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path):
     meta = json.loads((csv.parent / "metadata.json").read_text())
     assert meta["pwm_off_at_end"] and meta["safety_events"][0]["reason"] == "stop_request"
     assert meta["rows"] == read_csv(csv).t.size  # metadata says what was written
+
+
+def test_monitor_with_no_hub_is_one_line_with_a_hint(capsys):
+    from rehab_hil.testing import free_port
+
+    port = free_port()
+    assert main(["monitor", "rig1", "--port", str(port), "--duration", "1", "--no-live"]) == 2
+    err = _one_line(capsys, "monitor")
+    assert f"cannot connect to tcp/127.0.0.1:{port}" in err and "no hub there" in err and "--telemetry RIG" in err
+    assert ".rs:" not in err

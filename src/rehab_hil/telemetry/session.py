@@ -159,4 +159,11 @@ def open_session(net: NetworkConfig) -> zenoh.Session:
     except zenoh.ZError as e:
         where = ", ".join(net.endpoints())
         verb = "listen on" if net.role == "hub" else "connect to"
-        raise TelemetryConfigError(f"cannot {verb} {where}: {e}") from None
+        why = re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(e)).strip()  # no Rust source path for a user
+        hint = ""
+        if net.role != "hub" and net.mode != "lab":
+            hint = (": no hub there; start the rig with `rehab-hil run ... --telemetry RIG` (it hosts the loopback "
+                    "hub), or give the port it uses (--port), or the lab router (--connect ENDPOINT)")
+        elif net.role != "hub":
+            hint = ": is the lab router running and reachable (`rehab-hil router`)?"
+        raise TelemetryConfigError(f"cannot {verb} {where} ({why}){hint}") from None
