@@ -83,20 +83,27 @@ def report(cal: Calibration, rms: dict[str, float], points: list[CalibrationPoin
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="calibrate a sensor with known loads (force: the Flexiforce on A0)")
     p.add_argument("what", choices=("force",))
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--config", type=Path, help="plant config (configs/*.toml)")
     p.add_argument("--device", default=None, help="sim, avr, auto or a serial path (default: [rig].port)")
-    p.add_argument("--sensor-id", required=True, help="the sensor's label (names calibrations/<id>.toml)")
-    p.add_argument("--weights-g", required=True, type=weights_g, help="known masses in grams, rising: 50,100,200,500")
+    p.add_argument("--sensor-id", help="the sensor's label (names calibrations/<id>.toml)")
+    p.add_argument("--weights-g", type=weights_g, help="known masses in grams, rising: 50,100,200,500")
     p.add_argument("--circuit", choices=("opamp", "divider"), default="opamp", help="how the sensor reaches A0")
     p.add_argument("--channel", type=int, choices=(0, 1), default=0, help="ADC channel (the firmware limits A0)")
     p.add_argument("--settle", type=float, default=2.0, help="wait after placing a weight [s]")
     p.add_argument("--average", type=float, default=1.0, help="average the reading over [s]")
     p.add_argument("--out-dir", type=Path, default=Path("calibrations"))
     p.add_argument("--yes", action="store_true", help="do not wait for Enter (the loads are applied by a script)")
+    p.add_argument("--points", type=Path, help="fit published points offline (CSV sensor,load_n,raw_counts), no device")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.points is not None:
+        from rehab_hil.cli.calibrate_points import run_points
+
+        return run_points(args.points)
+    if args.config is None or args.sensor_id is None or args.weights_g is None:
+        raise UserError("calibrate force needs --config, --sensor-id and --weights-g (or --points CSV)")
     from rehab_hil.cli.doctor import open_for_checks
     from rehab_hil.plants import get_plant, load_config
 
