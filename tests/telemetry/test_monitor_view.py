@@ -77,3 +77,18 @@ def test_a_gone_rig_and_no_samples_are_shown_as_such() -> None:
     m.on_alive("r9", False)
     out = text(m)
     assert "rig r9 gone" in out and "no samples yet" in out
+
+
+def test_cycles_without_a_sample_neither_blank_the_state_nor_count_in_the_rate() -> None:
+    clock = Clock()
+    m = MonitorState("r1", clock=clock)
+    for i in range(1000):  # a 1 kHz rig whose loop also publishes a command-only record per sample
+        clock.t = i * 1e-3
+        m.on_sample(sample(i))
+        m.on_sample(sample(i, has_sample=False, has_state=False, angle_rad=math.nan, velocity_rad_s=math.nan,
+                           analog=()))
+    out = text(m)
+    assert "99.90 deg" in out and "1.500" in out  # the latest state, after a record without one
+    assert math.isclose(m.rate_hz(), 1000.0, rel_tol=0.02)  # the rig's rate, not the records'
+    assert "device samples received" in out and "1000 (1000 Hz)" in out
+    assert m.samples == 2000 and m.device_samples == 1000

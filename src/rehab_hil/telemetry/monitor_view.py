@@ -61,7 +61,9 @@ class MonitorState:
         self._lock = threading.Lock()
         self.latest: StateSample | None = None
         self.latest_sample: StateSample | None = None  # latest cycle that carried a device SAMPLE
-        self.samples = 0
+        self.latest_state: StateSample | None = None  # latest cycle that carried a state estimate
+        self.samples = 0  # records received (a cycle without a device SAMPLE is a record too)
+        self.device_samples = 0  # records that carried a device SAMPLE: the rig's own rate
         self.alive: bool | None = None
         self.info: dict[str, Any] = {}
         self.stats: dict[str, Any] = {}
@@ -78,11 +80,15 @@ class MonitorState:
             self.samples += 1
             if s.has_sample:
                 self.latest_sample = s
+                self.device_samples += 1
+            if s.has_state:
+                self.latest_state = s
             now = self._clock()
             if now >= self._next_trend:
                 self._next_trend = now + TREND_PERIOD_S
-                self._rate_marks.append((now, self.samples))
-                self.trends["angle"].append(s.angle_deg if s.has_state else math.nan)
+                self._rate_marks.append((now, self.device_samples))
+                st = self.latest_state
+                self.trends["angle"].append(st.angle_deg if st is not None else math.nan)
                 self.trends["analog"].append(s.analog[0] if s.analog else math.nan)
                 self.trends["duty"].append(s.command_duty0)
                 self.trends["temperature"].append(s.temperature_c)
@@ -105,7 +111,8 @@ class MonitorState:
 
     # -- derived ----------------------------------------------------------------------------------
     def rate_hz(self) -> float:
-        """Records received per second over the last few seconds (NaN until two marks exist)."""
+        """Device samples received per second over the last few seconds (NaN until two marks exist):
+        the rig's sample rate, whatever cycles without a sample the loop also publishes."""
         with self._lock:
             marks = [m for m in self._rate_marks if m[0] >= self._clock() - 3.0]
         if len(marks) < 2 or marks[-1][0] <= marks[0][0]:
@@ -139,9 +146,9 @@ def _flat(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
 def render(m: MonitorState) -> Group:
     """The monitor screen: rig header, live values with trends, safety, loop/link/telemetry stats."""
     with m._lock:
-        s, ss, info, stats = m.latest, m.latest_sample, dict(m.info), dict(m.stats)
+        s, ss, st, info, stats = m.latest, m.latest_sample, m.latest_state, dict(m.info), dict(m.stats)
         trends = {k: list(v) for k, v in m.trends.items()}
-        alive, samples = m.alive, m.samples
+        alive, samples, device_samples = m.alive, m.samples, m.device_samples
     status = {True: "[green]running", False: "[red]gone", None: "[yellow]waiting"}[alive]
     head = Text.from_markup(f"[bold]rig {m.rig}[/] {status}[/]  plant {info.get('plant', '-')}  "
                             f"firmware {info.get('firmware_version') or '-'}  "
@@ -152,10 +159,11 @@ def render(m: MonitorState) -> Group:
     live.add_column("trend (6 s)")
     names = info.get("analog_names") or ["analog0", "analog1"]
     if s is not None:
-        live.add_row("angle", _fmt(s.angle_deg if s.has_state else math.nan, "deg"), sparkline(trends["angle"]))
+        # the state shown is the latest that has one: a cycle without a sample does not blank it
+        live.add_row("angle", _fmt(st.angle_deg if st is not None else math.nan, "deg"), sparkline(trends["angle"]))
         live.add_row("reference", _fmt(s.reference_deg, "deg"), "")
-        live.add_row("velocity", _fmt(s.velocity_rad_s, "rad/s"), "")
-        for i, v in enumerate(s.analog):
+        live.add_row("velocity", _fmt(st.velocity_rad_s if st is not None else math.nan, "rad/s"), "")
+        for i, v in enumerate(st.analog if st is not None else s.analog):
             live.add_row(str(names[i] if i < len(names) else f"analog{i}"), _fmt(v, digits=3),
                          sparkline(trends["analog"]) if i == 0 else "")
         live.add_row("duty cmd 0/1", f"{_fmt(s.command_duty0, digits=3)} / {_fmt(s.command_duty1, digits=3)}",
@@ -169,7 +177,8 @@ def render(m: MonitorState) -> Group:
     style = "green" if safety == "ok" else ("red" if safety != "-" else "yellow")
     rates = Table(show_header=False, box=None)
     rates.add_row("safety", Text(safety, style=style))
-    rates.add_row("records received", f"{samples} ({_fmt(m.rate_hz(), 'Hz', 0)})")
+    rates.add_row("device samples received", f"{device_samples} ({_fmt(m.rate_hz(), 'Hz', 0)})")
+    rates.add_row("records received", str(samples))
     if ss is not None:
         rates.add_row("sample index / device bad frames", f"{ss.sample_index} / {ss.rx_bad_frames}")
     for k, v in _flat({k: stats[k] for k in ("loop", "telemetry") if k in stats}):
