@@ -38,8 +38,9 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
              connect_timeout_s: float = 3.0, write_timeout_s: float = 0.2,
              spawn_args: list[str] | None = None) -> Iterator[HardwareInterface]:
     """Open ``device`` (see the module docstring) on the plant of ``config_path`` and connect (HELLO);
-    closes the hardware and stops a spawned device process on exit. ``lockstep``: the sim device
-    advances one sample per COMMAND (deterministic; "inprocess" always does, "avr" cannot).
+    closes the hardware and stops a spawned device process on exit. ``lockstep``: the simulated
+    device runs in virtual time, one sample period per COMMAND (deterministic; "inprocess" always
+    does; "avr": the harness stops simulated time once the firmware has answered the host).
     ``baud``: a serial path's rate (default ``[rig].baud``). Failures raise ``HardwareError``."""
     device = resolve_device(device)  # "auto": the one Arduino-like USB serial port (hardware/discovery.py)
     announce_device(device, config_path, _config(config_path).rig.port)  # which device, on stderr
@@ -68,8 +69,6 @@ def _spawn(kind: str, config_path: str | Path, lockstep: bool, extra_args: list[
     if kind == "avr":
         from rehab_hil.devices import avr_device
 
-        if lockstep:
-            raise HardwareError("lockstep is a mode of the Python sim device; the avr device runs in real time")
         reason = avr_device.unavailable_reason()
         if reason:
             raise HardwareError(f"avr device: {reason}")
