@@ -92,3 +92,4 @@ def test_cycles_without_a_sample_neither_blank_the_state_nor_count_in_the_rate()
     assert math.isclose(m.rate_hz(), 1000.0, rel_tol=0.02)  # the rig's rate, not the records'
     assert "device samples received" in out and "1000 (1000 Hz)" in out
     assert m.samples == 2000 and m.device_samples == 1000
+    assert all(math.isfinite(v) for k in ("angle", "analog") for v in m.trends[k])  # no blank in the trends

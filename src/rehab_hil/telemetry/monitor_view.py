@@ -89,7 +89,7 @@ class MonitorState:
                 self._rate_marks.append((now, self.device_samples))
                 st = self.latest_state
                 self.trends["angle"].append(st.angle_deg if st is not None else math.nan)
-                self.trends["analog"].append(s.analog[0] if s.analog else math.nan)
+                self.trends["analog"].append(st.analog[0] if st is not None and st.analog else math.nan)
                 self.trends["duty"].append(s.command_duty0)
                 self.trends["temperature"].append(s.temperature_c)
 
