@@ -86,9 +86,7 @@ class InProcessHardware(HardwareInterface):
         self._require_connected("read_sample")
         if not self._samples:
             return None
-        t, sample = self._samples.popleft()
-        self.last_sample_time = t
-        return sample
+        return self._next_sample()
 
 
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:

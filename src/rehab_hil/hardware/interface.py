@@ -60,7 +60,7 @@ class LinkStats:
     device_rx_bad_frames: int = 0  # the device's own count of dropped frames (last SAMPLE)
     samples: int = 0
     dropped_samples: int = 0  # gaps in sample_index
-    reboots: int = 0  # unsolicited HELLOs seen after the handshake
+    reboots: int = 0  # device restarts: an unsolicited HELLO after the handshake, or sample_index going back
     latencies_s: deque[float] = field(default_factory=lambda: deque(maxlen=100_000))  # command -> echo
 
     def latency_percentiles(self, q: tuple[float, ...] = (50.0, 99.0)) -> dict[str, float]:
@@ -131,29 +131,52 @@ class HardwareInterface(ABC):
     stats: LinkStats
     state: LifecycleState
     last_sample_time: float  # perf_counter when the last sample returned by read_sample arrived
+    last_sample_gap: int  # samples missing from sample_index just before that sample (0 after a restart)
+    last_reboot: str  # how the last device restart counted in ``stats.reboots`` showed itself
 
     def __init__(self) -> None:
         self.info = None
         self.stats = LinkStats()
         self.state = LifecycleState.UNCONFIGURED
         self.last_sample_time = 0.0
-        self._samples: deque[tuple[float, Sample]] = deque()  # (arrival time, SAMPLE) not yet read
+        self.last_sample_gap = 0
+        self.last_reboot = ""
+        self._samples: deque[tuple[float, Sample, int]] = deque()  # (arrival time, SAMPLE, gap) not yet read
         self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
-        self.last_sample: Sample | None = None
         self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result
         self._last_index: int | None = None  # sample_index of the last SAMPLE (gap accounting)
 
     def _received_sample(self, now: float, msg: Sample) -> None:
-        """Book one SAMPLE: counted, gaps in sample_index (mod 2^32) counted as dropped, queued."""
+        """Book one SAMPLE: counted, queued with the samples missing before it. Gaps and device
+        restarts are judged here and only here: a gap in sample_index (mod 2^32) is samples dropped,
+        the index going back is a restart (its HELLO was lost) counted in ``stats.reboots``."""
         st = self.stats
         st.samples += 1
-        if self._last_index is not None:
-            gap = (msg.sample_index - self._last_index - 1) & 0xFFFFFFFF
-            if gap < 0x80000000:
+        index = msg.sample_index
+        last = self._last_index
+        gap = 0
+        if last is not None:
+            gap = (index - last - 1) & 0xFFFFFFFF
+            if gap >= 0x80000000:  # the index went back: the device restarted
+                self._rebooted(f"sample_index {last} -> {index}")
+                gap = 0
+            else:
                 st.dropped_samples += gap
-        self._last_index = msg.sample_index
-        self.last_sample = msg
-        self._samples.append((now, msg))
+        self._last_index = index
+        self._samples.append((now, msg, gap))
+
+    def _rebooted(self, how: str) -> None:
+        """Count a device restart (an unsolicited HELLO, or sample_index going back); the stream starts over."""
+        self.stats.reboots += 1
+        self.last_reboot = how
+        self._last_index = None
+
+    def _next_sample(self) -> Sample:
+        """Pop the oldest queued sample, setting ``last_sample_time`` and ``last_sample_gap``."""
+        t, sample, gap = self._samples.popleft()
+        self.last_sample_time = t
+        self.last_sample_gap = gap
+        return sample
 
     def _received_reply(self, msg: object) -> bool:
         """Book an ACK or a FAULT report; False for any other message."""
@@ -177,7 +200,8 @@ class HardwareInterface(ABC):
 
     @abstractmethod
     def read_sample(self, timeout: float | None = None) -> Sample | None:
-        """The next SAMPLE in arrival order, or None after ``timeout`` seconds (None: wait forever)."""
+        """The next SAMPLE in arrival order, or None after ``timeout`` seconds (None: wait forever).
+        Sets ``last_sample_time`` (its arrival) and ``last_sample_gap``."""
 
     def pending_samples(self) -> int:
         """Samples received and not yet returned by ``read_sample`` (without touching the link)."""

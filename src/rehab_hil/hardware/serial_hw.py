@@ -1,16 +1,22 @@
-"""``SerialHardware``: the rig over pyserial (a USB port, or the pty of a simulated device).
+"""``SerialHardware``: the rig over a serial port (a USB port, or the pty of a simulated device).
 
-Synchronous and single-threaded on the read side (the loop calls ``read_sample`` each cycle);
-writes are serialised by a lock so a supervisor thread may call ``estop``. Frames other than
-SAMPLE (ACK, FAULT, HELLO, HEARTBEAT) are consumed as they arrive and kept as state.
+pyserial finds, opens and configures the port (baud, raw mode, non-blocking) and flushes it; the
+bytes themselves go through the port's file descriptor: one ``poll`` and one ``os.read`` to take
+what arrived, one ``os.write`` per frame (pyserial's read and write wrap each in a ``select`` and a
+``Timeout`` object, and ``in_waiting`` is an ioctl). Synchronous and single-threaded on the read
+side (the loop calls ``read_sample`` each cycle); writes are serialised by a lock so a supervisor
+thread may call ``estop``. Frames other than SAMPLE (ACK, FAULT, HELLO, HEARTBEAT) are consumed
+as they arrive and kept as state.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import select
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 
 import serial
 
@@ -29,12 +35,14 @@ from rehab_hil.protocol import (
     Message,
     Sample,
     SetEncoder,
+    encode_command,
     encode_frame,
 )
 
 __all__ = ["SerialHardware"]
 
-_PENDING_COMMANDS = 1024  # send times kept for latency matching
+_READ_SIZE = 4096  # bytes per read: a burst of ~110 SAMPLEs
+_POLLIN = select.POLLIN | select.POLLPRI
 
 
 def _cpr_hint(info: Hello | None, config: Configure) -> str:
@@ -52,12 +60,14 @@ class SerialHardware(HardwareInterface):
         super().__init__()
         self.port, self.baud, self.write_timeout_s = port, baud, write_timeout_s
         self._ser: serial.Serial | None = None
+        self._fd = -1  # the port's file descriptor while open
+        self._poll = select.poll()
         self._decoder = FrameDecoder()
+        self.stats.bad_frames = self._decoder.bad  # the decoder's own counter (never a zero count): no copy
         self._heartbeats: deque[DeviceHeartbeat] = deque(maxlen=16)
         self._hellos: deque[Hello] = deque(maxlen=16)
-        self._sent_at: OrderedDict[int, float] = OrderedDict()  # COMMAND seq -> perf_counter
-        self._last_echo: int | None = None
-        self._rx_seq: int | None = None
+        self._sent_at = [0.0] * 0x10000  # COMMAND seq -> perf_counter when sent, 0.0 once echoed
+        self._last_echo = -1
         self._tx_seq = 0
         self._wlock = threading.Lock()
 
@@ -73,6 +83,8 @@ class SerialHardware(HardwareInterface):
             except (serial.SerialException, OSError) as e:
                 raise HardwareError(f"cannot open {self.port}: {e}") from e
             self._ser.reset_input_buffer()
+            self._fd = self._ser.fileno()  # opened O_NONBLOCK by pyserial
+            self._poll.register(self._fd, _POLLIN)
         self._hellos.clear()
         deadline = time.perf_counter() + timeout
         while time.perf_counter() < deadline:
@@ -98,17 +110,21 @@ class SerialHardware(HardwareInterface):
         self.state = LifecycleState.ACTIVE
 
     def read_sample(self, timeout: float | None = None) -> Sample | None:
-        self._require_connected("read_sample")
-        deadline = None if timeout is None else time.perf_counter() + timeout
-        while not self._samples:
-            remaining = 0.5 if deadline is None else deadline - time.perf_counter()
-            if remaining <= 0:
+        if not self.state.connected:
+            self._require_connected("read_sample")
+        if not self._samples:
+            if timeout is not None and timeout <= 0:
+                self._pump(0.0)
+            else:
+                deadline = None if timeout is None else time.perf_counter() + timeout
+                while not self._samples:
+                    remaining = 0.5 if deadline is None else deadline - time.perf_counter()
+                    if remaining <= 0:
+                        break
+                    self._pump(remaining)
+            if not self._samples:
                 return None
-            self._pump(remaining)
-        t, sample = self._samples.popleft()
-        self.last_sample_time = t
-        return sample
-
+        return self._next_sample()
 
     def flush_input(self) -> None:
         """Forget everything received and not yet read: the OS buffer, a partial frame, queued
@@ -123,17 +139,22 @@ class SerialHardware(HardwareInterface):
         self._last_index = None
 
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
-        self._require_active("write_command")
-        return self.send_command(Command(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF,
-                                         1 if enable else 0))
+        if self.state is not LifecycleState.ACTIVE:
+            self._require_active("write_command")
+        with self._wlock:
+            seq = self._tx_seq
+            self._write_locked(encode_command(seq, duty_units(duty0), duty_units(duty1), int(direction) & 0xFF,
+                                              1 if enable else 0))
+            self._tx_seq = (seq + 1) & 0xFFFF
+            self.stats.frames_tx += 1
+        self._sent_at[seq] = time.perf_counter()
+        return seq
 
     def send_command(self, command: Command) -> int:
         """Send a COMMAND in raw duty units, in any connected state (conformance tests send commands
         before CONFIGURE on purpose); returns its seq (latency is matched on the echo)."""
         seq = self._send(command)
         self._sent_at[seq] = time.perf_counter()
-        while len(self._sent_at) > _PENDING_COMMANDS:
-            self._sent_at.popitem(last=False)
         return seq
 
     def estop(self, timeout: float = 1.0) -> None:
@@ -169,15 +190,18 @@ class SerialHardware(HardwareInterface):
 
     def close(self) -> None:
         self.state = LifecycleState.FINALIZED
-        ser, self._ser = self._ser, None
-        if ser is None:
+        if self._ser is None:
             return
         try:
-            with self._wlock:
-                ser.write(encode_frame(Command(0, 0, 0, 0), self._tx_seq))
-                self._tx_seq = (self._tx_seq + 1) & 0xFFFF
-        except (serial.SerialException, OSError):
+            self._send(Command(0, 0, 0, 0))
+        except HardwareError:
             pass
+        ser, self._ser = self._ser, None
+        try:
+            self._poll.unregister(self._fd)
+        except (KeyError, ValueError, OSError):
+            pass
+        self._fd = -1
         try:
             ser.close()
         except (serial.SerialException, OSError):
@@ -203,13 +227,31 @@ class SerialHardware(HardwareInterface):
             self._write_locked(data)
 
     def _write_locked(self, data: bytes) -> None:
-        ser = self._require()
+        """Write all of ``data``: at once when the port takes it (always, at the loop's rate), else
+        waiting for room up to the write timeout."""
+        if self._ser is None:
+            raise HardwareError("not connected")
         try:
-            ser.write(data)
-        except serial.SerialTimeoutException as e:
-            raise HardwareError(f"write to {self.port} timed out (device not reading)") from e
-        except (serial.SerialException, OSError) as e:
+            n = os.write(self._fd, data)
+        except BlockingIOError:
+            n = 0
+        except OSError as e:
             raise HardwareError(f"link to {self.port} lost: {e}") from e
+        if n < len(data):
+            self._write_rest(memoryview(data)[n:])
+
+    def _write_rest(self, data: memoryview) -> None:
+        deadline = time.perf_counter() + self.write_timeout_s
+        while data:
+            remaining = deadline - time.perf_counter()
+            try:
+                if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
+                    raise HardwareError(f"write to {self.port} timed out (device not reading)")
+                data = data[os.write(self._fd, data):]
+            except BlockingIOError:
+                continue
+            except (OSError, ValueError) as e:
+                raise HardwareError(f"link to {self.port} lost: {e}") from e
 
     def _request(self, msg: Message, timeout: float) -> int:
         seq = self._send(msg)
@@ -224,41 +266,43 @@ class SerialHardware(HardwareInterface):
 
     def _pump(self, timeout: float) -> None:
         """Wait up to ``timeout`` s for bytes, then decode everything available."""
-        ser = self._require()
+        if self._ser is None:
+            raise HardwareError("not connected")
         try:
-            if not ser.in_waiting:
-                select.select([ser.fileno()], [], [], max(0.0, timeout))
-            data = ser.read(ser.in_waiting or 1)
-        except (serial.SerialException, OSError, ValueError, TypeError) as e:
-            raise HardwareError(f"link to {self.port} lost: {e}") from e
-        if not data:
+            if timeout >= 0.001:
+                if not self._poll.poll(math.ceil(timeout * 1000.0)):  # ms, rounded up
+                    return
+            elif timeout > 0.0 and not select.select((self._fd,), (), (), timeout)[0]:
+                return
+            data = os.read(self._fd, _READ_SIZE)
+        except BlockingIOError:  # nothing there (timeout 0), or woken by a zero-length event
             return
+        except OSError as e:
+            raise HardwareError(f"link to {self.port} lost: {e}") from e
+        if not data:  # ready but at its end: the other side is gone
+            raise HardwareError(f"link to {self.port} lost: the device end closed")
         now = time.perf_counter()
         for frame in self._decoder.feed(data):
             self._handle(frame, now)
-        self.stats.bad_frames = +self._decoder.bad  # copy without zero counts
 
     def _handle(self, frame: Frame, now: float) -> None:
         st, msg = self.stats, frame.msg
         st.frames_rx += 1
-        self._rx_seq = frame.seq
-        if isinstance(msg, Sample):
+        if type(msg) is Sample:
             st.device_rx_bad_frames = msg.rx_bad_frames
-            if msg.cmd_seq_echo != self._last_echo:
-                self._last_echo = msg.cmd_seq_echo
-                sent = self._sent_at.get(msg.cmd_seq_echo)
-                if sent is not None:
+            echo = msg.cmd_seq_echo
+            if echo != self._last_echo:
+                self._last_echo = echo
+                sent = self._sent_at[echo & 0xFFFF]
+                if sent:
                     st.latencies_s.append(now - sent)
-                    while self._sent_at and next(iter(self._sent_at)) != msg.cmd_seq_echo:
-                        self._sent_at.popitem(last=False)
-                    self._sent_at.popitem(last=False)
+                    self._sent_at[echo & 0xFFFF] = 0.0
             self._received_sample(now, msg)
         elif self._received_reply(msg):
             pass
         elif isinstance(msg, Hello):
             if self.info is not None and frame.seq == 0:  # unsolicited boot HELLO: the device rebooted
-                st.reboots += 1
-                self._last_index = None
+                self._rebooted("unsolicited HELLO (device restarted)")
             self._hellos.append(msg)
         elif isinstance(msg, DeviceHeartbeat):
             self._heartbeats.append(msg)
