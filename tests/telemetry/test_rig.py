@@ -45,7 +45,7 @@ def test_the_rig_joins_an_existing_hub_as_a_client(hub: int, client: Callable[..
             RigTelemetry("joined", info(), NetworkConfig(port=hub), stats_period_s=0.05) as rt:
         assert rt.role == "client"
         link = LinkStats(frames_rx=5)
-        progress = SimpleNamespace(t_s=1.0, duration_s=2.0, samples=5, missed=0, tripped="")
+        progress = SimpleNamespace(t_s=1.0, duration_s=2.0, samples=5, sample_gaps=0, tripped="")
         rt.watch(SimpleNamespace(progress=progress), SimpleNamespace(stats=link))
         assert wait(lambda: any(m["loop"].get("link", {}).get("frames_rx") == 5 for m in stats))
         rt.on_trip(SafetyEvent(0.5, "force", "41 N > 40 N"))

@@ -119,7 +119,7 @@ def _progress_table(p: Progress) -> Table:
     t.add_row("angle / reference", f"{p.angle_deg:7.2f} / {p.reference_deg:7.2f} deg")
     t.add_row("duty", f"{p.duty:5.3f}")
     t.add_row("est. temperature", f"{p.temperature_c:6.1f} C")
-    t.add_row("samples (gaps)", f"{p.samples} ({p.missed})")
+    t.add_row("samples (gaps)", f"{p.samples} ({p.sample_gaps})")
     if p.tripped:
         t.add_row("[red]SAFE STATE", p.tripped)
     return t

@@ -1,7 +1,10 @@
 """Recording of every sample and command to the interchange CSV and to MCAP, off the loop thread.
 
-The loop calls ``offer`` (never blocks: a full queue drops and counts the record). A writer thread
-turns records into CSV rows (plant signal names + raw columns) and MCAP messages on JSON-schema
+The loop calls ``offer`` after its command is out (never blocks, wakes nothing: a full queue drops
+and counts the record) and ``wake`` once per cycle when all of the cycle's records are there; the
+writer thread then works while the loop waits for its next sample, and otherwise every ``flush_s``
+(a producer that never calls ``wake`` gets its records written in batches). It turns records into
+CSV rows (plant signal names + raw columns) and MCAP messages on JSON-schema
 channels (``/rig/sample``, ``/rig/command``, ``/rig/event``; Foxglove and PlotJuggler open them),
 and flushes both files at least every ``flush_s``: a killed run leaves files that hold everything
 up to the last flush. ``read_mcap`` reads such a file even without its footer. The session's
@@ -13,10 +16,10 @@ from __future__ import annotations
 import json
 import math
 import os
-import queue
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,7 +112,10 @@ class Recorder:
         self.dropped = 0
         self.rows = 0
         self.messages = 0
-        self._q: queue.Queue[Record | tuple[str, Any] | None] = queue.Queue(maxsize=queue_size)
+        self._cap = queue_size
+        self._q: deque[Record | tuple[str, Any]] = deque()  # appended by the loop, taken by the writer
+        self._kick = threading.Event()
+        self._closing = False
         self._csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         os.write(self._csv_fd, (",".join(["time_s", *self.columns]) + "\n").encode())
         self._mcap_fh = open(self.mcap_path, "wb")
@@ -142,29 +148,38 @@ class Recorder:
         return self._mcap.register_channel(topic, "json", sid)
 
     # -- loop side -------------------------------------------------------------------------
-    def offer(self, record: Record) -> bool:
-        """Queue one cycle's record without blocking; False (and counted) if the queue is full."""
-        try:
-            self._q.put_nowait(record)
-            return True
-        except queue.Full:
-            self.dropped += 1
-            return False
+    def offer(self, record: Record, block: bool = False) -> bool:
+        """Queue one record without blocking or waking the writer; False (and counted) if the queue
+        is full. ``block``: wait for room instead (a zenoh recording: back-pressure, not loss)."""
+        if len(self._q) >= self._cap:
+            if not block:
+                self.dropped += 1
+                return False
+            while len(self._q) >= self._cap and not self._closing:
+                self._kick.set()
+                time.sleep(0.001)
+        self._q.append(record)
+        return True
+
+    def wake(self) -> None:
+        """Let the writer take what is queued now (the loop: once per cycle, after its write)."""
+        self._kick.set()
 
     def event(self, time_s: float, kind: str, detail: str = "") -> None:
         """Log a safety or link event (from the loop thread, outside the timed section)."""
-        try:
-            self._q.put_nowait(("event", (time_s, kind, detail)))
-        except queue.Full:
+        if len(self._q) >= self._cap:
             self.dropped += 1
+            return
+        self._q.append(("event", (time_s, kind, detail)))
+        self._kick.set()
 
     def cycle(self, metrics: dict[str, float]) -> None:
         """One finished open-close cycle's figures (``session_metrics.CycleMetrics``), outside the
         timed section."""
-        try:
-            self._q.put_nowait(("cycle", metrics))
-        except queue.Full:
+        if len(self._q) >= self._cap:
             self.dropped += 1
+            return
+        self._q.append(("cycle", metrics))
 
     def close(self, summary: dict[str, Any] | None = None) -> None:
         """Drain the queue, add ``summary`` as an MCAP metadata record (``rehab_hil.summary``: the
@@ -172,7 +187,8 @@ class Recorder:
         if self._closed:
             return
         self._closed = True
-        self._q.put(None)
+        self._closing = True
+        self._kick.set()
         self._thread.join()
         if summary:
             self._mcap.add_metadata("rehab_hil.summary", _metadata_strings(summary))
@@ -182,17 +198,17 @@ class Recorder:
 
     # -- writer thread ---------------------------------------------------------------------
     def _run(self) -> None:
+        q = self._q
         next_flush = time.perf_counter() + self.flush_s
         while True:
-            try:
-                item = self._q.get(timeout=max(0.0, next_flush - time.perf_counter()))
-            except queue.Empty:
-                item = ()
-            if item is None:
+            self._kick.wait(max(0.0, next_flush - time.perf_counter()))
+            self._kick.clear()
+            closing = self._closing  # read before draining: whatever came before close() is written
+            while q:
+                self._write(q.popleft())
+            if closing:
                 self._flush()
                 return
-            if item != ():
-                self._write(item)
             if time.perf_counter() >= next_flush:
                 self._flush()
                 next_flush = time.perf_counter() + self.flush_s
@@ -207,19 +223,21 @@ class Recorder:
         return self._wall0_ns + int(host_time_s * 1e9)
 
     def _write(self, item: Record | tuple[str, Any]) -> None:
-        if isinstance(item, tuple) and item[0] == "cycle":
+        if type(item) is Record:
+            self._write_record(item)
+        elif item[0] == "cycle":
             now = self._log_time(time.perf_counter())
             self._mcap.add_message(self._ch_cycle, log_time=now, publish_time=now, sequence=int(item[1]["index"]),
                                    data=json.dumps({k: _clean(float(v)) for k, v in item[1].items()}).encode())
             self.messages += 1
-            return
-        if isinstance(item, tuple):
+        else:
             t, kind, detail = item[1]
             now = self._log_time(time.perf_counter())
             self._mcap.add_message(self._ch_event, log_time=now, publish_time=now, sequence=0,
                                    data=json.dumps({"time_s": t, "kind": kind, "detail": detail}).encode())
             self.messages += 1
-            return
+
+    def _write_record(self, item: Record) -> None:
         lt = self._log_time(item.host_time_s)
         if item.sample is None:  # a command the loop sent
             self._write_command(item, lt)

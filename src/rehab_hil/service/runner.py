@@ -1,12 +1,16 @@
-"""The real-time loop service: read a sample, estimate, control, supervise, command; record and
-publish off-thread. One run = configure the device, loop for a duration (or until a trip or a stop
-request), then leave the device in the safe state (PWM 0) and report.
+"""The real-time loop service: read a sample, estimate, supervise, control, write the command; then,
+with the command out, hand the cycle's records to the recorder and telemetry and update the
+figures. One run = configure the device, loop for a duration (or until a trip or a stop request),
+then leave the device in the safe state (PWM 0) and report.
 
 Pacing (docs/loop.md): ``device`` reacts to the device's sample stream (each SAMPLE starts a cycle;
 in lockstep mode each COMMAND produces the next SAMPLE); ``host`` wakes on absolute deadlines of a
 monotonic clock and consumes what arrived. Samples that arrive while a cycle is busy are still
-estimated, supervised and recorded, but only the newest is controlled: the skipped ones count as
-missed cycles (never caught up).
+estimated, supervised and recorded, but only the newest is controlled: the older ones are
+coalesced (never caught up) and count as missed cycles.
+
+Nothing but the loop's own work happens before the write: the recorder's and the publisher's
+threads are woken after it and do their work while the loop waits for the next sample.
 """
 
 from __future__ import annotations
@@ -30,9 +34,10 @@ from rehab_hil.service.supervisor import SafetyEvent, Supervisor
 from rehab_hil.service.telemetry import NullSink, TelemetrySink
 from rehab_hil.session_metrics import SessionMeter
 
-__all__ = ["LoopService", "Progress", "RunResult"]
+__all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "Session"]
 
 CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
+PROGRESS_EVERY = 50  # cycles between updates of the live figures
 
 
 @dataclass
@@ -46,7 +51,7 @@ class Progress:
     duty: float = 0.0
     temperature_c: float = math.nan
     samples: int = 0
-    missed: int = 0
+    sample_gaps: int = 0  # samples missing from the device's sample_index sequence
     tripped: str = ""
     last_cycle: dict[str, float] = field(default_factory=dict)  # the last finished open-close cycle's figures
 
@@ -81,6 +86,112 @@ class RunResult:
         return s is not None and s.duty0 == 0 and s.duty1 == 0 and not (s.status & Status.PWM_ENABLED)
 
 
+class Session:
+    """One run's state, in one place: the device-time axis, the counts, what is in force, the
+    records waiting for the write and the per-cycle figures (preallocated)."""
+
+    def __init__(self, period_s: float, n_max: int, reboots_seen: int) -> None:
+        self.period_s, self.n_max = period_s, n_max
+        self.index = -1  # continued sample index of the newest sample taken (gaps included): device time
+        self.samples = 0  # samples taken: estimated, supervised, recorded
+        self.sample_gaps = 0  # samples missing before those taken (as the hardware interface judged them)
+        self.reboots = 0  # device restarts in this session (the interface's count)
+        self.reboots_seen = reboots_seen  # the interface's count when last looked at
+        self.cycles = 0  # control cycles: a command computed from a sample and written
+        self.coalesced = 0  # samples taken in a cycle that controlled a newer one
+        self.state: State | None = None  # estimate of the newest sample
+        self.final: Sample | None = None  # the newest sample
+        self.command: Command = SAFE_COMMAND  # the last command written
+        self.command_seq = -1  # its COMMAND seq
+        self.pending: list[tuple[Any, ...]] = []  # records of the samples taken, handed over after the write
+        self.reaction = TimingStats(n_max)  # sample arrival -> command written
+        self.references = np.full(n_max, np.nan)
+        self.angles = np.full(n_max, np.nan)
+
+    @property
+    def t_s(self) -> float:
+        """Device time of the newest sample (0 before the first)."""
+        return max(self.index, 0) * self.period_s
+
+
+class DevicePacing:
+    """The device's sample stream is the clock: a cycle starts when a sample arrives (waiting up to
+    ``timeout_s``), takes every sample that came with it and controls the newest; its time is that
+    sample's device time. An empty wait counts as one period towards the session's length."""
+
+    name = "device"
+
+    def __init__(self, loop: LoopService, session: Session, timeout_s: float) -> None:
+        self.loop, self.session, self.timeout_s = loop, session, timeout_s
+        self.k = 0  # cycles of the session's length used up
+
+    def start(self) -> None:
+        pass
+
+    def wait(self) -> int | None:
+        """Samples taken for this cycle, or None when the session's length is reached."""
+        if self.k >= self.session.n_max:
+            return None
+        return self.loop.take_arrived(self.timeout_s)
+
+    def t_s(self) -> float:
+        s = self.session
+        return (s.index if s.index >= 0 else self.k) * s.period_s
+
+    def controlled(self, taken: int) -> None:
+        self.session.coalesced += taken - 1
+        self.k = self.session.index + 1
+
+    def empty(self) -> None:
+        self.k += 1
+
+    def timing(self) -> dict[str, float]:
+        """Reaction percentiles; missed cycles are the samples not controlled: coalesced or lost."""
+        s = self.session
+        out = s.reaction.summary()
+        missed = s.coalesced + s.sample_gaps
+        out["missed_cycles"] = float(missed)
+        out["coalesced_samples"] = float(s.coalesced)
+        out["missed_pct"] = 100.0 * missed / (s.cycles + missed) if s.cycles + missed else 0.0
+        return out
+
+
+class HostPacing:
+    """The host's clock: a cycle wakes on the deadline t0 + k x period (``DeadlineTimer``) and takes
+    whatever arrived, without waiting; its time is k x period. Missed cycles are skipped deadlines."""
+
+    name = "host"
+
+    def __init__(self, loop: LoopService, session: Session) -> None:
+        self.loop, self.session = loop, session
+        self.timer = DeadlineTimer(session.period_s, session.n_max)
+        self.k = 0
+
+    def start(self) -> None:
+        self.timer.start()
+
+    def wait(self) -> int | None:
+        self.k = self.timer.wait()
+        if self.k >= self.session.n_max:
+            return None
+        return self.loop.take_arrived(0.0)
+
+    def t_s(self) -> float:
+        return self.k * self.session.period_s
+
+    def controlled(self, taken: int) -> None:
+        self.session.coalesced += taken - 1
+
+    def empty(self) -> None:
+        pass
+
+    def timing(self) -> dict[str, float]:
+        return self.timer.stats.summary()
+
+
+PACINGS = ("device", "host")
+
+
 class LoopService:
     """Runs one session on a connected ``HardwareInterface``; see the module docstring."""
 
@@ -93,9 +204,12 @@ class LoopService:
         self.meter = meter
         actuator = getattr(controller, "actuator", None)
         self._effort_of = actuator.effort if actuator is not None else (lambda cmd: math.nan)
+        # who takes the records after the write, and who is woken once they are all there
+        self._sinks = [x.offer for x in (recorder, self.telemetry) if x is not None and not isinstance(x, NullSink)]
+        self._wakes = [w for w in (getattr(x, "wake", None) for x in (recorder, self.telemetry)) if callable(w)]
         self.progress = Progress()
         self._stop_reason = ""
-        self._seq = -1
+        self.session = Session(period_s, 1, 0)
 
     def request_stop(self, reason: str) -> None:
         """From a signal handler: the loop trips into the safe state at its next cycle and exits."""
@@ -108,170 +222,144 @@ class LoopService:
         """Loop for ``duration_s`` of samples. ``sample_timeout_s`` (device pacing) is how long a
         cycle waits for its sample before it counts as missing (default: one period; lockstep
         devices on a busy machine need more)."""
-        if pacing not in ("device", "host"):
+        if pacing not in PACINGS:
             raise ValueError(f"pacing must be 'device' or 'host', got {pacing!r}")
         n_max = max(1, round(duration_s / self.period_s))
         self.progress.duration_s = duration_s
-        refs = np.full(n_max, np.nan)
-        angles = np.full(n_max, np.nan)
-        reaction = TimingStats(n_max)
-        timer = DeadlineTimer(self.period_s, n_max)
-        self._last_index: int | None = None
-        self._cont_index = -1
-        self._gaps = 0
-        self._reboots = 0
-        self._reboots_seen = self.hw.stats.reboots
-        self._samples = 0
-        self._final: Sample | None = None
-        self._state: State | None = None
-        cycles = 0
-        rt: RealtimeReport | None = None
-        stop_reason = "duration reached"
+        s = self.session = Session(self.period_s, n_max, self.hw.stats.reboots)
+        pace = (DevicePacing(self, s, sample_timeout_s or self.period_s) if pacing == "device"
+                else HostPacing(self, s))
         for t in (0.0, self.period_s):  # warm up: numba kernels (sample, integrate) load before the watchdog runs
             self.controller(t, State(t, 0.0, 0.0, {}))
         self.controller.reset()
-        if realtime:  # before CONFIGURE: a full GC pass can take longer than the firmware watchdog
-            rt = realtime_setup()
+        rt = realtime_setup() if realtime else None  # before CONFIGURE: a full GC pass outlasts the watchdog
         try:
             self.hw.configure(self.configure_msg)
             self.hw.discard_pending()  # samples queued before the ACK belong to the old stream, not this session
-            self._send(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
-            timer.start()
-            k = 0
-            while k < n_max:
-                if pacing == "host":
-                    k = timer.wait()
-                    if k >= n_max:
-                        break
-                    got = self._drain(first_timeout=1e-5)
-                else:
-                    got = self._drain(first_timeout=sample_timeout_s or self.period_s)
-                t_s = (self._cont_index if pacing == "device" and self._cont_index >= 0 else k) * self.period_s
-                if self._stop_reason:
-                    self.supervisor.trip(t_s, "stop_request", self._stop_reason)
-                if self.hw.stats.reboots != self._reboots_seen:  # an unsolicited HELLO arrived
-                    self._reboots += 1
-                    self._reboots_seen = self.hw.stats.reboots
-                    self.supervisor.reboot(t_s, "unsolicited HELLO (device restarted)")
-                if got == 0:
-                    self.supervisor.no_sample(t_s, time.perf_counter())
-                else:
-                    timer.stats.missed += got - 1 if pacing == "device" else 0
-                if self.supervisor.tripped:
-                    stop_reason = f"safety trip: {self.supervisor.events[0].reason}"
-                    break
-                if got == 0:  # nothing new: repeat the last command (a lockstep device needs a COMMAND
-                    self._send(self._last_cmd())  # to produce a SAMPLE; the link-loss count guards this)
-                    k += pacing == "device"
-                    continue
-                state = self._state
-                assert state is not None
-                cmd = self.supervisor.filter(t_s, self.controller(t_s, state))
-                self._send(cmd)
-                if self.supervisor.tripped:  # the filter itself tripped (heating, temperature)
-                    stop_reason = f"safety trip: {self.supervisor.events[0].reason}"
-                    break
-                reaction.add(time.perf_counter() - self.hw.last_sample_time)
-                self._offer(t_s, cmd)
-                if self.meter is not None:
-                    self._meter(t_s, state, cmd)
-                if cycles < n_max:
-                    refs[cycles], angles[cycles] = cmd.reference_deg, state.angle_deg
-                cycles += 1
-                if pacing == "device":
-                    k = self._cont_index + 1
-                if cycles % 50 == 0:
-                    self._update_progress(t_s, state, cmd)
+            self._write(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
+            pace.start()
+            self._cycles(pace)
         finally:
             if realtime:
                 realtime_teardown()
             self._shutdown(on_trip)
-        timing = timer.stats.summary() if pacing == "host" else reaction.summary()
-        if pacing == "device":
-            timing["missed_cycles"] = float(timer.stats.missed + self._gaps)
-            total = cycles + timing["missed_cycles"]
-            timing["missed_pct"] = 100.0 * timing["missed_cycles"] / total if total else 0.0
-        ok = np.isfinite(refs[:cycles]) & np.isfinite(angles[:cycles])
-        tracking = metrics.tracking_metrics(refs[:cycles][ok], angles[:cycles][ok]) if ok.any() else {}
-        return RunResult(
-            pacing=pacing, realtime=rt, duration_s=duration_s, cycles=cycles, samples=self._samples,
-            sample_gaps=self._gaps, reboots=self._reboots, timing=timing, reaction=reaction.summary(),
-            tracking=tracking, link=self.hw.stats.as_dict(), events=list(self.supervisor.events),
-            recorder_dropped=self.recorder.dropped if self.recorder else 0,
-            telemetry_dropped=int(getattr(self.telemetry, "dropped", 0)), final_sample=self._final,
-            stop_reason=f"safety trip: {self.supervisor.events[0].reason}" if self.supervisor.events else stop_reason,
-            files=[str(self.recorder.csv_path), str(self.recorder.mcap_path)] if self.recorder else [],
-            session=self.meter.summary() if self.meter else {},
-            session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
-        )
+        return self._result(pace, rt, duration_s)
 
-    # ------------------------------------------------------------------------------------------
-    def _send(self, cmd: Command) -> None:
-        try:
-            self._seq = self.hw.write_command(cmd.duty[0], cmd.duty[1], cmd.direction, cmd.enable)
-        except HardwareError as e:
-            self.supervisor.trip(self._cont_index * self.period_s, "link_loss", f"write failed: {e}")
+    def _cycles(self, pace: DevicePacing | HostPacing) -> None:
+        """The loop: wait, take, judge, control, write; the rest after the write."""
+        s, sup = self.session, self.supervisor
+        while (taken := pace.wait()) is not None:
+            t_s = pace.t_s()
+            if self._stop_reason:
+                sup.trip(t_s, "stop_request", self._stop_reason)
+            self._check_reboot()  # an unsolicited HELLO without a sample after it
+            if taken == 0:
+                sup.no_sample(t_s, time.perf_counter())
+            if sup.tripped:
+                return
+            if taken == 0:  # nothing new: repeat the last command (a lockstep device needs a COMMAND
+                self._write(s.command)  # to produce a SAMPLE; the link-loss count guards this)
+                pace.empty()
+                continue
+            state = s.state
+            assert state is not None
+            cmd = self.step(t_s, state)
+            self._write(cmd)
+            if sup.tripped:  # the filter itself tripped (heating, temperature), or the write failed
+                return
+            self._after_write(t_s, state, cmd)
+            pace.controlled(taken)
 
-    def _drain(self, first_timeout: float) -> int:
+    def step(self, t_s: float, state: State) -> Command:
+        """From the newest sample's estimate to the command to send: the controller's command
+        through the supervisor (clamped, or the safe command once tripped). No I/O."""
+        return self.supervisor.filter(t_s, self.controller(t_s, state))
+
+    # ---- before the write: the samples ---------------------------------------------------------
+    def take_arrived(self, first_timeout: float) -> int:
         """Take every sample that has arrived (waiting up to ``first_timeout`` for the first one);
-        each is estimated, supervised and recorded. Returns how many were taken."""
+        each is estimated and supervised, its record waits for the write. Returns how many."""
+        hw = self.hw
         n = 0
-        timeout = first_timeout
-        while True:
-            try:
-                s = self.hw.read_sample(timeout=timeout)
-            except HardwareError as e:
-                self.supervisor.trip(self._cont_index * self.period_s, "link_loss", str(e))
-                return n
-            if s is None:
-                return n
-            self._take(s)
-            n += 1
-            if self.hw.pending_samples() == 0:
-                return n
-            timeout = 0.0
+        try:
+            smp = hw.read_sample(first_timeout)
+            while smp is not None:
+                self._take(smp)
+                n += 1
+                smp = hw.read_sample(0.0) if hw.pending_samples() else None
+        except HardwareError as e:
+            self.supervisor.trip(self.session.t_s, "link_loss", str(e))
+        return n
 
-    def _take(self, s: Sample) -> None:
-        self._samples += 1
-        self._final = s
-        rebooted = self.hw.stats.reboots != self._reboots_seen
-        if self._last_index is not None:
-            step = (s.sample_index - self._last_index) & 0xFFFFFFFF
-            if step >= 0x80000000 or rebooted:  # the index went back: the device restarted
-                rebooted = True
-            elif step > 1:
-                self._gaps += step - 1
-                self._cont_index += step - 1
-        if rebooted:
-            self._reboots += 1
-            self._reboots_seen = self.hw.stats.reboots
+    def _take(self, smp: Sample) -> None:
+        s, hw, sup = self.session, self.hw, self.supervisor
+        if hw.stats.reboots != s.reboots_seen:
+            self._check_reboot()
+        gap = hw.last_sample_gap
+        s.sample_gaps += gap
+        s.index += gap + 1
+        s.samples += 1
+        s.final = smp
+        t_s = s.index * s.period_s
+        state = s.state = self.estimator.update(smp.encoder_count, smp.device_time_us, (smp.adc0, smp.adc1))
+        arrival = hw.last_sample_time
+        sup.observe(t_s, state, smp.faults, smp.status, arrival)
+        s.pending.append((arrival, t_s, smp, state, SAFE_COMMAND if sup.tripped else s.command, s.command_seq,
+                          sup.temperature_c))
+
+    def _check_reboot(self) -> None:
+        """React once to each device restart the hardware interface counted (it alone judges them)."""
+        s, n = self.session, self.hw.stats.reboots
+        if n != s.reboots_seen:
+            s.reboots += n - s.reboots_seen
+            s.reboots_seen = n
             self.estimator.reset()
-            self.supervisor.reboot(self._cont_index * self.period_s,
-                                   f"sample_index {self._last_index} -> {s.sample_index}")
-        self._last_index = s.sample_index
-        self._cont_index += 1
-        t_s = self._cont_index * self.period_s
-        self._state = self.estimator.update(s.encoder_count, s.device_time_us, (s.adc0, s.adc1))
-        self.supervisor.observe(t_s, self._state, s.faults, s.status, self.hw.last_sample_time)
-        rec = Record(time.perf_counter(), t_s, s, self._state, SAFE_COMMAND if self.supervisor.tripped
-                     else self._last_cmd(), self._seq, self.supervisor.temperature_c)
-        if self.recorder is not None:
-            self.recorder.offer(rec)
-        self.telemetry.offer(rec)  # the same records as the recorder: a zenoh recording equals a local one
+            self.supervisor.reboot(s.t_s, self.hw.last_reboot or "device restarted")
 
-    def _last_cmd(self) -> Command:
-        return getattr(self, "_cmd", SAFE_COMMAND)
+    def _write(self, cmd: Command) -> None:
+        s = self.session
+        d0, d1 = cmd.duty
+        try:
+            s.command_seq = self.hw.write_command(d0, d1, cmd.direction, cmd.enable)
+        except HardwareError as e:
+            self.supervisor.trip(s.t_s, "link_loss", f"write failed: {e}")
+        s.command = cmd
 
-    def _offer(self, t_s: float, cmd: Command) -> None:
-        self._cmd = cmd
-        rec = Record(time.perf_counter(), t_s, None, None, cmd, self._seq, self.supervisor.temperature_c)
-        if self.recorder is not None:
-            self.recorder.offer(rec)
-        self.telemetry.offer(rec)
+    # ---- after the write -----------------------------------------------------------------------
+    def _after_write(self, t_s: float, state: State, cmd: Command) -> None:
+        """The command is out: the reaction time, the records, the session meter, the live figures."""
+        now = time.perf_counter()
+        s = self.session
+        s.reaction.add(now - self.hw.last_sample_time)
+        if s.cycles < s.n_max:
+            s.references[s.cycles], s.angles[s.cycles] = cmd.reference_deg, state.angle_deg
+        s.cycles += 1
+        self._hand_over(Record(now, t_s, None, None, cmd, s.command_seq, self.supervisor.temperature_c))
+        if self.meter is not None:
+            self._meter(t_s, state, cmd)
+        if s.cycles % PROGRESS_EVERY == 0:
+            self._update_progress(t_s, state, cmd)
+
+    def _hand_over(self, command_record: Record | None = None) -> None:
+        """Offer the samples' records (then the command's) to the recorder and telemetry, and wake
+        their threads once: they work while the loop waits for the next sample."""
+        s = self.session
+        sinks = self._sinks
+        if sinks:
+            for p in s.pending:
+                rec = Record(*p)
+                for offer in sinks:
+                    offer(rec)
+            if command_record is not None:
+                for offer in sinks:
+                    offer(command_record)
+            for wake in self._wakes:
+                wake()
+        s.pending.clear()
 
     def _meter(self, t_s: float, state: State, cmd: Command) -> None:
-        """After the command is out: the session meter's sample, and a finished cycle's figures to
-        the recording (MCAP ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
+        """The session meter's sample, and a finished cycle's figures to the recording (MCAP
+        ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
         assert self.meter is not None
         self.meter.add(t_s, cmd.reference_deg, state.angle_deg, self._effort_of(cmd), state.velocity_rad_s,
                        self.supervisor.temperature_c)
@@ -282,19 +370,21 @@ class LoopService:
                 self.recorder.cycle(cycle.as_dict())
 
     def _update_progress(self, t_s: float, state: State, cmd: Command) -> None:
-        p = self.progress
+        p, s = self.progress, self.session
         p.t_s, p.angle_deg, p.reference_deg = t_s, state.angle_deg, cmd.reference_deg
-        p.duty, p.temperature_c, p.samples = max(cmd.duty), self.supervisor.temperature_c, self._samples
-        p.missed = self._gaps
+        p.duty, p.temperature_c, p.samples = max(cmd.duty), self.supervisor.temperature_c, s.samples
+        p.sample_gaps = s.sample_gaps
 
+    # ---- the end -------------------------------------------------------------------------------
     def _shutdown(self, on_trip: Callable[[SafetyEvent], None] | None) -> None:
         """PWM 0 now; after a trip also ESTOP, then watch a few samples confirm PWM off. Nothing to
         do on a device that was never configured (its CONFIGURE failed): it is not driving."""
-        self._cmd = SAFE_COMMAND
+        s, sup = self.session, self.supervisor
+        self._hand_over()  # samples taken in a cycle that ended before its write
+        s.command = SAFE_COMMAND
         if self.hw.state is not LifecycleState.ACTIVE:
             return
-        self._send(SAFE_COMMAND)
-        sup = self.supervisor
+        self._write(SAFE_COMMAND)
         if sup.tripped:
             self.progress.tripped = sup.events[0].reason
             for ev in sup.events:
@@ -306,23 +396,42 @@ class LoopService:
                 try:
                     self.hw.estop(timeout=0.5)
                 except HardwareError as e:
-                    sup.trip(self._cont_index * self.period_s, "estop_unanswered", str(e))
+                    sup.trip(s.t_s, "estop_unanswered", str(e))
         for _ in range(CONFIRM_CYCLES):  # lockstep devices answer each COMMAND with a SAMPLE
             if sup.events and sup.events[0].reason == "link_loss":
                 break
-            self._send(SAFE_COMMAND)
+            self._write(SAFE_COMMAND)
             try:
-                s = self.hw.read_sample(timeout=2 * self.period_s)
+                smp = self.hw.read_sample(timeout=2 * self.period_s)
             except HardwareError:
                 break
-            if s is not None:
-                self._take_quiet(s)
-            if self._final is not None and self._final.duty0 == 0 and self._final.duty1 == 0 \
-                    and not self._final.status & Status.PWM_ENABLED:
+            if smp is not None:
+                self._take_quiet(smp)
+            f = s.final
+            if f is not None and f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED:
                 break
 
-    def _take_quiet(self, s: Sample) -> None:
+    def _take_quiet(self, smp: Sample) -> None:
         """A sample during shutdown: recorded and counted, no more trips judged."""
         n_events = len(self.supervisor.events)
-        self._take(s)
+        self._take(smp)
         del self.supervisor.events[n_events:]
+        self._hand_over()
+
+    def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
+        s, sup = self.session, self.supervisor
+        n = min(s.cycles, s.n_max)
+        refs, angles = s.references[:n], s.angles[:n]
+        ok = np.isfinite(refs) & np.isfinite(angles)
+        return RunResult(
+            pacing=pace.name, realtime=rt, duration_s=duration_s, cycles=s.cycles, samples=s.samples,
+            sample_gaps=s.sample_gaps, reboots=s.reboots, timing=pace.timing(), reaction=s.reaction.summary(),
+            tracking=metrics.tracking_metrics(refs[ok], angles[ok]) if ok.any() else {},
+            link=self.hw.stats.as_dict(), events=list(sup.events),
+            recorder_dropped=self.recorder.dropped if self.recorder else 0,
+            telemetry_dropped=int(getattr(self.telemetry, "dropped", 0)), final_sample=s.final,
+            stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",
+            files=[str(self.recorder.csv_path), str(self.recorder.mcap_path)] if self.recorder else [],
+            session=self.meter.summary() if self.meter else {},
+            session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
+        )

@@ -1,6 +1,7 @@
 """The loop's telemetry hook: a sink the loop offers samples to without ever blocking.
 
-``TelemetrySink`` is the whole contract (a zenoh publisher plugs in later). ``QueueSink`` hands
+``TelemetrySink`` is the whole contract (the zenoh publisher, ``rehab_hil.telemetry``, is one); the
+loop offers after its command is out. ``QueueSink`` hands
 samples to a consumer callable on its own thread through a bounded queue and counts drops.
 """
 
@@ -19,6 +20,9 @@ class TelemetrySink(Protocol):
     def offer(self, sample: Any) -> bool:
         """Take one sample if there is room; never block. False when it was dropped."""
         ...
+
+    # optional: ``wake()``, which the loop calls once per cycle after its write (and after its
+    # offers) so that a worker thread takes the records while the loop waits for its next sample
 
     def close(self) -> None: ...
 
@@ -75,7 +79,7 @@ def loop_stats(service: Any, hw: Any) -> Callable[[], dict[str, Any]]:
 
     def stats() -> dict[str, Any]:
         p = service.progress
-        out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "missed", "tripped")}
+        out: dict[str, Any] = {k: getattr(p, k) for k in ("t_s", "duration_s", "samples", "sample_gaps", "tripped")}
         if getattr(p, "last_cycle", None):
             out["cycle"] = p.last_cycle  # the last finished open-close cycle (session_metrics)
         link = getattr(hw, "stats", None)

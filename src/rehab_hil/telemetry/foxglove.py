@@ -280,6 +280,13 @@ class Tee:
             ok = s.offer(record) and ok
         return ok
 
+    def wake(self) -> None:
+        """The loop's once-per-cycle wake, to each sink that takes one."""
+        for s in self.sinks:
+            wake = getattr(s, "wake", None)
+            if wake is not None:
+                wake()
+
     @property
     def dropped(self) -> int:
         return sum(int(getattr(s, "dropped", 0)) for s in self.sinks)

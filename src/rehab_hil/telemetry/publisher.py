@@ -1,7 +1,8 @@
 """``TelemetryPublisher``: the loop's telemetry sink. ``offer`` never blocks; a worker thread publishes.
 
-The loop thread only appends to a bounded queue (a full queue drops the sample and counts it); the
-worker batches samples into the binary state encoding, publishes stats at 1 Hz and safety events as
+The loop thread only appends to a bounded queue (a full queue drops the sample and counts it) and,
+once per cycle after its command is out, calls ``wake``; the worker (woken so, or every 2 ms)
+batches samples into the binary state encoding, publishes stats at 1 Hz and safety events as
 they come, holds the rig's liveliness token and answers ``info`` queries.
 """
 
@@ -16,12 +17,22 @@ from typing import Any
 
 import zenoh
 
-from rehab_hil.telemetry.codec import PayloadError, decode_json, encode_json, join_records, pack_record
+from rehab_hil.protocol import Sample
+from rehab_hil.telemetry.codec import PayloadError, StateSample, decode_json, encode_json, join_records, pack_record
 from rehab_hil.telemetry.keys import RigKeys
 
 __all__ = ["COMMAND_OPS", "CommandHandler", "TelemetryPublisher"]
 
 CommandHandler = Callable[[dict[str, Any]], None]
+
+
+def _carries_sample(x: Any) -> bool:
+    """Whether an offered record holds a device SAMPLE (a loop ``Record`` with one, a bare
+    ``protocol.Sample``, a ``StateSample`` with ``has_sample``): what a recording counts."""
+    if getattr(x, "sample", None) is not None:
+        return True
+    t = type(x)
+    return t is StateSample and x.has_sample or t is Sample
 COMMAND_OPS = ("setpoint", "start", "stop")
 
 
@@ -57,6 +68,7 @@ class TelemetryPublisher:
         self._on_command = on_command
         self._stats_source = stats_source
         self.offered = 0
+        self.samples_offered = 0  # offered records that carry a device SAMPLE (what a recording counts)
         self.dropped = 0
         self.published_samples = 0
         self.published_batches = 0
@@ -65,9 +77,12 @@ class TelemetryPublisher:
         self.commands_rejected = 0
         self._closed = False
         self._stop = threading.Event()
+        self._kick = threading.Event()
         self._pub = self._token = self._queryable = self._cmd_sub = None
         try:
-            self._pub = session.declare_publisher(self.keys.state,
+            # reliable and blocking: a subscriber (a recording) that falls behind slows the worker
+            # down, which the bounded queue absorbs (and counts, if it ever overflows)
+            self._pub = session.declare_publisher(self.keys.state, reliability=zenoh.Reliability.RELIABLE,
                                                   congestion_control=zenoh.CongestionControl.BLOCK)
             self._token = session.liveliness().declare_token(self.keys.alive)
             self._queryable = session.declare_queryable(self.keys.info, self._answer_info)
@@ -83,11 +98,17 @@ class TelemetryPublisher:
     def offer(self, sample: Any) -> bool:
         """Queue one sample for publishing; False (and counted in ``dropped``) when the queue is full."""
         self.offered += 1
+        if _carries_sample(sample):
+            self.samples_offered += 1
         if self._closed or len(self._queue) >= self._cap:
             self.dropped += 1
             return False
         self._queue.append(sample)
         return True
+
+    def wake(self) -> None:
+        """Let the worker take what is queued now (the loop: once per cycle, after its write)."""
+        self._kick.set()
 
     def offer_safety(self, event: Mapping[str, Any]) -> None:
         """Queue a safety event (e.g. ``{"state": "tripped", "reason": "force"}``) for ``.../safety``."""
@@ -112,6 +133,7 @@ class TelemetryPublisher:
             return
         self._closed = True
         self._stop.set()
+        self._kick.set()
         self._thread.join(timeout_s)
         self._undeclare()
 
@@ -134,7 +156,8 @@ class TelemetryPublisher:
 
     def counters(self) -> dict[str, int]:
         """Publisher counters as they appear under ``telemetry`` in the stats message."""
-        return {"offered": self.offered, "dropped": self.dropped, "queued": len(self._queue),
+        return {"offered": self.offered, "samples_offered": self.samples_offered, "dropped": self.dropped,
+                "queued": len(self._queue),
                 "published_samples": self.published_samples, "published_batches": self.published_batches,
                 "publish_errors": self.publish_errors, "commands_accepted": self.commands_accepted,
                 "commands_rejected": self.commands_rejected}
@@ -155,6 +178,7 @@ class TelemetryPublisher:
                     rec = pack_record(item)
                 except PayloadError:
                     self.publish_errors += 1
+                    self.dropped += 1
                     continue
                 if not pending:
                     first_at = time.monotonic()
@@ -177,11 +201,15 @@ class TelemetryPublisher:
                         self._loop_stats = dict(self._stats_source())
                     except Exception as e:  # a stats bug must not stop telemetry
                         self._loop_stats = {"error": f"{type(e).__name__}: {e}"}
-                self._put_json(self.keys.stats, "stats", {"rig": self.keys.rig_id, "time_s": time.time(),
-                                                          "loop": self._loop_stats, "telemetry": self.counters()})
+                body = {"rig": self.keys.rig_id, "time_s": time.time(), "loop": self._loop_stats,
+                        "telemetry": self.counters()}
+                if stopping:  # the last word, after the last batch on the same path: a recording
+                    body["final"] = True  # knows from it how many samples it should have received
+                self._put_json(self.keys.stats, "stats", body, final=stopping)
             if stopping:
                 return
-            self._stop.wait(0.002)
+            self._kick.wait(0.002)
+            self._kick.clear()
 
     def _put_batch(self, records: list[bytes]) -> None:
         try:
@@ -189,13 +217,17 @@ class TelemetryPublisher:
             self._pub.put(payload)
         except (PayloadError, zenoh.ZError):
             self.publish_errors += 1
+            self.dropped += len(records)  # lost here: counted with the queue's drops, never silent
             return
         self.published_batches += 1
         self.published_samples += len(records)
 
-    def _put_json(self, key: str, kind: str, body: dict[str, Any]) -> None:
+    def _put_json(self, key: str, kind: str, body: dict[str, Any], final: bool = False) -> None:
         try:
-            self._session.put(key, encode_json(kind, body))
+            if final:  # reliable and blocking like the state batches, so it arrives, and after them
+                self._session.put(key, encode_json(kind, body), congestion_control=zenoh.CongestionControl.BLOCK)
+            else:
+                self._session.put(key, encode_json(kind, body))
         except (PayloadError, zenoh.ZError):
             self.publish_errors += 1
 
