@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from rehab_hil.plants import get_plant, load_config
@@ -57,3 +59,60 @@ def test_a_zenoh_recording_equals_the_local_recording_sample_for_sample(
     assert local_csv.count("\n") > 500
     assert zenoh_csv == local_csv
     assert mcap_content(tmp_path / "zenoh" / "run.mcap") == mcap_content(tmp_path / "local" / "run.mcap")
+
+
+def _indices(csv: Path) -> list[int]:
+    """The sample_index column of a recording's CSV."""
+    lines = csv.read_text().splitlines()
+    col = lines[0].split(",").index("sample_index")
+    return [int(float(line.split(",")[col])) for line in lines[1:]]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("queue_size", [20_000, 30], ids=["shipped_queue", "overflowing_queue"])
+def test_a_zenoh_recording_on_a_busy_machine_states_every_sample_it_did_not_receive(
+        client: Callable[..., zenoh.Session], wait, tmp_path: Path, queue_size: int) -> None:
+    """Two busy processes beside the rig (one per core of the 2-core CI machine) and the loop running
+    flat out on the in-process lockstep rig; with the shipped queue nothing may go missing, and with
+    a queue too small to keep up samples do: either way the recording's own count of the samples it
+    did not receive equals what its CSV lacks against the rig's local recording."""
+    cfg = load_config(CONFIG)
+    binding = get_plant(cfg.plant).device(cfg)
+    busy = [subprocess.Popen(["sh", "-c", "while :; do :; done"]) for _ in range(2)]
+    try:
+        zrec = ZenohRecorder(client(), "busy1", tmp_path / "zenoh", binding, period_s=assembly.period_s(cfg))
+        local = Recorder(tmp_path / "local", binding)
+        hw = LockstepRig()
+        hw.connect()
+        info = rig_info(cfg.plant, CONFIG, binding, assembly.period_s(cfg), hw.info)
+        pub = TelemetryPublisher(client(), "busy1", info=info, queue_size=queue_size, batch=10)
+        try:
+            assert wait(pub.has_subscribers)
+            svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
+                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=local,
+                              telemetry=pub)
+            result = svc.run(2.0, pacing="device", realtime=False, sample_timeout_s=5.0)
+            assert not result.events
+        finally:
+            local.close()
+            pub.close()  # the final stats go out after the last batch
+        assert wait(zrec.done.is_set, 60) and zrec.wait_finished(60)
+        zrec.close()
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait()
+    rig = _indices(tmp_path / "local" / "run.csv")
+    got = _indices(tmp_path / "zenoh" / "run.csv")
+    missing = sorted(set(rig) - set(got))
+    assert set(got) <= set(rig) and len(rig) == result.samples
+    acc = zrec.accounting()
+    assert acc["rig_samples"] == len(rig) and acc["samples_received"] == len(got)
+    assert acc["samples_not_received"] == len(missing)  # stated = actual
+    between = [i for i in missing if got and got[0] < i < got[-1]]
+    assert acc["sample_index_gaps"] == len(between)
+    assert acc["samples_before_first"] == rig.index(got[0])
+    if queue_size == 20_000:
+        assert missing == [] and acc["complete"]
+    else:
+        assert missing and not acc["complete"] and pub.dropped > 0  # the small queue did overflow

@@ -117,9 +117,10 @@ class LabRecorder:
     """Record every rig matching ``pattern`` under ``out_root``, one run directory per rig."""
 
     def __init__(self, session: zenoh.Session, pattern: str, out_root: str | Path, config: Path | None = None,
-                 info_timeout_s: float = 2.0) -> None:
+                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0) -> None:
         self.session, self.pattern, self.out_root, self.config = session, pattern, Path(out_root), config
         self.info_timeout_s = info_timeout_s
+        self.final_timeout_s = final_timeout_s  # how long a stopped rig's last batches may take to arrive
         self.runs: dict[str, _Run] = {}
         self.finished: list[_Run] = []
         self.errors: list[str] = []
@@ -148,24 +149,34 @@ class LabRecorder:
         binding = binding_from_info(info, rig, self.config)
         run_dir = new_run_dir(self.out_root, rig)
         meta = _identity(rig, dict(info or {}), dt.datetime.now(dt.UTC))
-        run = _Run(rig, run_dir, ZenohRecorder(self.session, rig, run_dir, binding, metadata=meta), meta)
+        period = (info or {}).get("period_s")
+        zrec = ZenohRecorder(self.session, rig, run_dir, binding, metadata=meta,
+                             period_s=float(period) if isinstance(period, (int, float)) else None)
+        run = _Run(rig, run_dir, zrec, meta)
         self.runs[rig] = run
         return run
 
     def _finish(self, rig: str, why: str) -> str:
         run = self.runs.pop(rig)
-        time.sleep(0.2)  # the last batches travel behind the liveliness change
         z, sub = run.zrec, run.zrec.subscription
+        # the last batches and the rig's final word travel behind the liveliness change; a rig that
+        # is still running (--duration reached) or was killed sends none: its tail is then unknown
+        z.wait_finished(self.final_timeout_s if z.done.is_set() else 0.0)
         sub.close()  # counters final from here on
+        acc = z.accounting()
         summary = {"duration_s": round(time.monotonic() - run.t0, 3), "stop_reason": why, "records": z.samples,
+                   "samples": acc,
                    "lost": {"batches_in_transit": sub.missing_batches, "publisher_dropped": sub.publisher_dropped,
                             "writer_dropped": z.recorder.dropped}}
         z.close(summary)  # also the MCAP metadata record rehab_hil.summary
         self.finished.append(run)
         write_metadata(run.run_dir, {**run.meta, **summary, "csv_rows": z.recorder.rows})
-        return (f"{why}: rig {rig}: {z.samples} records, {z.recorder.rows} CSV rows in {run.run_dir}; lost: "
-                f"{sub.missing_batches} batches in transit, {sub.publisher_dropped} samples at the publisher, "
-                f"{z.recorder.dropped} in the writer")
+        missing = acc["samples_not_received"]
+        said = (f"{missing} of the rig's {acc['rig_samples']} samples not received" if missing is not None else
+                "the rig's final count did not arrive: samples after the last one received unknown")
+        return (f"{why}: rig {rig}: {z.samples} records, {z.recorder.rows} CSV rows in {run.run_dir}; {said}; "
+                f"{acc['sample_index_gaps']} gaps in sample_index; lost: {sub.missing_batches} batches in transit, "
+                f"{sub.publisher_dropped} samples at the publisher, {z.recorder.dropped} in the writer")
 
     def close(self, why: str = "duration reached") -> list[str]:
         """Finish every running recording; returns one line per rig."""

@@ -54,13 +54,19 @@ class Subscription:
             return
         if self._next_batch is not None and batch.batch_seq != self._next_batch:
             self.missing_batches += (batch.batch_seq - self._next_batch) & 0xFFFFFFFF
-        self._next_batch = (batch.batch_seq + 1) & 0xFFFFFFFF
         self.batches += 1
         self.samples += len(batch.samples)
         self.publisher_dropped = batch.dropped_total
         assert self._on_sample is not None
         for s in batch.samples:
             self._on_sample(s)
+        self._next_batch = (batch.batch_seq + 1) & 0xFFFFFFFF  # after its samples: the batch is in
+
+    def batches_seen_up_to(self, published_batches: int) -> bool:
+        """Whether the batch numbered ``published_batches - 1`` (the publisher's last) has arrived."""
+        if published_batches <= 0:
+            return True
+        return self._next_batch == published_batches & 0xFFFFFFFF
 
     def _json(self, kind: str, cb: JsonCallback) -> Callable[[zenoh.Sample], None]:
         def handle(zsample: zenoh.Sample) -> None:

@@ -2,6 +2,13 @@
 
 Decoded ``StateSample`` s are turned back into the loop's ``Record`` objects and handed to the
 loop engineer's ``Recorder`` unchanged, so both paths share one writer (docs/telemetry.md).
+
+Nothing is lost silently. The rig publishes reliably with congestion control BLOCK and the
+recorder's queue blocks instead of dropping, so a busy recorder slows the rig's publisher thread
+(whose own queue counts any overflow) rather than losing samples on the way. What still goes
+missing is stated: gaps in ``sample_index`` as samples arrive, and, once the rig's last ``stats``
+message (``final``, sent after its last batch) has arrived, exactly how many of the samples the rig
+published this recording did not receive (``accounting()``; run metadata and MCAP summary).
 """
 
 from __future__ import annotations
@@ -9,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import math
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -41,22 +49,32 @@ def to_record(s: StateSample, analog_names: list[str] | tuple[str, ...]) -> Reco
 
 
 class ZenohRecorder:
-    """Subscribe to a rig's samples and safety events and write them with a ``Recorder``.
+    """Subscribe to a rig's samples, safety events and stats and write them with a ``Recorder``.
 
-    ``done`` is set when the rig's liveliness token goes away (its run ended)."""
+    ``done`` is set when the rig's liveliness token goes away (its run ended); ``finished`` when the
+    rig's final stats message arrived (nothing more will come); ``period_s`` (the rig's ``info``)
+    lets the accounting say how many samples came before the first one received."""
 
     def __init__(self, session: zenoh.Session, rig: str, out_dir: str | Path, binding: DeviceBinding,
-                 name: str = "run", metadata: dict[str, Any] | None = None) -> None:
+                 name: str = "run", metadata: dict[str, Any] | None = None, period_s: float | None = None) -> None:
         self.recorder = Recorder(out_dir, binding, name=name, metadata=metadata)
         self._names = [ch.signal for ch in binding.adc]
-        self.samples = 0
+        self.period_s = period_s
+        self.samples = 0  # records received and written (samples and commands)
+        self.samples_received = 0  # of those, records that carry a device SAMPLE
+        self.sample_index_gaps = 0  # samples missing between received ones (sample_index steps > 1)
+        self.first_time_s: float | None = None  # session time of the first sample received
+        self.rig_final: dict[str, Any] | None = None  # the publisher's counters in its final stats
         self.bad = 0
         self.done = threading.Event()
         self.seen_alive = threading.Event()
+        self.finished = threading.Event()
+        self._last_index: int | None = None
         self._closed = False
         self._lock = threading.Lock()
         self._watch = watch_alive(session, self._alive, rig=rig)
-        self.subscription: Subscription = subscribe(rig, self._on_sample, on_safety=self._on_safety, session=session)
+        self.subscription: Subscription = subscribe(rig, self._on_sample, on_safety=self._on_safety,
+                                                    on_stats=self._on_stats, session=session)
 
     def _alive(self, rig: str, alive: bool) -> None:
         (self.seen_alive if alive else self.done).set()
@@ -68,9 +86,22 @@ class ZenohRecorder:
             self.bad += 1
             return
         with self._lock:
-            if not self._closed:
-                self.recorder.offer(rec)
-                self.samples += 1
+            if self._closed:
+                return
+            if s.has_sample:
+                self._count(s)
+            self.recorder.offer(rec, block=True)  # back-pressure to zenoh, and so to the rig's publisher
+            self.samples += 1
+
+    def _count(self, s: StateSample) -> None:
+        self.samples_received += 1
+        if self.first_time_s is None:
+            self.first_time_s = s.time_s
+        last, self._last_index = self._last_index, s.sample_index
+        if last is not None:
+            step = (s.sample_index - last) & 0xFFFFFFFF
+            if 1 < step < 0x80000000:  # a step back is the device restarting: a new sequence
+                self.sample_index_gaps += step - 1
 
     def _on_safety(self, msg: dict[str, Any]) -> None:
         t = msg.get("t_s")
@@ -78,6 +109,49 @@ class ZenohRecorder:
             if not self._closed:
                 self.recorder.event(float(t) if isinstance(t, (int, float)) else math.nan,
                                     str(msg.get("reason", msg.get("state", "?"))), str(msg.get("detail", "")))
+
+    def _on_stats(self, msg: dict[str, Any]) -> None:
+        if msg.get("final") and isinstance(msg.get("telemetry"), dict):
+            self.rig_final = dict(msg["telemetry"])
+            self.finished.set()
+
+    def wait_finished(self, timeout_s: float) -> bool:
+        """Wait until the rig's final stats and its last batch have arrived (both travel the same
+        reliable path, in order); False if they did not within ``timeout_s`` (a rig that was killed
+        says no final word: the tail of its recording is then unknown)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            final = self.rig_final
+            if final is not None and self.subscription.batches_seen_up_to(int(final.get("published_batches", 0))):
+                return True
+            time.sleep(0.01)
+        return False
+
+    @property
+    def samples_not_received(self) -> int | None:
+        """Samples the rig published (offered to its publisher) that this recording did not receive;
+        None until the rig's final stats have arrived."""
+        final = self.rig_final
+        if final is None or "samples_offered" not in final:
+            return None
+        return int(final["samples_offered"]) - self.samples_received
+
+    def accounting(self) -> dict[str, Any]:
+        """What this recording holds and what it lacks, in samples (for its metadata and summary)."""
+        before = None
+        if self.first_time_s is not None and self.period_s:
+            before = round(self.first_time_s / self.period_s)
+        final = self.rig_final
+        missing = self.samples_not_received
+        return {
+            "samples_received": self.samples_received,
+            "rig_samples": int(final["samples_offered"]) if final and "samples_offered" in final else None,
+            "samples_not_received": missing,
+            "samples_before_first": before,
+            "sample_index_gaps": self.sample_index_gaps,
+            "rig_final_word": final is not None,
+            "complete": missing == 0 and self.recorder.dropped == 0,
+        }
 
     @property
     def dropped(self) -> int:
