@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
-.PHONY: run test lint bench firmware harness toolchain browser upload clean
+.PHONY: run test lint bench firmware harness toolchain browser clients upload clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 run: $(STAMP)
 	$(BIN)/rehab-hil run --config configs/sma_exoskeleton.toml --device sim --duration 30 --record out/
 
-test: $(STAMP) toolchain browser firmware harness
+test: $(STAMP) toolchain browser clients firmware harness
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
@@ -36,6 +36,10 @@ toolchain:
 # Debian's Chromium, the headless browser the HTML report tests open reports in (root installs it when missing).
 browser:
 	sh scripts/install_browser.sh
+
+# Third-party Node clients the tests connect with (tests/clients; npm ci, versions pinned in its lock file).
+clients:
+	sh scripts/install_node_clients.sh
 
 # The Arduino Uno firmware (firmware/build/rehab_fw.elf/.hex); prints flash/RAM use.
 firmware: toolchain

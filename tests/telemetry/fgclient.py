@@ -1,4 +1,5 @@
-"""A real Foxglove WebSocket client for tests (the ``websockets`` package, protocol ``foxglove.sdk.v1``).
+"""A real Foxglove WebSocket client for tests (the ``websockets`` package; subprotocol ``foxglove.sdk.v1``
+or, asked for, the classic ``foxglove.websocket.v1``).
 
 It runs its own asyncio loop on a thread: connects, collects the server's advertisements, subscribes
 to the topics asked for, and decodes binary message frames (opcode 1: subscription id u32, log time
@@ -22,8 +23,9 @@ SUBPROTOCOL = "foxglove.sdk.v1"
 class FoxgloveClient:
     """Connects to ``ws://127.0.0.1:port`` and subscribes to ``topics`` as soon as they are advertised."""
 
-    def __init__(self, port: int, topics: list[str]) -> None:
-        self.port, self.wanted = port, set(topics)
+    def __init__(self, port: int, topics: list[str], subprotocol: str = SUBPROTOCOL) -> None:
+        self.port, self.wanted, self.subprotocol = port, set(topics), subprotocol
+        self.negotiated: str | None = None  # the subprotocol the server's handshake answered
         self.server_info: dict[str, Any] = {}
         self.channels: dict[str, dict[str, Any]] = {}  # topic -> advertised channel
         self.messages: dict[str, list[dict[str, Any]]] = {t: [] for t in topics}
@@ -36,8 +38,9 @@ class FoxgloveClient:
 
     async def _main(self) -> None:
         try:
-            async with websockets.connect(f"ws://127.0.0.1:{self.port}", subprotocols=[SUBPROTOCOL],
+            async with websockets.connect(f"ws://127.0.0.1:{self.port}", subprotocols=[self.subprotocol],
                                           max_size=None) as ws:
+                self.negotiated = ws.subprotocol
                 while not self._stop.is_set():
                     try:
                         frame = await asyncio.wait_for(ws.recv(), 0.1)

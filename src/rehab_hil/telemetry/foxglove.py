@@ -24,6 +24,7 @@ import foxglove
 from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
 from rehab_hil.service.telemetry import loop_stats
+from rehab_hil.telemetry.ws_subprotocol import SubprotocolFront
 
 __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "FoxgloveError", "FoxgloveLive", "LiveView", "RigFeed", "rig_prefix",
            "topics"]
@@ -179,20 +180,28 @@ class RigFeed:
 
 
 class FoxgloveLive:
-    """A Foxglove WebSocket server on ``host:port`` (port 0: any free one) with its own channel context."""
+    """A Foxglove WebSocket server on ``host:port`` (port 0: any free one) with its own channel context;
+    clients may ask for the ``foxglove.sdk.v1`` or the classic ``foxglove.websocket.v1`` subprotocol
+    (``ws_subprotocol.SubprotocolFront``)."""
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, name: str = "rehab-hil",
                  message_backlog: int = 4096) -> None:
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise FoxgloveError(f"port must be an integer in 0..65535, got {port!r}")
         self.context = foxglove.Context()
-        try:
-            self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
+        try:  # the SDK's server on a private loopback port, behind a front that takes both subprotocols
+            self.server = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self.context,
                                                 message_backlog_size=message_backlog)
         except Exception as e:  # the SDK raises RuntimeError("FoxgloveError: Failed to bind port: ...")
             why = str(e).removeprefix("FoxgloveError: ").splitlines()[0] if str(e) else type(e).__name__
             raise FoxgloveError(f"cannot serve Foxglove on {host}:{port}: {why}") from None
-        self.host, self.port = host, self.server.port
+        try:
+            self.front = SubprotocolFront(host, port, self.server.port)
+        except OSError as e:
+            with contextlib.suppress(Exception):
+                self.server.stop()
+            raise FoxgloveError(f"cannot serve Foxglove on {host}:{port}: {e.strerror or e}") from None
+        self.host, self.port = host, self.front.port
         self.feeds: list[RigFeed] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -232,6 +241,7 @@ class FoxgloveLive:
             return
         self._stop.set()
         self._thread.join(5.0)
+        self.front.close()
         with contextlib.suppress(Exception):
             self.server.stop()
 
