@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -153,3 +154,54 @@ def test_a_recording_reads_back_with_the_mcap_reader_validating_crcs(tmp_path):
     assert read == recorded
     assert {ch.topic for ch in summary.channels.values()} >= {"/rig/sample", "/rig/command"}
     assert sum(1 for t, _ in read if t == "/rig/sample") > 200
+
+
+def _docs_block(heading: str) -> str:
+    text = (ROOT / "docs" / "telemetry.md").read_text()
+    section = text[text.index(heading):]
+    start = section.index("```python\n") + len("```python\n")
+    return section[start:section.index("\n```", start)]
+
+
+def test_a_plain_zenoh_subscriber_written_from_the_docs_alone_decodes_the_published_samples(client, hub,
+                                                                                             tmp_path, wait):
+    import math
+
+    from rehab_hil.protocol import Sample
+    from rehab_hil.service.controllers import Command
+    from rehab_hil.service.estimation import State
+    from rehab_hil.service.recorder import Record
+    from rehab_hil.telemetry import TelemetryPublisher
+
+    code = _docs_block("### Without this project's code")
+    assert "rehab_hil" not in code  # the docs' code, nothing of ours
+    script = tmp_path / "plain_subscriber.py"
+    script.write_text(code)
+    n = 40
+    records = []
+    for i in range(n):  # a sample record (with two analog signals), then the command record of that cycle
+        s = Sample(1000 * i, i, 3 * i, 100 + i, 200 + i, 2500, 0, 1, 4, 0, i, 2)
+        st = State(i * 1e-3, math.radians(0.5 * i), 0.1, {"force_n": 1.5 * i, "torque_nm": -0.25 * i})
+        cmd = Command((0.25 + i / 1000, 0.0), reference_deg=10.0 + i)
+        records += [Record(0.0, i * 1e-3, s, st, cmd, i, 30.0 + i), Record(0.0, i * 1e-3, None, None, cmd, i, 30.0)]
+    proc = subprocess.Popen([sys.executable, str(script), "plain1", f"tcp/127.0.0.1:{hub}", str(n)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "subscribed", proc.stderr.read()
+        with TelemetryPublisher(client(), "plain1", batch=10) as pub:
+            for r in records:
+                assert pub.offer(r)
+            pub.wake()
+        out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    got = [json.loads(line) for line in out.splitlines()]
+    assert [g["sample_index"] for g in got] == list(range(n))
+    for i, g in enumerate(got):
+        assert g["angle_deg"] == pytest.approx(0.5 * i) and g["analog"] == [1.5 * i, -0.25 * i]
+        assert (g["encoder_count"], g["adc0"], g["adc1"], g["rx_bad_frames"]) == (3 * i, 100 + i, 200 + i, 2)
+        assert g["reference_deg"] == 10.0 + i and g["command_duty0"] == 0.25 + i / 1000
+        assert g["temperature_c"] == 30.0 + i and g["time_s"] == i * 1e-3
