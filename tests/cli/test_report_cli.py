@@ -1,4 +1,4 @@
-"""``rehab-hil report`` on a real recording: a lockstep in-process session (PID, four cycles a
+"""``rehab-hil run --record`` then ``rehab-hil report`` on its recording: a lockstep in-process session (PID, four cycles a
 minute faster than shipped so one cycle fits in 8 s), then its report."""
 
 from __future__ import annotations
@@ -16,8 +16,10 @@ def test_report_of_a_recorded_session_is_written_in_its_run_dir(tmp_path, capsys
     cfg.write_text(re.sub(r"(\[rig\.session\][^\[]*?cycles_per_minute = )5\.0", r"\g<1>15.0", text, count=1))
     assert main(["run", "--config", str(cfg), "--device", "inprocess", "--controller", "pid", "--duration", "8",
                  "--record", str(tmp_path / "runs"), "--no-display"]) == 0
-    capsys.readouterr()
     (run_dir,) = (tmp_path / "runs").iterdir()
+    summary = capsys.readouterr().out
+    assert summary.count(str(run_dir.name)) == 1  # the run directory once, in full
+    assert f"recorded: {run_dir.resolve()}/ (run.csv, run.mcap, metadata.json)" in summary
     assert main(["report", str(run_dir)]) == 0
     assert f"wrote {run_dir / 'report.html'}" in capsys.readouterr().out
     meta = json.loads((run_dir / "metadata.json").read_text())
