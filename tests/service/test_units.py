@@ -3,7 +3,9 @@ supervisor, thermal estimate, recorder and telemetry sink."""
 
 from __future__ import annotations
 
+import itertools
 import math
+import sys
 import time
 
 import numpy as np
@@ -46,12 +48,27 @@ def test_timer_skips_overrun_deadlines_and_counts_them_instead_of_catching_up():
 
 
 def test_realtime_setup_reports_the_scheduler_it_got():
+    before = sys.getswitchinterval()
     rep = realtime_setup()
     try:
         assert rep.gc_frozen
         assert rep.scheduler.startswith(("SCHED_FIFO", "SCHED_OTHER ("))
+        assert sys.getswitchinterval() == pytest.approx(rep.switch_interval_s) and rep.switch_interval_s < before
     finally:
         realtime_teardown()
+    assert sys.getswitchinterval() == before
+
+
+def test_the_estimator_unwraps_like_unwrap_delta_across_both_32_bit_wraps(binding):
+    est, cpr = Estimator(binding), binding.encoder_counts_per_rev
+    counts = [2**31 - 3, 2**31 + 2, 2**32 - 1, 4, -(2**31), 2**31 - 1]  # as a u32 and an i32 would show them
+    times = [2**32 - 2000, 2**32 - 1000, 0, 1000, 2000, 3000]
+    s = None
+    for c, t in zip(counts, times, strict=True):
+        s = est.update(c, t, (0,))
+    total = sum(unwrap_delta(b, a) for a, b in itertools.pairwise(counts))
+    assert s.angle_rad == pytest.approx((counts[0] + total) * 2 * math.pi / cpr * binding.encoder_direction)
+    assert s.t_s == pytest.approx(5 * 1000e-6)
 
 
 def test_unwrap_delta_crosses_the_32_bit_wrap():

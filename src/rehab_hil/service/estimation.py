@@ -15,6 +15,7 @@ from rehab_hil.plants.base import AdcChannel, DeviceBinding
 __all__ = ["Estimator", "State", "adc_to_si", "unwrap_delta"]
 
 WRAP32 = 1 << 32
+HALF32 = 1 << 31
 
 
 def unwrap_delta(new: int, old: int, modulus: int = WRAP32) -> int:
@@ -56,6 +57,8 @@ class Estimator:
         # the config's encoder direction: a rig wired backwards (-1) still reads positive flexion
         self.rad_per_count = binding.encoder_direction * 2.0 * math.pi / binding.encoder_counts_per_rev
         self.tau_s = 1.0 / (2.0 * math.pi * velocity_cutoff_hz)
+        # (index, signal, offset, counts per unit) per ADC channel: adc_to_si without attribute lookups
+        self._channels = tuple((i, ch.signal, ch.offset_counts, ch.counts_per_unit) for i, ch in enumerate(binding.adc))
         self.reset()
 
     def reset(self) -> None:
@@ -77,9 +80,12 @@ class Estimator:
             self._time_us = 0
             self._angle = self._count * self.rad_per_count
             self._velocity = 0.0
-        else:
-            self._count += unwrap_delta(encoder_count, self._raw_count)
-            dt_us = unwrap_delta(device_time_us, self._raw_time)
+        else:  # unwrap_delta of both counters, inline (once per sample)
+            d = (encoder_count - self._raw_count) % WRAP32
+            self._count += d - WRAP32 if d >= HALF32 else d
+            dt_us = (device_time_us - self._raw_time) % WRAP32
+            if dt_us >= HALF32:
+                dt_us -= WRAP32
             self._raw_count, self._raw_time = int(encoder_count), int(device_time_us)
             angle = self._count * self.rad_per_count
             if dt_us > 0:
@@ -88,5 +94,6 @@ class Estimator:
                 self._velocity += dt / (self.tau_s + dt) * (raw_v - self._velocity)
                 self._time_us += dt_us
             self._angle = angle
-        analog = {ch.signal: adc_to_si(adc[i], ch) for i, ch in enumerate(self.binding.adc) if i < len(adc)}
+        n = len(adc)
+        analog = {name: (float(adc[i]) - offset) / per_unit for i, name, offset, per_unit in self._channels if i < n}
         return State(self._time_us * 1e-6, self._angle, self._velocity, analog)

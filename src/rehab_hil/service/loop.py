@@ -2,14 +2,17 @@
 
 A cycle's lateness is its wake time minus its deadline. A cycle whose deadline has already passed
 by a whole period is skipped and counted as missed (the loop never runs a burst of late cycles to
-catch up). ``realtime_setup`` freezes the garbage collector and asks for SCHED_FIFO, and reports
-which of the two it got. Figures and the reasoning behind them: docs/loop.md.
+catch up). ``realtime_setup`` freezes the garbage collector, shortens the interpreter's switch
+interval (a thread waiting for the GIL asks for it after this long: the loop, woken by a sample
+while the recorder or the publisher holds the GIL, waits at most about that) and asks for
+SCHED_FIFO, and reports what it got. Figures and the reasoning behind them: docs/loop.md.
 """
 
 from __future__ import annotations
 
 import gc
 import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -18,6 +21,8 @@ import numpy as np
 __all__ = ["SPIN_S", "DeadlineTimer", "RealtimeReport", "TimingStats", "realtime_setup", "realtime_teardown"]
 
 SPIN_S = 200e-6  # sleep until this long before the deadline, then spin (sleep overshoots ~60-100 us)
+SWITCH_INTERVAL_S = 50e-6  # the GIL switch interval while the loop runs (CPython's default: 5 ms)
+_saved_switch_interval: list[float] = []
 
 
 @dataclass(frozen=True)
@@ -26,31 +31,39 @@ class RealtimeReport:
 
     scheduler: str  # "SCHED_FIFO <prio>" or "SCHED_OTHER (<why>)"
     gc_frozen: bool
+    switch_interval_s: float = SWITCH_INTERVAL_S
 
 
-def realtime_setup(fifo_priority: int | None = 10) -> RealtimeReport:
-    """Collect and freeze the GC (a full collection costs 1.5-16 ms) and request SCHED_FIFO.
+def realtime_setup(fifo_priority: int | None = 10, switch_interval_s: float = SWITCH_INTERVAL_S) -> RealtimeReport:
+    """Collect and freeze the GC (a full collection costs 1.5-16 ms), set the GIL switch interval
+    and request SCHED_FIFO (for the calling thread: the loop's).
 
     SCHED_FIFO needs root or CAP_SYS_NICE; without it the loop runs SCHED_OTHER and says so.
     ``fifo_priority=None`` skips the request. Call ``realtime_teardown`` afterwards."""
     gc.collect()
     gc.freeze()
+    _saved_switch_interval.append(sys.getswitchinterval())
+    sys.setswitchinterval(switch_interval_s)
     if fifo_priority is None:
-        return RealtimeReport("SCHED_OTHER (not requested)", True)
+        return RealtimeReport("SCHED_OTHER (not requested)", True, switch_interval_s)
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(fifo_priority))
     except (PermissionError, OSError, AttributeError) as e:
-        return RealtimeReport(f"SCHED_OTHER ({type(e).__name__}: SCHED_FIFO not permitted)", True)
-    return RealtimeReport(f"SCHED_FIFO {fifo_priority}", True)
+        return RealtimeReport(f"SCHED_OTHER ({type(e).__name__}: SCHED_FIFO not permitted)", True,
+                              switch_interval_s)
+    return RealtimeReport(f"SCHED_FIFO {fifo_priority}", True, switch_interval_s)
 
 
 def realtime_teardown() -> None:
-    """Back to SCHED_OTHER and a normal GC (the recorder and the summary allocate freely)."""
+    """Back to SCHED_OTHER, the switch interval it had and a normal GC (the recorder and the
+    summary allocate freely)."""
     try:
         if os.sched_getscheduler(0) == os.SCHED_FIFO:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (PermissionError, OSError, AttributeError):
         pass
+    if _saved_switch_interval:
+        sys.setswitchinterval(_saved_switch_interval.pop())
     gc.unfreeze()
 
 
