@@ -30,10 +30,10 @@ class SimDeviceProcess:
 
     def __init__(self, argv: list[str], ready_timeout_s: float = 120.0) -> None:
         self._stderr = tempfile.TemporaryFile()
-        # its own session: Ctrl-C in the terminal reaches the host alone, which then stops the device
+        # its own process group: Ctrl-C in the terminal reaches the host alone, which then stops the device
         # as it stops a real one (PWM 0, confirmed), not a device killed under it (a link loss)
         self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr,
-                                     bufsize=0, start_new_session=True)
+                                     bufsize=0, process_group=0)
         self._buf = b""
         try:
             self.port = self._readline(ready_timeout_s)
