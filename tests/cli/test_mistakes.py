@@ -119,30 +119,57 @@ def test_a_closed_standard_input_at_a_prompt_is_one_line(argv, tmp_path):
 
 @pytest.mark.slow
 def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path):
-    """A terminal's Ctrl-C is SIGINT to its whole foreground process group: the host's, and the
-    simulated device's unless the device runs in a session of its own."""
-    proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(FE), "--device", "sim",
-                             "--lockstep", "--duration", "600", "--record", str(tmp_path), "--no-display"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-                            start_new_session=True)  # the group a terminal would signal
+    """Ctrl-C typed in a real terminal (a pty whose line discipline sends SIGINT to its whole
+    foreground process group): the host's, and the simulated device's unless the device runs in a
+    session of its own. The live display is on, as in a terminal."""
+    import pty
+    import select
+
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: its own session, the pty its controlling terminal
+        os.chdir(ROOT)
+        os.execv(sys.executable, [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(FE), "--device",
+                                  "sim", "--lockstep", "--duration", "600", "--record", str(tmp_path),
+                                  "--home", "none"])
+    out = bytearray()
+
+    def pump(seconds: float) -> bool:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if select.select([fd], [], [], 0.1)[0]:
+                try:
+                    data = os.read(fd, 65536)
+                except OSError:  # the child closed the terminal
+                    return False
+                if not data:
+                    return False
+                out.extend(data)
+        return True
+
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
+            pump(0.2)
             found = list(tmp_path.glob("*/run.csv"))
             if found and found[0].stat().st_size > 20000:
                 break
-            assert proc.poll() is None, proc.communicate()
-            time.sleep(0.1)
-        os.killpg(proc.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
-        out, err = proc.communicate(timeout=120)
+        assert found, out.decode(errors="replace")[-2000:]
+        os.write(fd, b"\x03")  # Ctrl-C
+        deadline = time.monotonic() + 120
+        while pump(0.5) and time.monotonic() < deadline:
+            pass
+        _, status = os.waitpid(pid, 0)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
-    assert proc.returncode == 0, err
-    assert "Traceback" not in err and "link_loss" not in out
-    assert "stop_request" in out and "SIGINT" in out
-    assert "yes" in out.split("device PWM off at end")[1].splitlines()[0]
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        os.close(fd)
+    text = out.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 0, text[-3000:]
+    assert "Traceback" not in text and "link_loss" not in text
+    assert "stop_request" in text and "SIGINT" in text
+    assert "yes" in text.split("device PWM off at end")[1].splitlines()[0]
     csv = found[0]
     meta = json.loads((csv.parent / "metadata.json").read_text())
     assert meta["pwm_off_at_end"] and meta["safety_events"][0]["reason"] == "stop_request"
