@@ -132,7 +132,7 @@ def fe_record(effects: dict[str, dict[str, float]], errors: dict[str, float], se
     bumps, current noise 0.01 A, torque-sensor ADC (0.01 N m steps), logged at 500 or 1000 Hz.
 
     ``effects``: hidden effects in this simulator's own terms (names as the library's);
-    ``errors``: relative errors of nominal parameters (``kt``, ``resistance``, ``spring``, ``inertia``)
+    ``errors``: relative errors of nominal parameters (``kt``, ``kv``, ``resistance``, ``spring``, ``inertia``)
     or out-of-library effects (``stribeck_nm``, ``cogging_nm``)."""
     cfg = _toml("finger_extensor")
     rng = np.random.default_rng(seed)
@@ -143,7 +143,7 @@ def fe_record(effects: dict[str, dict[str, float]], errors: dict[str, float], se
     b = iris["viscous_nm_s_per_rad"] + n2 * mot["rotor_viscous_nm_s_per_rad"]
     k = iris["spring_nm_per_rad"] * (1 + errors.get("spring", 0))
     kt = mot["kt_nm_per_a"] * (1 + errors.get("kt", 0))
-    kv, L = mot["kv_v_s_per_rad"], mot["inductance_h"]
+    kv, L = mot["kv_v_s_per_rad"] * (1 + errors.get("kv", 0)), mot["inductance_h"]
     R = mot["resistance_ohm"] * (1 + errors.get("resistance", 0))
     fc = iris["coulomb_nm"] + effects.get("coulomb_friction", {}).get("level_nm", 0.0)
     b += effects.get("viscous_friction", {}).get("damping_nm_s_per_rad", 0.0)

@@ -26,6 +26,7 @@ from rehab_hil.models.effect_parts import (
     ContactSpringDamper,
     NonlinearConvection,
     PassiveMuscle,
+    SensorCreepHysteresis,
     SensorGainOffset,
     SmaHysteresis,
     TransportDelay,
@@ -166,6 +167,11 @@ def _sensor_gain(port: MeasuredPort, step_s: float) -> Attachment:
     return Attachment(sense=port.wire.signal, fixed={"counts_per_unit": port.counts_per_unit or 1.0})
 
 
+def _sensor_creep(port: MeasuredPort, step_s: float) -> Attachment:
+    assert port.wire is not None
+    return Attachment(sense=port.wire.signal, fixed={"counts_per_unit": port.counts_per_unit or 1.0}, xd0=[0.0])
+
+
 def _hysteresis(port: TemperatureWire, step_s: float) -> Attachment:
     return Attachment(insert=port.wire, xd0=[port.initial_c])
 
@@ -262,6 +268,17 @@ EFFECTS: dict[str, Effect] = {
             "calibration drift of the ADC sensor: gain error and zero offset (in ADC counts)",
             "adc", _sensor_gain,
         ),
+        Effect(
+            "sensor_creep_hysteresis", SensorCreepHysteresis,
+            (EffectParam("creep_fraction", 0.0, 0.3, 0.03),
+             EffectParam("creep_time_s", 0.2, 60.0, 5.0, linear=False, off=None, grid=(1.0, 3.0, 6.0, 15.0)),
+             EffectParam("hysteresis_counts", 0.0, 300.0, 10.0)),
+            "Dickmann et al. 2021 (FlexiForce A201 dead-weight staircases: ~3 % creep in 5 s, loading/unloading "
+            "hysteresis); Tekscan FlexiForce manual (drift, hysteresis)",
+            "force sensor creep (the reading drifts by a fraction of the load with a time constant) and "
+            "loading/unloading hysteresis (unloading reads higher, in ADC counts)",
+            "adc", _sensor_creep,
+        ),
     ]
 }
 
@@ -329,7 +346,7 @@ def attach(plant: str, ports: Ports, step_s: float, parts: list[Part],
     by_name = {p.name: p for p in parts}
     used: set[str] = set(by_name)
     # sensor effects take a signal's name over: everything that sums onto it must be in place first
-    effects = sorted(effects, key=lambda e: e[0] in EFFECTS and EFFECTS[e[0]].wire is _sensor_gain)
+    effects = sorted(effects, key=lambda e: e[0] in EFFECTS and EFFECTS[e[0]].wire in (_sensor_gain, _sensor_creep))
     for name, given in effects:
         try:
             values = check_spec(name, given)
@@ -381,12 +398,16 @@ def attach(plant: str, ports: Ports, step_s: float, parts: list[Part],
 def _sensed(parts: Sequence[Part]) -> dict[str, str]:
     """Signals already taken over by a sensor effect -> the name their true value now has."""
     return {p.signal_names[0]: p.connections["u"][0][0] for p in parts
-            if isinstance(p, SensorGainOffset) and p.param_values[3] < 0.5}
+            if getattr(p, "sensor_effect", False) and p.param_values[p.params.index("invert")] < 0.5}
 
 
 def _take_over(parts: Sequence[Part], signal: str) -> str:
     """Rename every producer and reader of ``signal`` to ``<signal>_true``; returns that name."""
     true = signal + TRUE_SUFFIX
+    k = 1
+    while any(true in p.signal_names for p in parts):  # a second sensor effect on the same signal
+        k += 1
+        true = f"{signal}{TRUE_SUFFIX}{k}"
     for p in parts:
         p.signal_names = tuple(true if s == signal else s for s in p.signal_names)
         for terms in p.connections.values():

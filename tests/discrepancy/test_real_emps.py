@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rehab_hil.discrepancy.replay import Replay
@@ -72,3 +73,15 @@ def test_without_the_recorded_controller_the_recorded_effort_drives_the_model() 
     closed = Replay.build(get_plant("motor_axis"), cfg, rec)
     assert open_loop.loop == "" and open_loop.channels == ["position_m"]
     assert "drive_input_v" in open_loop.system.input_names and "drive_input_v" not in closed.system.input_names
+
+
+def test_the_drive_gain_is_reported_inseparable_with_every_name_and_held_never_given_alone(nominal) -> None:
+    _, res = nominal
+    j = res.joint
+    gain = "drive.force_constant_n_per_v"
+    assert gain in j.held  # a force scale: gtau times (M, Fv, Fc) gives the same motion and effort
+    group = next(g for g in j.inseparable if gain in g)
+    assert {"load.mass_kg", "load.viscous_n_s_per_m"} <= set(group)
+    assert not np.isfinite(j.stderr[gain]) and j.corrected[gain] == pytest.approx(35.15065188)
+    assert gain in res.conclusion and "not separable" in res.conclusion
+    assert j.corrected["load.mass_kg"] == pytest.approx(95.1089, rel=0.05)

@@ -38,7 +38,7 @@ class ParameterTerm:
 
     @property
     def name(self) -> str:
-        return self.fp.config_key
+        return self.fp.name
 
     def apply(self, P: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
         """``P`` with the parameter's entries at nominal x (1 + error_fraction)."""
@@ -58,8 +58,9 @@ def parameter_terms(replay: Replay) -> list[ParameterTerm]:
             continue                                           # axis's inertia on a linear one)
         idx = [replay.system.diagram.param_index(q) for q in fp.diagram]
         idx += [replay.input_scale_index(u) for u in fp.inputs if u in replay.system.input_names]
-        if idx:
-            out.append(ParameterTerm(fp, tuple(idx), tuple(float(P[i]) for i in idx)))
+        nominal = tuple(float(P[i]) for i in idx)
+        if idx and any(v != 0.0 for v in nominal):  # a relative error of zero is nothing to fit
+            out.append(ParameterTerm(fp, tuple(idx), nominal))
     return out
 
 
@@ -85,6 +86,9 @@ def corrected_config_text(text: str, cfg: Any, fixes: Mapping[FitParameter, floa
         new = fp.to_config(cfg, factor) if fp.to_config else old * factor
         section, _, key = fp.config_key.rpartition(".")
         text = _set_key(text, section, key, new, old)
+        for other in fp.also:  # the rest of a coupled group, by the same factor
+            section, _, key = other.rpartition(".")
+            text = _set_key(text, section, key, config_value(cfg, other) * factor, config_value(cfg, other))
     return text
 
 

@@ -110,7 +110,7 @@ def augmented_toml(res: Result, config_path: Path) -> str:
     ``[[effects]]`` table per chosen effect appended."""
     text = config_path.read_text(encoding="utf-8").rstrip("\n") + "\n"
     if res.parameters:
-        declared = {fp.config_key: fp for fp in get_plant(res.plant).fit_parameters}
+        declared = {fp.name: fp for fp in get_plant(res.plant).fit_parameters}
         fixes = {declared[f.effect]: 1.0 + f.params["error_fraction"] for f in res.parameters}
         text = corrected_config_text(text, load_config(config_path), fixes)
     for f in res.chosen:

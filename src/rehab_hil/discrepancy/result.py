@@ -54,9 +54,12 @@ class Alias:
                 f"from this record; to tell them apart: {self.experiment}")
 
 
-def parameter_sentence(fit: Fit) -> str:
-    """'parameter X is off by N % (95 % CI a .. b %)'."""
+def parameter_sentence(fit: Fit, inseparable: bool = False) -> str:
+    """'parameter X is off by N % (95 % CI a .. b %)'; no interval for a parameter the record cannot
+    separate from another (``identify``): its own interval would be a wrong story told with confidence."""
     e, se = fit.params["error_fraction"], fit.stderr.get("error_fraction", float("nan"))
+    if inseparable:
+        return f"parameter {fit.effect} is off by {100 * e:+.1f} % (not separable: see below)"
     ci = (f"95 % CI {100 * (e - Z95 * se):+.1f} .. {100 * (e + Z95 * se):+.1f} %" if np.isfinite(se)
           else "CI not available")
     return f"parameter {fit.effect} is off by {100 * e:+.1f} % ({ci})"
@@ -101,8 +104,13 @@ class Result:
         parts = []
         if self.named:
             parts.append(f"missing effect found: {', '.join(self.named)}")
-        parts += [parameter_sentence(f) for f in self.parameters]
+        mixed = {m for g in (self.joint.inseparable if self.joint is not None else []) for m in g}
+        parts += [parameter_sentence(f, f.effect in mixed) for f in self.parameters]
         parts += [a.sentence() for a in self.aliases]
+        chosen = {f.effect for f in self.chosen}
+        if self.joint is not None:  # a chosen term the record cannot separate from another: said so
+            parts += [s for g, s in zip(self.joint.inseparable, self.joint.sentences(), strict=True)
+                      if any(m.split(".")[0] in chosen or m in chosen for m in g)]
         if self.unexplained:
             where = self.unexplained_where
             chans = ", ".join(self.unexplained)

@@ -27,6 +27,7 @@ import numpy as np
 
 from rehab_hil.discrepancy import localise
 from rehab_hil.discrepancy.fitting import Fit, Term, effect_term, fit_joint, fit_term, parameter_term
+from rehab_hil.discrepancy.identify import identify_jointly
 from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.parameters import parameter_terms
 from rehab_hil.discrepancy.replay import Replay
@@ -67,6 +68,7 @@ class Options:
     max_effects: int = 3  # rounds of the search (effects and parameters chosen)
     mode: str = "auto"  # "auto", "open" or "shooting" (docs/discrepancy.md)
     parameters: bool = True  # the plant's declared nominal parameters are candidates too
+    joint: bool = True  # finally every declared parameter and chosen term fitted together (``identify``)
     closed_loop: bool = True  # replay a record from its reference under the config's [recorded_controller]
 
 
@@ -87,6 +89,25 @@ def _relevant(replay: Replay, term: Term, fit: Fit, sim: dict[str, np.ndarray], 
     off = replay.simulate(term.apply(fit.P, term.off()))
     moved = np.sqrt(np.mean((replay.residual(sim, hold) - replay.residual(off, hold)) ** 2, axis=1))
     return any(m >= MIN_IMPROVEMENT * b and m > RESOLUTION_FLOOR for m, b in zip(moved, base.channel_rms, strict=True))
+
+
+def _demanding(replay: Replay, current: dict[str, np.ndarray], hold: slice) -> set[str]:
+    """Channels whose held-out error under the current model the noise cannot account for."""
+    rms = {c: float(np.sqrt(np.mean((current[c][hold] - replay.measured[c][hold]) ** 2))) for c in replay.channels}
+    return set(unexplained_channels(replay.channels, {c: replay.measured[c][hold] for c in replay.channels}, rms))
+
+
+def _sensor_demanded(replay: Replay, term: Term, demanding: set[str]) -> bool:
+    """A sensor effect on a measured channel is named only when that channel itself demands it: its
+    held-out error is beyond its noise and 2 % of its spread under the current model. Otherwise a
+    sensor gain soaks up what a physical effect left on the force (an SMA record with a passive
+    stiffness only had a spurious Flexiforce gain of -13 % named beside it). A sensor on a recorded
+    input (the FE torque sensor) shows in other channels and is not restricted."""
+    if term.kind != "effect" or EFFECTS[term.name].needs != "adc":
+        return True
+    port = EFFECTS[term.name].port(replay.ports)
+    signal = getattr(port, "signal", None)
+    return signal not in replay.channels or signal in demanding
 
 
 def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<data>",
@@ -127,6 +148,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         r_cur = replay.residual(current, hold)
         frac = effective_fraction(r_cur)
         base = bic(r_cur, n_params, frac, replay.fit_weight)
+        demanding = _demanding(replay, current, hold)
         cands: list[Candidate] = []
         joint: dict[str, list[Fit]] = {}  # candidate -> its joint fit with the chosen terms
         for term in [t for t in terms if t.name not in {c.name for c in chosen_terms} | dropped]:
@@ -134,7 +156,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             fit = fit_term(replay, P, term, n_train, progress.advance, seeds)
             sim = replay.simulate(fit.P)
             sc = _score(replay, sim, hold, n_params + len(term.params), frac)
-            sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base)
+            sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base) \
+                and _sensor_demanded(replay, term, demanding)
             cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim))
         if chosen_terms:  # the best few again, refitted jointly with the chosen terms
             cands.sort(key=lambda c: c.score.bic)
@@ -148,7 +171,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
                 if sc.bic < c.score.bic:
                     fit = fits[-1]
                     fit.start = c.fit.start
-                    sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base)
+                    sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base) \
+                        and _sensor_demanded(replay, term, demanding)
                     cands[i] = Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim)
                     joint[fit.effect] = fits
         cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
@@ -195,6 +219,10 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
             initial = estimate_initial_state(replay, P, n_train)
             current = replay.simulate(P)
         n_params = sum(len(t.params) for t in chosen_terms)
+    joint = None
+    if options.joint and options.parameters:
+        progress.start("joint identification of every parameter", None)
+        joint = identify_jointly(replay, P0, chosen_terms, chosen, n_train, progress.advance)
     for rd in rounds:
         for c in rd.candidates:
             c.sim = None
@@ -214,4 +242,4 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     return Result(spec.name, replay.channels, kinds, replay.t, replay.measured, nominal, current, chosen, rounds,
                   split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
                   time.perf_counter() - t_start, {"replay": replay, "P": P}, initial, replay.mode,
-                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, aliases, unexplained, where)
+                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, aliases, unexplained, where, joint=joint)

@@ -12,7 +12,7 @@ import math
 from rehab_hil.models.system import Part, njit
 
 __all__ = ["DELAY_SLOTS", "ActuatorDeadZone", "Backlash", "ContactSpringDamper", "NonlinearConvection",
-           "PassiveMuscle", "SensorGainOffset", "SmaHysteresis", "TransportDelay"]
+           "PassiveMuscle", "SensorCreepHysteresis", "SensorGainOffset", "SmaHysteresis", "TransportDelay"]
 
 DELAY_SLOTS = 64  # FIFO length of TransportDelay: the longest delay is (DELAY_SLOTS - 1) steps
 
@@ -175,6 +175,7 @@ class SensorGainOffset(Part):
     inputs = ("u",)
     outputs = ("y",)
     params = ("gain_error_fraction", "offset_counts", "counts_per_unit", "invert")
+    sensor_effect = True  # takes a measured signal over (effects.attach)
 
     @staticmethod
     @njit
@@ -183,3 +184,42 @@ class SensorGainOffset(Part):
             y[0] = (u[0] - p[1] / p[2]) / (1.0 + p[0])
         else:
             y[0] = (1.0 + p[0]) * u[0] + p[1] / p[2]
+
+
+class SensorCreepHysteresis(Part):
+    """Creep and loading/unloading hysteresis of a piezoresistive force sensor (FlexiForce A201):
+    measured = play_w(true) + c z, dz/dt = (true - z) / tau. After a load step the reading creeps
+    by a fraction c of the load with time constant tau; unloading reads w above loading at the same
+    load (a play operator of width w, in ADC counts: ``counts_per_unit`` converts). Identified on
+    Dickmann et al. 2021's dead-weight staircases (``analysis/flexiforce.py``: tau 4.7-5.9 s, ~3 %
+    in 5 s); Tekscan FlexiForce user manual (drift, hysteresis). On a sensor that measures a plant
+    input (``invert`` = 1) the creep is removed (true = measured - c z, z following the true value);
+    a play cannot be inverted uniquely, so there the hysteresis is not modelled."""
+
+    inputs = ("u",)
+    states = ("creep",)
+    discrete_states = ("held",)
+    outputs = ("y",)
+    params = ("creep_fraction", "creep_time_s", "hysteresis_counts", "counts_per_unit", "invert")
+    sensor_effect = True
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        if p[4] > 0.5:
+            y[0] = u[0] - p[0] * x[0]
+            return
+        h = 0.5 * p[2] / p[3]
+        y[0] = min(max(xd[0], u[0] - h), u[0] + h) + p[0] * x[0]
+
+    @staticmethod
+    @njit
+    def derivatives(t, x, xd, u, p, dx):
+        true = u[0] - p[0] * x[0] if p[4] > 0.5 else u[0]
+        dx[0] = (true - x[0]) / p[1]
+
+    @staticmethod
+    @njit
+    def update(t, x, xd, u, p, xd_next):
+        h = 0.5 * p[2] / p[3]
+        xd_next[0] = min(max(xd[0], u[0] - h), u[0] + h)

@@ -87,6 +87,14 @@ class FitParameter:
     diagram: tuple[str, ...] = ()
     inputs: tuple[str, ...] = ()
     to_config: Callable[[Any, float], float] | None = None
+    # a physically coupled group (a weaker magnet lowers k_t and k_v together): the other config keys
+    # corrected by the same factor, and the candidate's name ("motor flux (k_t, k_v)"); default: the key
+    also: tuple[str, ...] = ()
+    label: str = ""
+
+    @property
+    def name(self) -> str:
+        return self.label or self.config_key
 
 
 def multisine(t: np.ndarray, rng: np.random.Generator, amplitude: float, freqs_hz: tuple[float, ...],

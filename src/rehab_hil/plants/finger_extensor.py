@@ -278,6 +278,8 @@ class FingerExtensor(Plant):
     scenarios = MappingProxyType({"step": step_scenario, "cycle": cycle_scenario})
     fit_parameters = (  # seed 002 eq 8-11 (motor), eq 6 (spring, inertia): candidates of the discrepancy workflow
         FitParameter("motor.kt_nm_per_a", diagram=("motor.kt_nm_per_a",)),
+        FitParameter("motor.kt_nm_per_a", diagram=("motor.kt_nm_per_a", "motor.kv_v_s_per_rad"),  # one magnet:
+                     also=("motor.kv_v_s_per_rad",), label="motor.flux (kt_nm_per_a and kv_v_s_per_rad)"),  # eq 8-9
         FitParameter("motor.resistance_ohm", diagram=("motor.resistance_ohm",)),
         FitParameter("iris.spring_nm_per_rad", diagram=("spring.stiffness_nm_per_rad",)),
         FitParameter("motor.rotor_inertia_kg_m2", diagram=("iris.inertia_kg_m2",),  # the rotor dominates J

@@ -399,6 +399,8 @@ class SMAExoskeleton(Plant):
     fit_parameters = (  # seed 000 Table 5 (supply, h1), Table 1 (F_o): candidates of the discrepancy workflow
         FitParameter("drive.supply_voltage_v", inputs=("supply_voltage_v",)),
         FitParameter("sma.h1_w_per_m2_c", diagram=("sma_thermal.h1_w_per_m2_c",)),
+        FitParameter("sma.h1_w_per_m2_c", diagram=("sma_thermal.h1_w_per_m2_c", "sma_thermal.h2_w_per_m2_c3"),
+                     also=("sma.h2_w_per_m2_c3",), label="sma.convection (h1_w_per_m2_c and h2_w_per_m2_c3)"),
         FitParameter("muscle.max_isometric_force_n", diagram=("muscle.max_isometric_force_n",)),
     )
 
