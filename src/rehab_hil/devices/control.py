@@ -1,6 +1,7 @@
 """The control channel every simulated device serves on stdin: one command per line, one reply.
 
-The knobs all devices share (the e-stop button, its wire, and a plant input) live here; each device adds
+The knobs all devices share (the e-stop button, its wire, a plant input, and ``load CHANNEL VALUE``:
+a known load on an ADC sensor in its unit, e.g. a calibration weight in N) live here; each device adds
 its own in ``_control`` (fault knobs, reboot, status). Replies: ``ok <command>``, ``ok <details>``
 or ``error <why>``.
 """
@@ -37,6 +38,9 @@ class ControlChannel:
                 reply = None
             elif cmd == "input" and len(args) == 2:
                 self.plant.set_input(args[0], float(args[1]))
+                reply = None
+            elif cmd == "load" and len(args) == 2:  # a known weight on a sensor: calibrate force
+                self.plant.set_sensor_load(int(args[0]), float(args[1]))
                 reply = None
             else:
                 reply = self._control(cmd, args)

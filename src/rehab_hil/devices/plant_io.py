@@ -57,6 +57,7 @@ class PlantIO:
             self.set_input(name, value)
         self.noise = adc_noise_counts
         self._rng = np.random.default_rng(seed)
+        self.sensor_load = [0.0, 0.0]  # a known load on each ADC sensor (its unit), on top of the plant's
         # a rig with direction -1 has its encoder wired the other way: its counts fall as the angle rises
         self._counts_per_rad = binding.encoder_direction * binding.encoder_counts_per_rev / (2.0 * math.pi)
 
@@ -67,6 +68,15 @@ class PlantIO:
         if not math.isfinite(value):
             raise ValueError(f"input {name} must be finite, got {value!r}")
         self._u[self._index[name]] = value
+
+    def set_sensor_load(self, channel: int, value: float) -> None:
+        """Put a known load on ADC ``channel``'s sensor (in its unit, e.g. N for a calibration weight),
+        added to what the plant puts there; 0 takes it off."""
+        if channel not in range(len(self.binding.adc)):
+            raise ValueError(f"ADC channel {channel}: this rig has {len(self.binding.adc)} ADC sensor(s)")
+        if not math.isfinite(value):
+            raise ValueError(f"load must be finite, got {value!r}")
+        self.sensor_load[channel] = value
 
     def tick(self, duty: tuple[int, int] | list[int], direction: int) -> tuple[int, int, int]:
         """Readings (encoder count, adc0, adc1) at this instant, then advance one tick."""
@@ -89,7 +99,7 @@ class PlantIO:
                 value = self._u[self._adc_input[k]]
             else:
                 value, k_out = y[k_out], k_out + 1
-            v = ch.offset_counts + ch.counts_per_unit * value
+            v = ch.offset_counts + ch.counts_per_unit * (value + self.sensor_load[k])
             if self.noise:
                 v += self._rng.normal(0.0, self.noise)
             adc[k] = int(min(max(round(v), 0), ADC_MAX)) if math.isfinite(v) else ADC_MAX
