@@ -114,14 +114,18 @@ def run(args: argparse.Namespace) -> int:
     if binding.adc and len(binding.adc) > args.channel and binding.adc[args.channel].kind != "force":
         console.print(f"note: ADC{args.channel} of {cfg.plant} is {binding.adc[args.channel].signal}, not a force")
 
+    hand = None  # a simulated device's hand puts the weights on its sensor (doctor.SimulatedHand)
+
     def place(mass_g: float, loading: bool) -> None:
         what = "remove every load" if mass_g == 0 else f"{'place' if loading else 'leave'} {mass_g:g} g on the sensor"
         console.print(f"calibrate: {what}")
+        if hand is not None and hand.load(args.channel, mass_g * G0 / 1000.0):
+            return
         if not args.yes:
             input("press Enter when it rests ... ")
 
     try:
-        with open_for_checks(device, args.config, cfg, binding, not args.yes, console.print) as (hw, _):
+        with open_for_checks(device, args.config, cfg, binding, not args.yes, console.print) as (hw, hand):
             hw.configure(locked_configure(firmware_configure_fallback(cfg, binding)))
             tare, points = measure(hw, args.channel, args.weights_g, place, args.settle, args.average)
     except HardwareError as e:

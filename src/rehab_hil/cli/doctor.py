@@ -68,6 +68,10 @@ class Hand:
         if self.interactive:
             self.say("doctor: thank you, let go")
 
+    def load(self, channel: int, value: float) -> bool:
+        """Put a known load on ADC ``channel``'s sensor (its unit); False: a person places it."""
+        return False
+
 
 class SimulatedHand(Hand):
     """Plays the user on a simulated device through its control channel (``input NAME VALUE``)."""
@@ -92,6 +96,11 @@ class SimulatedHand(Hand):
     def release(self, step: str) -> None:
         for name in self._knobs(step):
             self.device.control(f"input {name} {self.inputs[name]}")
+
+    def load(self, channel: int, value: float) -> bool:
+        """The simulated sensor carries ``value`` (control ``load CHANNEL VALUE``)."""
+        self.device.control(f"load {channel} {value:.9g}")
+        return True
 
 
 def locked_configure(msg: Configure) -> Configure:
