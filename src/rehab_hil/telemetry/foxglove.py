@@ -14,6 +14,7 @@ import collections
 import contextlib
 import json
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -200,7 +201,8 @@ class FoxgloveLive:
         except OSError as e:
             with contextlib.suppress(Exception):
                 self.server.stop()
-            raise FoxgloveError(f"cannot serve Foxglove on {host}:{port}: {e.strerror or e}") from None
+            why = os.strerror(e.errno) if e.errno else str(e)
+            raise FoxgloveError(f"cannot serve Foxglove on {host}:{port}: Failed to bind port: {why}") from None
         self.host, self.port = host, self.front.port
         self.feeds: list[RigFeed] = []
         self._lock = threading.Lock()
