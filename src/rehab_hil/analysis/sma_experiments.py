@@ -150,6 +150,8 @@ def main(argv: list[str] | None = None) -> int:
                                              "regression table and the figures as JSON")
     ap.add_argument("config", nargs="?", default="configs/sma_exoskeleton.toml", help="the SMA exoskeleton config")
     ap.add_argument("out", nargs="?", type=Path, default=None, help="also write the JSON to this file")
+    ap.add_argument("--html", type=Path, default=None, metavar="FILE",
+                    help="also draw the figures: the 32 V bend and the PWM staircase, one HTML file")
     args = ap.parse_args(argv)
     try:
         cfg = load_config(args.config)
@@ -168,6 +170,17 @@ def main(argv: list[str] | None = None) -> int:
         except OSError as e:
             print(f"{ap.prog}: error: {args.out}: cannot write: {e.strerror}", file=sys.stderr)
             return 2
+    if args.html is not None:
+        from rehab_hil.report.sma_figures import sma_figures_page
+
+        system = compile_plant(cfg)
+        res, _ = bending(cfg, system)
+        try:
+            sma_figures_page(res, out["pwm_sweep_mcp_deg"], out, PAPER).write(args.html)
+        except OSError as e:
+            print(f"{ap.prog}: error: --html {args.html}: cannot write: {e.strerror}", file=sys.stderr)
+            return 2
+        print(f"wrote {args.html}")
     return 0
 
 
