@@ -38,8 +38,9 @@ browser:
 	sh scripts/install_browser.sh
 
 # Third-party Node clients the tests connect with (tests/clients; npm ci, versions pinned in its lock file).
+# Without npm or its registry the npm client test skips, saying why; the rest of make test goes on.
 clients:
-	sh scripts/install_node_clients.sh
+	sh scripts/install_node_clients.sh || echo "make clients: not installed; tests/telemetry/test_third_party_clients.py skips its npm client test"
 
 # The Arduino Uno firmware (firmware/build/rehab_fw.elf/.hex); prints flash/RAM use.
 firmware: toolchain
