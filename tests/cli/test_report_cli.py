@@ -1,5 +1,5 @@
-"""``rehab-hil run --record`` then ``rehab-hil report`` on its recording: a lockstep in-process session (PID, four cycles a
-minute faster than shipped so one cycle fits in 8 s), then its report."""
+"""``rehab-hil run --record`` then ``rehab-hil report`` on its recording: a lockstep in-process
+session (PID, 15 cycles a minute instead of the shipped 5, so a cycle fits in 8 s), then its report."""
 
 from __future__ import annotations
 

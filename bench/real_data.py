@@ -1,0 +1,148 @@
+"""Real measured data (issue 24): the discrepancy workflow on the EMPS benchmark and the FlexiForce
+figures of Dickmann et al. 2021, printed side by side with the published reference values.
+
+EMPS (``../shared/data/emps``): ``rehab-hil discrepancy --config configs/emps_nominal.toml --data
+DATA_EMPS.mat --validate DATA_EMPS_PULSES.mat`` run from the CLI with an empty engine cache (what a
+fresh clone pays: every diagram compiled), wall and CPU time; then the same from the reference model
+(``configs/emps.toml``). Table: nominal, fitted (search + joint identification), the benchmark's
+reference, error; the control-effort error on the validation run before and after.
+FlexiForce (``../shared/data/flexiforce_dickmann``): the static calibration refitted beside the
+authors' linear fits; creep time constant, creep in 5 s, hysteresis and run-to-run gain spread per
+sensor from the dead-weight staircases.
+Writes bench/results/real_data.json. Usage: python bench/real_data.py [--data-dir ../shared/data]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = {"load.mass_kg": 95.1089, "load.viscous_n_s_per_m": 203.5034, "coulomb_n": 20.3935, "offset_n": -3.1648}
+
+
+def _cli(args: list[str], cache: str) -> tuple[int, str, float, float]:
+    env = {**os.environ, "REHAB_HIL_CACHE_DIR": cache}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    p = subprocess.run([str(ROOT / ".venv" / "bin" / "rehab-hil"), *args], capture_output=True, text=True, env=env,
+                       cwd=ROOT)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return p.returncode, p.stdout + p.stderr[-2000:], wall, cpu
+
+
+def emps(data: Path, out: Path) -> dict:
+    est, val = data / "emps" / "DATA_EMPS.mat", data / "emps" / "DATA_EMPS_PULSES.mat"
+    res: dict = {}
+    with tempfile.TemporaryDirectory() as cache:
+        for name, cfg, cold in (("nominal", "configs/emps_nominal.toml", True),
+                                ("nominal_warm", "configs/emps_nominal.toml", False),
+                                ("reference", "configs/emps.toml", False)):
+            rep_dir = out / f"emps_{name}"
+            rc, text, wall, cpu = _cli(["discrepancy", "--config", cfg, "--data", str(est), "--validate", str(val),
+                                        "--out", str(rep_dir)], cache)
+            if rc != 0:
+                raise SystemExit(f"{name}: exit {rc}\n{text}")
+            rep = json.loads((rep_dir / "report.json").read_text())
+            res[name] = {"wall_s": wall, "cpu_s": cpu, "cold_cache": cold, "conclusion": rep["conclusion"],
+                         "named": [c["effect"] for c in rep["chosen"]],
+                         "chosen": {c["effect"]: c["params"] for c in rep["chosen"]},
+                         "joint": rep["joint_identification"], "validation": rep["validation"],
+                         "metrics": rep["metrics"], "replay": rep["replay"]["loop"]}
+    return res
+
+
+def _fitted(run: dict) -> dict[str, float]:
+    """The fitted values: Coulomb and offset from the chosen effects, M and Fv from the joint fit."""
+    joint = run["joint"] or {"parameters": [], "corrected": {}}
+    vals = {p["name"]: p["value"] for p in joint["parameters"]}
+    out = {k: joint["corrected"].get(k, float("nan")) for k in ("load.mass_kg", "load.viscous_n_s_per_m")}
+    out["coulomb_n"] = vals.get("coulomb_friction.level_nm", run["chosen"].get("coulomb_friction", {}).get("level_nm",
+                                                                                                            0.0))
+    # ConstantLoad pushes -level on the axis: its level is EMPS eq 1's offset (tau = ... + offset)
+    out["offset_n"] = vals.get("constant_load.level_nm", run["chosen"].get("constant_load", {}).get("level_nm", 0.0))
+    return out
+
+
+def flexiforce(data: Path) -> dict:
+    from rehab_hil.analysis.flexiforce import fit_static, read_points, staircase
+
+    d = data / "flexiforce_dickmann"
+    static = {s: fit_static(s, *fc) for s, fc in read_points(d / "static_calibration.csv").items()}
+    raw = scipy.io.loadmat(d / "Sensor_Data_3_Runs_consec.mat")
+    stairs = {name: staircase(name, [raw[f"Sensor_{k}{i}"].ravel().astype(float) for i in (1, 2, 3)])
+              for name, k in (("B (upper)", "o"), ("A (lower)", "u"))}
+    return {"static": {s: {"model": f.model, "coefficients": f.coefficients, "rms_n": f.rms_n,
+                           "max_abs_n": f.max_abs_n, "published_linear_rms_n": f.published_rms_n}
+                       for s, f in static.items()},
+            "staircase": {s: {"creep_time_constant_s": f.creep_time_constant_s,
+                              "creep_pct_in_5s_median": f.creep_pct_median,
+                              "creep_pct_in_5s": f.creep_pct_in_5s, "hysteresis_counts": f.hysteresis_counts,
+                              "hysteresis_n": f.hysteresis_n, "hysteresis_pct_fs": f.hysteresis_pct_fs,
+                              "gain_spread_pct": f.gain_spread_pct} for s, f in stairs.items()}}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data-dir", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "real_data.json")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = emps(args.data_dir, Path(tmp))
+    ff = flexiforce(args.data_dir)
+    fit = _fitted(runs["nominal"])
+    nominal = {"load.mass_kg": 95.1089, "load.viscous_n_s_per_m": 203.5034, "coulomb_n": 0.0, "offset_n": 0.0}
+    print("EMPS, rehab-hil discrepancy --config configs/emps_nominal.toml --data DATA_EMPS.mat --validate "
+          "DATA_EMPS_PULSES.mat")
+    print(f"  conclusion: {runs['nominal']['conclusion']}")
+    print(f"  replay: {runs['nominal']['replay']}")
+    print(f"  {'parameter':26s} {'nominal':>10s} {'fitted':>10s} {'reference':>10s} {'error':>8s}")
+    for k, ref in REFERENCE.items():
+        print(f"  {k:26s} {nominal[k]:10.4g} {fit[k]:10.4g} {ref:10.4g} {100 * (fit[k] - ref) / abs(ref):+7.2f} %")
+    for name in ("nominal", "reference"):
+        v = runs[name]["validation"]
+        m = v["metrics"]
+        print(f"  validation ({name} config): drive_input_v RMSE {m['nominal']['drive_input_v']['rmse']:.4g} -> "
+              f"{m['augmented']['drive_input_v']['rmse']:.4g} V ({v['error_cut_pct']['drive_input_v']:+.1f} %), "
+              f"position_m {m['nominal']['position_m']['rmse']:.3g} -> {m['augmented']['position_m']['rmse']:.3g} m")
+    for name in ("nominal", "nominal_warm", "reference"):
+        r = runs[name]
+        cache = "empty" if r["cold_cache"] else "warm"
+        print(f"  {name:13s} wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s ({cache} engine cache); "
+              f"named: {r['named'] or 'nothing'}")
+    print(f"  reference config: {runs['reference']['conclusion']}")
+    print(f"  load average during the runs: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs (other work shares them)")
+    print("FlexiForce A201 (Dickmann et al. 2021), static calibration [N]:")
+    print(f"  {'sensor':8s} {'chosen':10s} {'RMS linear':>11s} {'RMS quad':>9s} {'published':>10s}")
+    for s, f in ff["static"].items():
+        print(f"  {s:8s} {f['model']:10s} {f['rms_n']['linear']:11.3f} {f['rms_n']['quadratic']:9.3f} "
+              f"{f['published_linear_rms_n']:10.3f}")
+    print("  staircases (3 runs each): creep tau, creep in 5 s (median), hysteresis at 6.916 N, gain spread")
+    for s, f in ff["staircase"].items():
+        print(f"  {s:10s} tau {f['creep_time_constant_s']:.2f} s, creep {f['creep_pct_in_5s_median']:.2f} %, "
+              f"hysteresis {f['hysteresis_counts'][6.916]:.0f} counts = {f['hysteresis_n'][6.916]:.3f} N "
+              f"({f['hysteresis_pct_fs']:.2f} % of 9.82 N), gain spread {f['gain_spread_pct']:.1f} %")
+    result = {"emps": {"runs": runs, "fitted": fit, "reference": REFERENCE, "nominal": nominal},
+              "flexiforce": ff, "python": sys.version.split()[0], "cpus": os.cpu_count(),
+              "load_average": os.getloadavg()}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2, default=lambda o: o if not isinstance(o, np.generic)
+                                   else o.item()) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
