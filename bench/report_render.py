@@ -19,9 +19,12 @@ import tempfile
 import time
 from pathlib import Path
 
+import plotly.graph_objects as go
+
 from rehab_hil.cli import main as cli
 from rehab_hil.report.browser import check_page
 from rehab_hil.report.build import report_page
+from rehab_hil.report.page import Page
 from rehab_hil.report.runs import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,7 +48,14 @@ def main() -> None:
     page = report_page([run])
     out = page.write(run_dir / "report.html")
     t2 = time.perf_counter()
-    checks = [check_page(out) for _ in range(args.repeat)]
+    # the floor: the same kind of page with one three-point plot (unpacking and evaluating plotly.js)
+    base = Page("baseline: plotly.js and one tiny plot")
+    base.figure(go.Figure(go.Scatter(y=[1, 2, 3])))
+    base_path = base.write(Path(tempfile.mkdtemp(prefix="report-bench-")) / "baseline.html")
+    checks, floor = [], []
+    for _ in range(args.repeat):  # interleaved, so both see the same machine load
+        checks.append(check_page(out))
+        floor.append(check_page(base_path))
     drawn = [c.drawn_ms for c in checks if c.state == "drawn" and c.drawn_ms is not None]
     res = {
         "run": str(run_dir), "samples": int(run.t.size), "duration_s": float(run.t[-1]),
@@ -53,7 +63,9 @@ def main() -> None:
         "report_mb": out.stat().st_size / 1e6, "plots": page.n_figures, "read_s": t1 - t0, "build_s": t2 - t1,
         "states": [c.state for c in checks], "console_errors": sum(len(c.errors) for c in checks),
         "drawn_ms": drawn, "drawn_ms_median": statistics.median(drawn) if drawn else None,
-        "stages_ms": [c.stages_ms for c in checks], "loadavg": os.getloadavg(), "cpus": os.cpu_count(),
+        "stages_ms": [c.stages_ms for c in checks], "baseline_drawn_ms": [c.drawn_ms for c in floor],
+        "baseline_drawn_ms_median": statistics.median([c.drawn_ms for c in floor if c.drawn_ms is not None] or [0]),
+        "loadavg": os.getloadavg(), "cpus": os.cpu_count(),
         "machine": platform.platform(),
     }
     print(f"{run_dir}: {res['samples']} samples over {res['duration_s']:.0f} s (run.csv {res['csv_mb']:.1f} MB)")
@@ -61,6 +73,8 @@ def main() -> None:
           f"{res['read_s']:.2f} s, build {res['build_s']:.2f} s")
     print(f"drawn in Chromium: {', '.join(f'{d:.0f}' for d in drawn)} ms (median {res['drawn_ms_median']} ms); "
           f"console errors {res['console_errors']}; load average {res['loadavg'][0]:.2f} on {res['cpus']} cpus")
+    print(f"baseline (plotly.js and one tiny plot, same page kind): {res['baseline_drawn_ms']} ms "
+          f"(median {res['baseline_drawn_ms_median']} ms)")
     (ROOT / "bench/results").mkdir(exist_ok=True)
     (ROOT / "bench/results/report_render.json").write_text(json.dumps(res, indent=2) + "\n")
 
