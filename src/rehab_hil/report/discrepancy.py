@@ -48,6 +48,10 @@ def _overlay(res: Any, residual: bool) -> go.Figure:
     return fig
 
 
+def _g(v: Any, digits: int) -> str:
+    return f"{v:.{digits}g}" if isinstance(v, int | float) else "–"
+
+
 def discrepancy_page(res: Any, rep: dict[str, Any]) -> Page:
     """The page for a ``discrepancy.result.Result`` and its ``report_dict``."""
     page = Page(f"rehab-hil discrepancy: {rep['plant']}")
@@ -58,7 +62,7 @@ def discrepancy_page(res: Any, rep: dict[str, Any]) -> Page:
     chosen = rep.get("chosen") or []
     if chosen:
         page.raw(table(["effect", "kind", "parameters"],
-                       [[c["effect"], c["kind"], ", ".join(f"{k} = {v:.4g} ± {c['stderr'].get(k) or 0:.2g}"
+                       [[c["effect"], c["kind"], ", ".join(f"{k} = {_g(v, 4)} ± {_g((c.get('stderr') or {}).get(k), 2)}"
                                                            for k, v in c["params"].items())] for c in chosen],
                        left=3))
     m = rep["metrics"]
