@@ -19,7 +19,7 @@ Control channel (stdin, one command per line; each answered by one stdout line `
   delay MS           hold every outgoing frame MS milliseconds
   garbage N          write N random bytes now
   truncate           cut the next outgoing frame in half (still delimited)
-  stall MS           send nothing for MS milliseconds (frames meant for then are lost)
+  stall MS           send nothing for MS milliseconds of device time (frames meant for then are lost)
   disconnect         close the pty and exit
   reboot [CAUSE]     reset the device (seq 0, unconfigured, HELLO sent); CAUSE: external|watchdog
   status             one line of counters
@@ -74,15 +74,17 @@ class SimDevice(ControlChannel):
         self.drop = self.corrupt = 0.0
         self.delay_s = 0.0
         self.truncate_next = False
-        self.stall_until = 0.0
+        self.stall_until_tick = -1  # the last base tick of a stall: device time, whatever the clock or the load
         self.tx_frames = self.tx_dropped = self.tx_overrun = 0
         self._delayed: list[tuple[float, int, bytes]] = []
         self._delayed_n = 0
+        self._last_due = 0.0  # when the newest held frame goes out
         self.running = True
         self._boot(ResetCause.POWER_ON)
 
     def _boot(self, cause: int) -> None:
         self.core = DeviceCore(self.counts_per_rev, reset_cause=cause, estop_normally_closed=self.estop_nc)
+        self.stall_until_tick = -1  # a reset ends a stall
         self.decoder = FrameDecoder()
         self._tx_seq = 0
         self._send(self.core.boot())
@@ -95,7 +97,7 @@ class SimDevice(ControlChannel):
             self._tx_seq = (self._tx_seq + 1) & 0xFFFF
             self.tx_frames += 1
             now = time.perf_counter()
-            if now < self.stall_until or (self.drop and self.rng.random() < self.drop):
+            if self.core.ticks <= self.stall_until_tick or (self.drop and self.rng.random() < self.drop):
                 self.tx_dropped += 1
                 continue
             if self.corrupt and self.rng.random() < self.corrupt:
@@ -106,9 +108,10 @@ class SimDevice(ControlChannel):
             if self.truncate_next:
                 self.truncate_next = False
                 frame = frame[: max(1, (len(frame) - 1) // 2)] + b"\x00"
-            if self.delay_s > 0:
-                self._delayed_n += 1
-                heapq.heappush(self._delayed, (now + self.delay_s, self._delayed_n, frame))
+            if self.delay_s > 0 or self._delayed:  # a wire never reorders: after a delay is lifted,
+                self._delayed_n += 1                # frames wait behind the ones still held
+                self._last_due = max(now + self.delay_s, self._last_due if self._delayed else 0.0)
+                heapq.heappush(self._delayed, (self._last_due, self._delayed_n, frame))
             else:
                 self._write(frame)
 
@@ -170,7 +173,8 @@ class SimDevice(ControlChannel):
         elif cmd == "truncate" and not args:
             self.truncate_next = True
         elif cmd == "stall" and len(args) == 1:
-            self.stall_until = time.perf_counter() + _non_negative(args[0]) / 1000.0
+            ticks = round(_non_negative(args[0]) * BASE_RATE_HZ / 1000.0)
+            self.stall_until_tick = self.core.ticks + ticks if ticks else -1
         elif cmd == "disconnect" and not args:
             self.running = False
         elif cmd == "reboot" and len(args) <= 1:
