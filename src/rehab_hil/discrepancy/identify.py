@@ -143,11 +143,13 @@ def identify_jointly(replay: Replay, P0: np.ndarray, chosen_terms: Sequence[Term
         if weak is None:
             break
         members = [labels[i] for i in np.flatnonzero(np.abs(weak) >= MEMBER_WEIGHT * np.abs(weak).max())]
-        groups.append(sorted({*members, *[m for g in groups if set(g) & set(members) for m in g]}))
         # hold the last declared parameter of the group (not a chosen term: the search's own story stays)
         free = [t for t in terms[len(chosen_terms):] if t.name in members]
-        if not free:
-            break  # only chosen effects are collinear: reported, nothing held
+        if not free:  # only chosen terms are collinear (an exponential's scale and shape): said, no intervals
+            groups.append(sorted(members))
+            break
+        merged = {*members, *[m for g in groups if set(g) & set(members) for m in g]}
+        groups = [g for g in groups if not set(g) & set(members)] + [sorted(merged)]
         drop = free[-1]
         held[drop.name] = members
         i = terms.index(drop)
