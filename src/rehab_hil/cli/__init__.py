@@ -32,10 +32,15 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return (UserError, ConfigError, ControllerError, CsvError, DiagramError, ForceLimitError)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with ``command``, only that subcommand's module is imported (the
+    others stay names): ``rehab-hil run`` does not pay for python-control and matplotlib."""
     parser = argparse.ArgumentParser(prog="rehab-hil", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name in SUBCOMMANDS:
+        if command is not None and name != command:
+            sub.add_parser(name.replace("_data", ""), add_help=False)
+            continue
         mod = importlib.import_module(f"rehab_hil.cli.{name}")
         p = mod.add_parser(sub)
         p.set_defaults(_run=mod.run)
@@ -47,7 +52,10 @@ STDIN_CLOSED = ("standard input closed while waiting for an answer: run it on a 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    words = list(sys.argv[1:] if argv is None else argv)
+    named = {name.replace("_data", ""): name for name in SUBCOMMANDS}
+    first = next((w for w in words if not w.startswith("-")), None)
+    parser = build_parser(named.get(first) if first is not None else None)
     try:
         args = parser.parse_args(argv)
     except _user_errors() as e:  # an argument's own check (argparse type=) said what is wrong
