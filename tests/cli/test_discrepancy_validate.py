@@ -1,0 +1,42 @@
+"""``rehab-hil discrepancy --validate``: fit on one real EMPS record, score on another, from the CLI
+(6 s excerpts in tests/data/emps, README there)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from rehab_hil.cli import main
+from rehab_hil.plants import load_config
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "tests" / "data" / "emps"
+
+
+def test_validate_scores_the_augmented_model_on_the_pulse_run_and_the_report_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "report"
+    rc = main(["discrepancy", "--config", str(ROOT / "configs" / "emps_nominal.toml"),
+               "--data", str(DATA / "estimation_6s_500hz.csv"), "--validate", str(DATA / "validation_6s_500hz.csv"),
+               "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "validation on" in printed and "closed loop" in printed
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["validation"]["error_cut_pct"]["drive_input_v"] >= 60.0
+    assert rep["replay"]["loop"].startswith("closed loop")
+    aug = load_config(out / "augmented.toml")  # Coulomb friction of 20 N: within the axis's scaled bounds
+    assert {e.name for e in aug.effects} == {"coulomb_friction", "constant_load"}
+    assert aug.import_ is not None and aug.recorded_controller is not None
+
+
+def test_a_validation_record_that_is_missing_is_one_line_before_any_fit(tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture) -> None:
+    rc = main(["discrepancy", "--config", str(ROOT / "configs" / "emps_nominal.toml"),
+               "--data", str(DATA / "estimation_6s_500hz.csv"), "--validate", str(tmp_path / "nope.mat"),
+               "--out", str(tmp_path / "r")])
+    assert rc == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "nope.mat" in err and not (tmp_path / "r" / "report.json").exists()
