@@ -200,6 +200,7 @@ def _markdown(rep: dict[str, Any]) -> str:
         b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
         L.append(f"| {ch} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | {a['mae']:.4g} | "
                  f"{b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | {rep['gap_reduction_pct'][ch]:.1f} % |")
+    L += _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
     for i, rd in enumerate(rep["rounds"], 1):
         L += ["", f"## Round {i}: candidates (held-out BIC, best first)", "",
               "| effect | parameters | ΔBIC | best channel cut | significant |", "|---|---|---|---|---|"]
@@ -219,6 +220,32 @@ def _markdown(rep: dict[str, Any]) -> str:
         L.append(f"| {ch} | {' | '.join(f)} |")
     L += [""] + [f"![{n}]({n})" for n in rep["figures"]] + [""]
     return "\n".join(L)
+
+
+def _validation_md(val: dict[str, Any] | None) -> list[str]:
+    if not val:
+        return []
+    L = ["", f"## Validation on `{val['data']}`", "", f"Replay: {val['replay']}.", "",
+         "| channel | RMSE nominal | RMSE augmented | error cut |", "|---|---|---|---|"]
+    for ch in val["channels"]:
+        n, a = val["metrics"]["nominal"][ch], val["metrics"]["augmented"][ch]
+        L.append(f"| {ch} | {n['rmse']:.4g} | {a['rmse']:.4g} | {val['error_cut_pct'][ch]:.1f} % |")
+    return L
+
+
+def _joint_md(joint: dict[str, Any] | None) -> list[str]:
+    if not joint or not joint["parameters"]:
+        return []
+    L = ["", "## Joint identification (every parameter fitted together)", "",
+         "| parameter | value | 95 % CI | note |", "|---|---|---|---|"]
+    for p in joint["parameters"]:
+        ci = "—" if p["ci95"] is None else f"{p['ci95'][0]:.4g} .. {p['ci95'][1]:.4g}"
+        note = "held at its config value (inseparable)" if p["held_at_config"] else ""
+        L.append(f"| {p['name']} | {p['value']:.4g} | {ci} | {note} |")
+    L += ["", "Parameters are relative errors of the config's value; effects in SI. Config values after the fit: "
+          + ", ".join(f"`{k}` = {v:.6g}" for k, v in joint["corrected"].items()) + "."]
+    L += [f"- {s}" for s in joint["sentences"]]
+    return L
 
 
 def write_report(res: Result, config_path: Path, data_path: Path, out: Path) -> dict[str, Any]:
