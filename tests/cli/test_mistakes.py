@@ -113,8 +113,8 @@ def test_a_closed_standard_input_at_a_prompt_is_one_line(argv, tmp_path):
     assert proc.returncode == 2, proc.stderr
     err = proc.stderr.strip().splitlines()
     assert "Traceback" not in proc.stderr
-    assert err[-1] == f"rehab-hil {argv[0]}: error: standard input closed while waiting for an answer: run it on a " \
-                      "terminal, or pass --yes where the command has it"
+    assert err[-1] == f"rehab-hil {argv[0]}: error: standard input closed while waiting for an answer: answer on a " \
+                      "terminal, or pass --yes (doctor, calibrate) or --home none (run)"
 
 
 @pytest.mark.slow
@@ -184,3 +184,42 @@ def test_monitor_with_no_hub_is_one_line_with_a_hint(capsys):
     err = _one_line(capsys, "monitor")
     assert f"cannot connect to tcp/127.0.0.1:{port}" in err and "no hub there" in err and "--telemetry RIG" in err
     assert ".rs:" not in err
+
+
+def test_ctrl_d_at_the_homing_prompt_is_one_line(tmp_path):
+    """On a terminal ``run`` asks before it zeroes the encoder; Ctrl-D there ends it in one line."""
+    import pty
+    import select
+
+    pid, fd = pty.fork()
+    if pid == 0:
+        os.chdir(ROOT)
+        os.execv(sys.executable, [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(FE), "--device",
+                                  "inprocess", "--duration", "5", "--no-display", "--record", str(tmp_path)])
+    out = bytearray()
+    try:
+        deadline = time.monotonic() + 120
+        while b"press Enter" not in out and time.monotonic() < deadline:
+            if select.select([fd], [], [], 0.2)[0]:
+                out.extend(os.read(fd, 65536))
+        assert b"press Enter" in out, out.decode(errors="replace")
+        os.write(fd, b"\x04")  # Ctrl-D
+        while True:
+            try:
+                data = os.read(fd, 65536)
+            except OSError:
+                break
+            if not data:
+                break
+            out.extend(data)
+        _, status = os.waitpid(pid, 0)
+    finally:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        os.close(fd)
+    text = out.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 2 and "Traceback" not in text
+    assert "rehab-hil run: error: standard input closed while waiting for an answer" in text
+    assert not list(tmp_path.glob("*/run.csv"))  # nothing recorded: the session never started

@@ -47,8 +47,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-STDIN_CLOSED = ("standard input closed while waiting for an answer: run it on a terminal, or pass --yes "
-                "where the command has it")
+STDIN_CLOSED = ("standard input closed while waiting for an answer: answer on a terminal, or pass --yes "
+                "(doctor, calibrate) or --home none (run)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
