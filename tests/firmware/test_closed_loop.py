@@ -5,8 +5,6 @@ SAMPLEs) through an independent PlantIO gives the same trajectory."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 from rehab_hil.devices.plant_io import PlantIO
@@ -27,23 +25,17 @@ def test_encoder_count_follows_the_plant() -> None:
     from rehab_hil.devices.avr_device import spawn_avr_device
 
     samples: list[Sample] = []
-    with spawn_avr_device(CONFIG) as dev:
+    with spawn_avr_device(CONFIG, clock="lockstep") as dev:  # virtual time: one COMMAND a sample
         hw = Hardware(dev.port)
         try:
             hw.connect(timeout=10.0)
             hw.configure(config(watchdog_ms=300))
             hw.discard_pending()
-            # Counted in samples (device time), not wall time: on a loaded machine the
-            # simulation may run slower than real time.
-            end = time.monotonic() + 60.0
-            last_cmd = -100
-            while len(samples) < 600 and time.monotonic() < end:
-                if len(samples) - last_cmd >= 20:  # 40 % forward, then 40 % reversed (H-bridge)
-                    hw.send_command(Command(4000, 0, 1 if len(samples) >= 300 else 0, 1))
-                    last_cmd = len(samples)
-                s = hw.read_sample(0.05)
-                if s is not None:
-                    samples.append(s)
+            while len(samples) < 600:  # 40 % forward, then 40 % reversed (H-bridge)
+                hw.send_command(Command(4000, 0, 1 if len(samples) >= 300 else 0, 1))
+                s = hw.read_sample(10.0)
+                assert s is not None, dev.control("status")
+                samples.append(s)
             status = dev.control("status")
         finally:
             hw.close()

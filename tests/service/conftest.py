@@ -71,7 +71,7 @@ def home(h: SerialHardware, cfg, binding) -> None:
     ctl = pid_runtime(cfg, HOME_DEG)
     svc = LoopService(h, conf, ctl, assembly.build_estimator(cfg, binding), Supervisor(wide, base.dt_s),
                       assembly.period_s(cfg))
-    res = svc.run(1.0, realtime=False, sample_timeout_s=0.5)
+    res = svc.run(1.0, realtime=False, sample_timeout_s=5.0, lockstep=True)
     assert not res.events, res.events
 
 

@@ -27,7 +27,7 @@ def test_the_model_based_step_on_the_firmware_in_simavr_reaches_the_target_and_e
                               assembly.build_controller(cfg, "model_based", "step"),
                               assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
                               assembly.period_s(cfg))
-            res = svc.run(1.5, pacing="device", realtime=False, sample_timeout_s=10.0)
+            res = svc.run(1.5, pacing="device", realtime=False, sample_timeout_s=10.0, lockstep=True)
         finally:
             hw.close()
     assert res.events == [], res.events

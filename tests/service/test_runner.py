@@ -21,7 +21,9 @@ from rehab_hil.testing import push_runtime
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("service-shared-device")]
 
 TIMEOUT = 2.0  # lockstep: how long a cycle waits for its sample (a 2-core make test beside two busy
-# processes starved the device process for over 1 s: two 0.5 s waits then read as a lost link)
+# processes starved the device process for over 1 s)
+# the shared device is lockstep: link loss is empty waits in a row, not host-clock silence
+LOCKSTEP = {"realtime": False, "sample_timeout_s": TIMEOUT, "lockstep": True}
 
 
 def service(cfg, binding, hw, controller="pid", supervisor=None, recorder=None, configure=None):
@@ -52,7 +54,7 @@ def assert_safe_end(res):
 def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, fresh_hw, tmp_path):
     rec = Recorder(tmp_path, binding)
     try:
-        res = service(cfg, binding, fresh_hw, "pid", recorder=rec).run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
+        res = service(cfg, binding, fresh_hw, "pid", recorder=rec).run(2.0, **LOCKSTEP)
     finally:
         rec.close()
     assert res.events == []
@@ -84,7 +86,7 @@ def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, bindin
     push = push_runtime(cfg, 0.2)
     ctl = "pid" if reason == "range_of_motion" else push
     try:
-        res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, realtime=False, sample_timeout_s=TIMEOUT)
+        res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, **LOCKSTEP)
     finally:
         shared_device.control("input patient_torque_nm 0")
     assert [e.reason for e in res.events][:1] == [reason]
@@ -95,7 +97,7 @@ def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, bindin
 def test_a_firmware_fault_trips_the_host(cfg, binding, fresh_hw):
     conf = assembly.firmware_configure(cfg, binding)
     conf = dataclasses.replace(conf, enc_max=int(45 * binding.encoder_counts_per_rev / 360))  # 45 deg
-    res = service(cfg, binding, fresh_hw, "pid", configure=conf).run(2.0, realtime=False, sample_timeout_s=TIMEOUT)
+    res = service(cfg, binding, fresh_hw, "pid", configure=conf).run(2.0, **LOCKSTEP)
     assert res.events[0].reason == "device_fault" and "RANGE_OF_MOTION" in res.events[0].detail
     assert_safe_end(res)
 
@@ -103,7 +105,7 @@ def test_a_firmware_fault_trips_the_host(cfg, binding, fresh_hw):
 def test_link_loss_is_detected_after_n_periods_and_reported(cfg, binding, fresh_hw, shared_device):
     svc = service(cfg, binding, fresh_hw, "pid")
     threading.Timer(0.3, shared_device.control, args=("stall 600",)).start()
-    res = svc.run(30.0, realtime=False, sample_timeout_s=0.02)
+    res = svc.run(30.0, realtime=False, sample_timeout_s=0.02, lockstep=True)
     assert res.events[0].reason == "link_loss"
     assert res.cycles < 30000
 
@@ -111,7 +113,7 @@ def test_link_loss_is_detected_after_n_periods_and_reported(cfg, binding, fresh_
 def test_device_reboot_is_detected_and_puts_the_rig_in_the_safe_state(cfg, binding, fresh_hw, shared_device):
     svc = service(cfg, binding, fresh_hw, "pid")
     threading.Timer(0.3, shared_device.control, args=("reboot",)).start()
-    res = svc.run(30.0, realtime=False, sample_timeout_s=0.05)
+    res = svc.run(30.0, realtime=False, sample_timeout_s=0.05, lockstep=True)
     assert res.events[0].reason == "device_reboot"
     assert res.reboots >= 1
     assert res.final_sample is not None
@@ -128,7 +130,7 @@ def test_recording_holds_every_sample_sent_with_gaps_and_corrupt_frames_counted(
     threading.Timer(0.1, faults_on).start()
     try:
         res = service(cfg, binding, fresh_hw, "session", recorder=rec).run(2.0, realtime=False,
-                                                                           sample_timeout_s=0.02)
+                                                                           sample_timeout_s=0.02, lockstep=True)
     finally:
         shared_device.control("drop 0")
         shared_device.control("corrupt 0")
@@ -146,7 +148,7 @@ def test_recording_holds_every_sample_sent_with_gaps_and_corrupt_frames_counted(
 
 
 def test_session_tracks_open_close_cycles(cfg, binding, hw):
-    res = service(cfg, binding, hw, "session").run(4.0, realtime=False, sample_timeout_s=TIMEOUT)
+    res = service(cfg, binding, hw, "session").run(4.0, **LOCKSTEP)
     assert res.events == []
     assert res.tracking["mae"] < 3.0 and res.tracking["max_abs_error"] < 10.0
 

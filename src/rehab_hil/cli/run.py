@@ -31,6 +31,10 @@ from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.run_dir import METADATA_FILE, new_run_dir, result_metadata, session_metadata, write_metadata
 from rehab_hil.service.runner import LoopService, Progress, RunResult
 
+# virtual time: a sample that takes this long in wall time is missing (a starved machine pauses a
+# lockstep device without losing anything; link loss there is link_loss_periods such waits in a row)
+LOCKSTEP_SAMPLE_TIMEOUT_S = 5.0
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a session on the rig (sim, avr, inprocess or a serial port) and summarise it")
@@ -55,7 +59,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="what it tracks: the session's open-close cycles, or a step to [rig.session] step_deg")
     p.add_argument("--pacing", choices=("device", "host"), default="device",
                    help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
-    p.add_argument("--lockstep", action="store_true", help="sim device: one sample per command (deterministic)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="sim or avr device: virtual time, one sample period per command (deterministic)")
     p.add_argument("--no-display", action="store_true", help="no live display (logs and CI)")
     p.add_argument("--telemetry", metavar="RIG", default=None,
                    help="publish telemetry over zenoh as rig RIG on loopback (docs/telemetry.md)")
@@ -272,7 +277,8 @@ def run(args: argparse.Namespace) -> int:
         def work() -> None:
             try:
                 result.append(svc.run(args.duration, pacing=args.pacing, realtime=not lockstep,
-                                      sample_timeout_s=0.5 if lockstep else None,
+                                      sample_timeout_s=LOCKSTEP_SAMPLE_TIMEOUT_S if lockstep else None,
+                                      lockstep=lockstep,
                                       on_trip=telemetry.on_trip if telemetry else None))
             except BaseException as e:  # reported on the main thread
                 errors.append(e)

@@ -209,6 +209,7 @@ class LoopService:
         self._wakes = [w for w in (getattr(x, "wake", None) for x in (recorder, self.telemetry)) if callable(w)]
         self.progress = Progress()
         self._stop_reason = ""
+        self._host_clock = True  # link loss judged on the host's clock (run(lockstep=True): empty waits)
         self.session = Session(period_s, 1, 0)
 
     def request_stop(self, reason: str) -> None:
@@ -218,10 +219,12 @@ class LoopService:
     # ------------------------------------------------------------------------------------------
     def run(self, duration_s: float, pacing: str = "device", realtime: bool = True,
             sample_timeout_s: float | None = None,
-            on_trip: Callable[[SafetyEvent], None] | None = None) -> RunResult:
+            on_trip: Callable[[SafetyEvent], None] | None = None, lockstep: bool = False) -> RunResult:
         """Loop for ``duration_s`` of samples. ``sample_timeout_s`` (device pacing) is how long a
         cycle waits for its sample before it counts as missing (default: one period; lockstep
-        devices on a busy machine need more)."""
+        devices on a busy machine need more). ``lockstep``: the device runs in virtual time, so
+        the link is lost after ``link_loss_periods`` empty waits in a row, not after that much
+        silence on the host's clock (a loaded machine pauses a lockstep device; nothing is lost)."""
         if pacing not in PACINGS:
             raise ValueError(f"pacing must be 'device' or 'host', got {pacing!r}")
         n_max = max(1, round(duration_s / self.period_s))
@@ -232,6 +235,7 @@ class LoopService:
         for t in (0.0, self.period_s):  # warm up: numba kernels (sample, integrate) load before the watchdog runs
             self.controller(t, State(t, 0.0, 0.0, {}))
         self.controller.reset()
+        self._host_clock = not lockstep
         rt = realtime_setup() if realtime else None  # before CONFIGURE: a full GC pass outlasts the watchdog
         try:
             self.hw.configure(self.configure_msg)
@@ -253,8 +257,8 @@ class LoopService:
             if self._stop_reason:
                 sup.trip(t_s, "stop_request", self._stop_reason)
             self._check_reboot()  # an unsolicited HELLO without a sample after it
-            if taken == 0:
-                sup.no_sample(t_s, time.perf_counter())
+            if taken == 0:  # real time: silence on the host clock; virtual time: empty waits in a row
+                sup.no_sample(t_s, time.perf_counter() if self._host_clock else None)
             if sup.tripped:
                 return
             if taken == 0:  # nothing new: repeat the last command (a lockstep device needs a COMMAND
