@@ -118,10 +118,12 @@ def test_a_closed_standard_input_at_a_prompt_is_one_line(argv, tmp_path):
 
 
 @pytest.mark.slow
-def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path):
+@pytest.mark.parametrize("device", ["sim", "avr"])
+def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path, device):
     """Ctrl-C typed in a real terminal (a pty whose line discipline sends SIGINT to its whole
-    foreground process group): the host's, and the simulated device's unless the device runs in a
-    session of its own. The live display is on, as in a terminal."""
+    foreground process group): the host's, and the simulated device's (for the firmware: its driver
+    and simavr) unless the device runs in a process group of its own. The live display is on, as in
+    a terminal."""
     import pty
     import select
 
@@ -129,7 +131,7 @@ def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path):
     if pid == 0:  # the child: its own session, the pty its controlling terminal
         os.chdir(ROOT)
         os.execv(sys.executable, [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(FE), "--device",
-                                  "sim", "--lockstep", "--duration", "600", "--record", str(tmp_path),
+                                  device, "--lockstep", "--duration", "600", "--record", str(tmp_path),
                                   "--home", "none"])
     out = bytearray()
 
