@@ -1,0 +1,66 @@
+"""Virtual time (``clock="lockstep"``): the same COMMANDs give the same SAMPLEs, field for field,
+on an idle machine and beside two busy processes, for the Python device and for the firmware in
+simavr. This is what lets the tests of logic pass on a loaded CI machine."""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import pytest
+
+from rehab_hil.devices import spawn_device
+from rehab_hil.hardware import SerialHardware
+from rehab_hil.protocol import Command, Configure
+
+from .conftest import CONFIG, avr_skip_reason
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("sim_devices")]
+
+WIDE = 1 << 30
+
+
+@contextmanager
+def busy_cores(n: int = 2) -> Iterator[None]:
+    """``n`` processes that spin for as long as the block runs (one per core of this machine)."""
+    procs = [subprocess.Popen(["sh", "-c", "while :; do :; done"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def _session(kind: str) -> list[tuple[int, ...]]:
+    """A fresh device, 250 samples at 1 kHz under a duty staircase, the rig's 50 ms watchdog on."""
+    dev = spawn_device(kind, CONFIG, clock="lockstep")
+    hw = SerialHardware(dev.port, write_timeout_s=5.0)
+    try:
+        hw.connect(timeout=20.0)
+        hw.configure(Configure(1000, 50, 10000, 60_000, 1023, -WIDE, WIDE, 0), timeout=20.0)
+        hw.discard_pending()
+        out = []
+        for i in range(250):
+            hw.send_command(Command(500 * ((i // 25) % 8), 0, (i // 125) % 2, 1))
+            s = hw.read_sample(20.0)
+            assert s is not None, dev.control("status")
+            out.append((s.device_time_us, s.sample_index, s.encoder_count, s.adc0, s.adc1, s.duty0, s.direction,
+                        s.status, s.faults, s.cmd_seq_echo))
+        return out
+    finally:
+        hw.close()
+        dev.close()
+
+
+@pytest.mark.parametrize("kind", ["sim", "avr"])
+def test_a_lockstep_session_is_the_same_on_an_idle_and_on_a_fully_loaded_machine(kind: str) -> None:
+    if kind == "avr" and (reason := avr_skip_reason()):
+        pytest.skip(reason)
+    quiet = _session(kind)
+    with busy_cores(2):
+        loaded = _session(kind)
+    assert loaded == quiet
+    assert all(s[8] == 0 for s in quiet)  # no watchdog trip: the host's pauses cost no device time
+    assert max(s[2] for s in quiet) - min(s[2] for s in quiet) > 20  # the plant moved under the duty
