@@ -6,6 +6,7 @@ import os
 import select
 import termios
 import threading
+import time
 import tty
 from collections.abc import Iterator
 
@@ -119,6 +120,20 @@ def test_samples_arrive_in_order_and_gaps_count_as_dropped(peer: PtyPeer) -> Non
     assert got == [10, 11, 14, 15]
     assert hw.stats.dropped_samples == 2 and hw.stats.samples == 4
     assert hw.read_sample(0.05) is None
+    hw.close()
+
+
+def test_a_read_that_does_not_wait_returns_none_on_a_quiet_link_and_the_sample_once_it_is_there(
+        peer: PtyPeer) -> None:
+    hw = _connected(peer)  # host pacing takes what arrived without waiting, every tick
+    assert [hw.read_sample(0.0) for _ in range(3)] == [None, None, None]
+    peer.send(_sample(7))
+    for _ in range(2000):  # the pty delivers the frame shortly after the write
+        s = hw.read_sample(0.0)
+        if s is not None:
+            break
+        time.sleep(0.001)
+    assert s is not None and s.sample_index == 7 and hw.read_sample(0.0) is None
     hw.close()
 
 

@@ -270,17 +270,20 @@ class SerialHardware(HardwareInterface):
             raise HardwareError("not connected")
         try:
             if timeout >= 0.001:
-                if not self._poll.poll(math.ceil(timeout * 1000.0)):  # ms, rounded up
-                    return
-            elif timeout > 0.0 and not select.select((self._fd,), (), (), timeout)[0]:
+                ready = bool(self._poll.poll(math.ceil(timeout * 1000.0)))  # ms, rounded up
+            else:
+                ready = timeout > 0.0 and bool(select.select((self._fd,), (), (), timeout)[0])
+            if timeout > 0.0 and not ready:
                 return
             data = os.read(self._fd, _READ_SIZE)
-        except BlockingIOError:  # nothing there (timeout 0), or woken by a zero-length event
+        except BlockingIOError:  # nothing there
             return
         except OSError as e:
             raise HardwareError(f"link to {self.port} lost: {e}") from e
-        if not data:  # ready but at its end: the other side is gone
-            raise HardwareError(f"link to {self.port} lost: the device end closed")
+        if not data:  # a raw tty (VMIN 0) reads b"" when empty: only after readiness is it the end
+            if ready:
+                raise HardwareError(f"link to {self.port} lost: the device end closed")
+            return
         now = time.perf_counter()
         for frame in self._decoder.feed(data):
             self._handle(frame, now)
