@@ -83,7 +83,6 @@ def bridged(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Any]:
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.xdist_group("sim_devices")
-@pytest.mark.flaky(reruns=2)  # real-time bridge and simavr on a fully loaded machine; a repeat failure is real
 def test_opening_the_port_resets_the_device_silent_for_the_bootloader_then_hello_and_samples_in_bursts(
         bridged: Any) -> None:
     wide = Configure(1000, 1000, DUTY_FULL, 60_000, 1023, -(1 << 30), 1 << 30, 0)

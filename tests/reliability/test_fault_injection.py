@@ -218,9 +218,8 @@ CASES = [pytest.param("python", s, id=f"python-{s.name}") for s in SCENARIOS] + 
     for s in SCENARIOS if s.name in BRIDGED_AVR]
 
 
-# real time through a pty proxy: on a 2-core machine that make test loads fully, gap accounting was
-# off once in three full runs (python-garbage_burst); a failure that repeats on rerun is real
-@pytest.mark.flaky(reruns=2)
+# Real time through a pty proxy, by design (link faults are about timing). Gaps are judged once, in
+# the interface (issue 25): 42 of 42 with the bridge cases passed beside two busy processes, no rerun.
 @pytest.mark.parametrize(("backend", "scenario"), CASES)
 def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sample(
         backend: str, scenario: Scenario, link: tuple[Any, LinkProxy, Any], cfg: Any, binding: Any, tmp_path: Any,
