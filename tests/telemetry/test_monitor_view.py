@@ -51,11 +51,11 @@ def test_the_screen_shows_values_names_and_rate() -> None:
     for i in range(1000):
         clock.t = i * 1e-3
         m.on_sample(sample(i))
-    m.on_stats({"loop": {"missed": 2, "link": {"frames_rx": 999}}, "telemetry": {"dropped": 0}})
+    m.on_stats({"loop": {"sample_gaps": 2, "link": {"frames_rx": 999}}, "telemetry": {"dropped": 0}})
     out = text(m)
     for want in ("rig r1 running", "finger_extensor", "firmware 1.0.2", "angle", "99.90 deg", "reference",
                  "contact_force_n", "1.500", "0.250", "temperature est.", "40.0 C", "safety", "ok",
-                 "loop.missed", "loop.link.frames_rx", "999", "telemetry.dropped"):
+                 "loop.sample_gaps", "loop.link.frames_rx", "999", "telemetry.dropped"):
         assert want in out, want
     assert math.isclose(m.rate_hz(), 1000.0, rel_tol=0.02)
 
