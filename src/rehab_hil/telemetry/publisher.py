@@ -32,7 +32,9 @@ def _carries_sample(x: Any) -> bool:
     if getattr(x, "sample", None) is not None:
         return True
     t = type(x)
-    return t is StateSample and x.has_sample or t is Sample
+    return (t is StateSample and x.has_sample) or t is Sample
+
+
 COMMAND_OPS = ("setpoint", "start", "stop")
 
 
