@@ -43,9 +43,9 @@ def test_a_full_queue_drops_and_counts_without_blocking_and_stats_report_it(
             TelemetryPublisher(rig, "r2", batch=10, queue_size=20, stats_period_s=0.05) as pub:
         real_put = pub._put_batch
 
-        def stalled_put(samples: list) -> None:  # a publisher thread stuck in the network
+        def stalled_put(*batch: object) -> None:  # a publisher thread stuck in the network
             release.wait(10)
-            real_put(samples)
+            real_put(*batch)
 
         pub._put_batch = stalled_put  # type: ignore[method-assign]
         accepted = [pub.offer(raw(i)) for i in range(200)]

@@ -72,6 +72,7 @@ class TelemetryPublisher:
         self.offered = 0
         self.samples_offered = 0  # offered records that carry a device SAMPLE (what a recording counts)
         self.dropped = 0
+        self.samples_dropped = 0  # of the dropped records, those that carry a device SAMPLE
         self.published_samples = 0
         self.published_batches = 0
         self.publish_errors = 0
@@ -100,10 +101,11 @@ class TelemetryPublisher:
     def offer(self, sample: Any) -> bool:
         """Queue one sample for publishing; False (and counted in ``dropped``) when the queue is full."""
         self.offered += 1
-        if _carries_sample(sample):
-            self.samples_offered += 1
+        has_sample = _carries_sample(sample)
+        self.samples_offered += has_sample
         if self._closed or len(self._queue) >= self._cap:
             self.dropped += 1
+            self.samples_dropped += has_sample
             return False
         self._queue.append(sample)
         return True
@@ -159,7 +161,7 @@ class TelemetryPublisher:
     def counters(self) -> dict[str, int]:
         """Publisher counters as they appear under ``telemetry`` in the stats message."""
         return {"offered": self.offered, "samples_offered": self.samples_offered, "dropped": self.dropped,
-                "queued": len(self._queue),
+                "samples_dropped": self.samples_dropped, "queued": len(self._queue),
                 "published_samples": self.published_samples, "published_batches": self.published_batches,
                 "publish_errors": self.publish_errors, "commands_accepted": self.commands_accepted,
                 "commands_rejected": self.commands_rejected}
@@ -169,6 +171,7 @@ class TelemetryPublisher:
         # Records are packed one at a time as they are taken, with a GIL release after each, so the
         # loop thread never waits long for the interpreter while this thread works.
         pending: list[bytes] = []
+        pending_samples = 0  # of the pending records, those with a device SAMPLE
         first_at = 0.0
         next_stats = time.monotonic() + self._stats_period
         while True:
@@ -181,18 +184,20 @@ class TelemetryPublisher:
                 except PayloadError:
                     self.publish_errors += 1
                     self.dropped += 1
+                    self.samples_dropped += _carries_sample(item)
                     continue
                 if not pending:
                     first_at = time.monotonic()
                 pending.append(rec)
+                pending_samples += _carries_sample(item)
                 if len(pending) == self._batch:
-                    self._put_batch(pending)
-                    pending = []
+                    self._put_batch(pending, pending_samples)
+                    pending, pending_samples = [], 0
                 time.sleep(0)
             now = time.monotonic()
             if pending and (stopping or now - first_at >= self._max_delay):
-                self._put_batch(pending)
-                pending = []
+                self._put_batch(pending, pending_samples)
+                pending, pending_samples = [], 0
             while self._events:
                 kind, body = self._events.popleft()
                 self._put_json(self.keys.safety, kind, {"rig": self.keys.rig_id, "time_s": time.time(), **body})
@@ -213,13 +218,14 @@ class TelemetryPublisher:
             self._kick.wait(0.002)
             self._kick.clear()
 
-    def _put_batch(self, records: list[bytes]) -> None:
+    def _put_batch(self, records: list[bytes], n_samples: int = 0) -> None:
         try:
             payload = join_records(records, self.published_batches, self.dropped)
             self._pub.put(payload)
         except (PayloadError, zenoh.ZError):
             self.publish_errors += 1
             self.dropped += len(records)  # lost here: counted with the queue's drops, never silent
+            self.samples_dropped += n_samples
             return
         self.published_batches += 1
         self.published_samples += len(records)

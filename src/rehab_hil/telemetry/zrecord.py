@@ -147,6 +147,8 @@ class ZenohRecorder:
             "samples_received": self.samples_received,
             "rig_samples": int(final["samples_offered"]) if final and "samples_offered" in final else None,
             "samples_not_received": missing,
+            # of those, dropped at the rig's own publisher queue (the rest went missing on the way)
+            "rig_samples_dropped": int(final["samples_dropped"]) if final and "samples_dropped" in final else None,
             "samples_before_first": before,
             "sample_index_gaps": self.sample_index_gaps,
             "rig_final_word": final is not None,
