@@ -110,6 +110,7 @@ def test_a_clean_session_recording_names_nothing_and_reads_from_csv_mcap_or_the_
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # beside two busy processes: 300 s was reached in the replay
 def test_hidden_sma_hysteresis_is_found_in_a_session_recording(tmp_path, capsys):
     device = _with_effect(SMA, tmp_path / "rig_plant.toml", "sma_hysteresis", "width_c = 10.0")
     run = _session(SMA, tmp_path / "runs", capsys, sim_plant=device, duration=60.0)
