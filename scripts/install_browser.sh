@@ -6,26 +6,5 @@ set -eu
 
 PKGS="chromium"
 
-missing=""
-for p in $PKGS; do
-    if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
-        missing="$missing $p"
-    fi
-done
-
-if [ -z "$missing" ]; then
-    exit 0
-fi
-
-if [ "$(id -u)" -ne 0 ]; then
-    echo "install_browser.sh: missing packages:$missing" >&2
-    echo "run as root: apt-get update && apt-get install -y$missing" >&2
-    exit 1
-fi
-
-echo "install_browser.sh: installing$missing"
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
 # shellcheck disable=SC2086
-apt-get install -y -qq --no-install-recommends $missing >/dev/null
-echo "install_browser.sh: done"
+exec sh "$(dirname "$0")/apt_install.sh" install_browser.sh $PKGS

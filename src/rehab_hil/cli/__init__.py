@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
-__all__ = ["SUBCOMMANDS", "UserError", "main"]
+__all__ = ["SUBCOMMANDS", "UserError", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
@@ -20,6 +22,19 @@ SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepanc
 
 class UserError(Exception):
     """An error in what the user asked for; printed as one line."""
+
+
+def writable_folder(path: Path, flag: str, why: str) -> None:
+    """``flag path`` must be a folder this process can write (made now if missing); checked before
+    any work whose result would be lost. ``why`` says why a file will not do."""
+    if path.exists() and not path.is_dir():
+        raise UserError(f"{flag} {path}: a file, not a folder ({why})")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{flag} {path}: cannot create: {e.strerror}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise UserError(f"{flag} {path}: not writable")
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:

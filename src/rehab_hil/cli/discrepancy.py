@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -43,25 +42,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def _check_out(out: Path) -> None:
-    """``--out`` must be a directory this process can write (made now if missing)."""
-    from rehab_hil.cli import UserError
-
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out}: a file, not a directory (the report is several files)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create: {e.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise UserError(f"--out {out}: not writable")
-
-
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    from rehab_hil.cli import UserError
+    from rehab_hil.cli import UserError, writable_folder
     from rehab_hil.cli.data_path import missing_channels, resolve_data
     from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.discrepancy.report import write_report
@@ -93,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
         check_recording(plant, val_loaded.recording, val_loaded.source)
         val_rec = val_loaded.recording
-    _check_out(Path(args.out))  # before the fit: a bad --out must not lose its result
+    writable_folder(Path(args.out), "--out", "the report is several files")  # before the fit: nothing lost
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())

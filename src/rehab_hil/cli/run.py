@@ -10,7 +10,6 @@ and ESTOP before the exit.
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import threading
 import time
@@ -23,7 +22,7 @@ from rich.live import Live
 from rich.table import Table
 
 from rehab_hil.calibration import calibration_summary
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
 from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
@@ -175,18 +174,6 @@ def recorded_line(r: RunResult) -> str | None:
     return f"recorded: {folder}/ ({', '.join(Path(f).name for f in r.files)})"
 
 
-def _check_record_root(root: Path) -> None:
-    """``--record DIR`` must be a folder this process can write, checked before anything connects."""
-    if root.exists() and not root.is_dir():
-        raise UserError(f"--record {root}: a file, not a folder (each run makes a new folder inside it)")
-    try:
-        root.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"--record {root}: cannot create: {e.strerror}") from None
-    if not os.access(root, os.W_OK | os.X_OK):
-        raise UserError(f"--record {root}: not writable")
-
-
 def _device_config(args: argparse.Namespace, cfg: Any, device: str) -> Path:
     """The plant config the simulated device runs: ``--sim-plant`` (same plant, maybe other effects)
     or the host's own."""
@@ -220,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
     device = args.device or cfg.rig.port
     device_config = _device_config(args, cfg, device)
     if args.record:
-        _check_record_root(args.record)
+        writable_folder(args.record, "--record", "each run makes a new folder inside it")
     console = Console()
     lockstep = args.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
     with ExitStack() as stack:
