@@ -1,5 +1,5 @@
 #!/bin/sh
-# Install Debian's Chromium, the headless browser the HTML report test (tests/cli/test_report_browser.py)
+# Install Debian's Chromium, the headless browser the HTML report tests (tests/report/test_browser.py)
 # opens reports in. Idempotent: does nothing (fast) when it is installed.
 # Needs root to install; when not root and it is missing it says what to run and fails.
 set -eu
