@@ -41,6 +41,6 @@ def test_discrepancy_refuses_an_out_that_is_a_file_before_fitting(measured, tmp_
     out.write_text("mine")
     assert main(["discrepancy", "--config", str(FE_CONFIG), "--data", str(measured), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == f"rehab-hil discrepancy: error: --out {out}: a file, not a directory (the report is " \
+    assert err.strip() == f"rehab-hil discrepancy: error: --out {out}: a file, not a folder (the report is " \
                           "several files)"
     assert out.read_text() == "mine"
