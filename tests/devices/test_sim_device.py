@@ -120,7 +120,9 @@ class TestFaultKnobs:
                 break
         else:
             raise AssertionError("the command was never echoed")
-        assert hw.stats.latencies_s[-1] >= 0.030
+        # held 30 ms; the host stamps the COMMAND once its write returned, so a preemption between the
+        # write and the stamp shortens the measured figure (29.2 ms seen on a loaded machine)
+        assert hw.stats.latencies_s[-1] >= 0.025
 
     def test_reboot_resets_the_device_and_the_host_notices(self, rig: tuple[Any, SerialHardware]) -> None:
         device, hw = rig
