@@ -1,4 +1,5 @@
-"""What tests and benchmarks share: a free loopback port and an in-process rig.
+"""What tests and benchmarks share: a free loopback port, an in-process rig, and sim-plant configs
+with changes that start mid-session (``config_with_changes``).
 
 The in-process rig is ``InProcessHardware`` (the firmware's logic and the config's plant in this
 process, one SAMPLE per COMMAND): deterministic and without a pty or a subprocess, so the loop
@@ -7,15 +8,17 @@ service, the recorder and the telemetry publisher can run inside a unit test or 
 
 from __future__ import annotations
 
+import json
 import socket
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from rehab_hil.hardware.inprocess import InProcessHardware
 from rehab_hil.hardware.open import inprocess_hardware
 
-__all__ = ["CONFIGS", "InProcessHardware", "free_port", "inprocess_rig", "pid_runtime", "push_runtime"]
+__all__ = ["CONFIGS", "InProcessHardware", "config_with_changes", "free_port", "inprocess_rig", "pid_runtime",
+           "push_runtime"]
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"  # the repository's plant configs
 
@@ -81,3 +84,37 @@ def push_runtime(cfg, duty: float, on_s: float = 600.0, off_s: float = 0.0) -> A
     scale = ctx.ports.actuators[0].duty_scale
     settings = PulsedSettings(effort=duty * scale, on_s=on_s, off_s=off_s)
     return ControllerRuntime(Pulsed.build(ctx, settings, Reference.session(cfg)))
+
+
+def _toml_value(v: Any) -> str:
+    """A scalar or a flat table as TOML (strings, numbers, booleans, inline tables of those)."""
+    if isinstance(v, Mapping):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string
+    raise TypeError(f"cannot write {type(v).__name__} {v!r} as a TOML value here")
+
+
+def config_with_changes(base_path: str | Path, out_path: str | Path, *,
+                        effects: Sequence[Mapping[str, Any]] = (),
+                        changes: Sequence[Mapping[str, Any]] = ()) -> Path:
+    """Write ``out_path``: the plant config ``base_path`` plus ``[[effects]]`` and ``[[changes]]`` tables
+    (each a mapping of its keys, e.g. ``{"name": "coulomb_friction", "params": {"level_nm": 0.05},
+    "start_s": 1.0}``, ``{"key": "motor.supply_v", "scale": 0.92, "start_s": 30.0, "ramp_s": 5.0}``)
+    for ``rehab-hil run --sim-plant`` (it takes a file). The result is loaded once, so a bad entry
+    raises the ConfigError a user would see. A relative ``force_calibration`` of the base is taken
+    as it stands, relative to ``out_path``'s folder."""
+    from rehab_hil.plants import load_config
+
+    text = Path(base_path).read_text()
+    for table, entries in (("effects", effects), ("changes", changes)):
+        for entry in entries:
+            text += f"\n[[{table}]]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in entry.items())
+    out = Path(out_path)
+    out.write_text(text)
+    load_config(out)
+    return out

@@ -225,7 +225,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         binding = spec.device(cfg)
         plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
         plant.tick([0, 0], 0)  # compile the kernels before the firmware starts
-        plant.stepper.reset()
+        plant.reset()  # the initial state, the session clock at 0
     except (ConfigError, ValueError, KeyError) as e:
         print(f"avr device: error: {e}", file=sys.stderr)
         return 2

@@ -1,7 +1,9 @@
 """A plant model behind the rig's I/O: PWM duty in, encoder and ADC counts out (one 1 kHz tick at a time).
 
 Built from a plant's ``DeviceBinding``; shared by the Python simulated device and the simavr
-harness driver so both close the loop with the same model.
+harness driver so both close the loop with the same model. A binding with a schedule (changes that
+start mid-session, ``models/schedule.py``) has its values moved here, on device time: ticks since
+the session's start (``start_session``: the device's accepted CONFIGURE; until then, power-on).
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ class PlantIO:
     """Steps the plant by one base tick with the applied duties; reads counts at the tick instant.
 
     ``tick(duty, direction)`` returns the readings at the start of the tick (the plant's state
-    then) and advances the plant over the tick with those duties held (zero-order hold)."""
+    then) and advances the plant over the tick with those duties held (zero-order hold), with the
+    scheduled values of the tick's start instant (session time, in ticks of 1 / BASE_RATE_HZ)."""
 
     def __init__(self, binding: DeviceBinding, adc_noise_counts: float = 0.0, seed: int = 0) -> None:
         if adc_noise_counts < 0 or not math.isfinite(adc_noise_counts):
@@ -55,6 +58,11 @@ class PlantIO:
         self._u = np.zeros(len(names))
         for name, value in binding.constant_inputs.items():
             self.set_input(name, value)
+        self._scale = {name: d.scale for name, d in binding.duty_inputs.items()}  # full-duty values
+        self.schedule = binding.schedule
+        self.session_ticks = 0  # device ticks since the session's start
+        self._alpha = [0.0] * len(self.schedule.items) if self.schedule else []
+        self._next_change = self._first_change()
         self.noise = adc_noise_counts
         self._rng = np.random.default_rng(seed)
         self.sensor_load = [0.0, 0.0]  # a known load on each ADC sensor (its unit), on top of the plant's
@@ -69,6 +77,51 @@ class PlantIO:
             raise ValueError(f"input {name} must be finite, got {value!r}")
         self._u[self._index[name]] = value
 
+    def reset(self) -> None:
+        """Back to the power-on state: the plant's initial state and the session clock at 0."""
+        self.stepper.reset()
+        self.start_session()
+
+    def start_session(self) -> None:
+        """The session starts now (a device calls it on an accepted CONFIGURE): scheduled changes
+        count their start_s from here, and every scheduled value goes back to its start value."""
+        self.session_ticks = 0
+        if self.schedule is not None:
+            s = self.schedule
+            for k, item in enumerate(s.items):
+                self._alpha[k] = 0.0
+                self.stepper.params[item.param_index] = s.params[item.param_index]
+                for name in item.input_delta:
+                    self._u[self._index[name]] = s.inputs[name]
+                for name in item.scale_delta:
+                    self._scale[name] = s.scales[name]
+        self._next_change = self._first_change()
+
+    def _first_change(self) -> float:
+        """The first session tick at which a scheduled value may move (inf: none)."""
+        if not self.schedule:
+            return math.inf
+        return min(math.ceil(item.timing.start_s * BASE_RATE_HZ - 1e-9) for item in self.schedule.items)
+
+    def _apply_schedule(self) -> None:
+        """Move every scheduled value to session time ``session_ticks``; note when to look again."""
+        assert self.schedule is not None
+        s, t = self.schedule, self.session_ticks / BASE_RATE_HZ
+        nxt = math.inf
+        for k, item in enumerate(s.items):
+            a = item.timing.alpha(t)
+            if a != self._alpha[k]:
+                self._alpha[k] = a
+                self.stepper.params[item.param_index] = s.params[item.param_index] + a * item.param_delta
+                for name, d in item.input_delta.items():
+                    self._u[self._index[name]] = s.inputs[name] + a * d
+                for name, d in item.scale_delta.items():
+                    self._scale[name] = s.scales[name] + a * d
+            if a < 1.0:  # still to move: at its start, or (ramping) at the next tick
+                start = math.ceil(item.timing.start_s * BASE_RATE_HZ - 1e-9)
+                nxt = min(nxt, max(start, self.session_ticks + 1))
+        self._next_change = nxt
+
     def set_sensor_load(self, channel: int, value: float) -> None:
         """Put a known load on ADC ``channel``'s sensor (in its unit, e.g. N for a calibration weight),
         added to what the plant puts there; 0 takes it off."""
@@ -80,8 +133,11 @@ class PlantIO:
 
     def tick(self, duty: tuple[int, int] | list[int], direction: int) -> tuple[int, int, int]:
         """Readings (encoder count, adc0, adc1) at this instant, then advance one tick."""
+        if self.session_ticks >= self._next_change:
+            self._apply_schedule()
+        self.session_ticks += 1
         for name, d in self.binding.duty_inputs.items():
-            v = d.scale * duty[d.channel] / DUTY_FULL
+            v = self._scale[name] * duty[d.channel] / DUTY_FULL
             if d.signed and direction >> d.channel & 1:
                 v = -v
             self._u[self._index[name]] = v

@@ -43,7 +43,7 @@ from typing import TextIO
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.devices.plant_io import PlantIO
-from rehab_hil.protocol import BASE_RATE_HZ, Command, FrameDecoder, Message, ResetCause, encode_frame
+from rehab_hil.protocol import BASE_RATE_HZ, Command, Configure, FrameDecoder, Message, ResetCause, encode_frame
 
 __all__ = ["SimDevice", "build_parser", "main"]
 
@@ -147,6 +147,8 @@ class SimDevice(ControlChannel):
         self.core.count_bad_frame(self.decoder.bad_total - bad_before)
         for frame in frames:
             self._send(self.core.on_frame(frame))
+            if isinstance(frame.msg, Configure) and self.core.config is frame.msg:  # accepted: a session starts
+                self.plant.start_session()
             if self.clock == "lockstep" and isinstance(frame.msg, Command) and self.core.streaming:
                 for _ in range(self.core.divider):
                     self.tick()
@@ -280,7 +282,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         binding = spec.device(cfg)
         plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
         plant.tick([0, 0], 0)  # compile the kernels before announcing the port
-        plant.stepper.reset()
+        plant.reset()  # the initial state, the session clock at 0
         estop = cfg.rig.estop
         device = SimDevice(plant, 0, clock=args.clock, seed=args.seed,  # 0: adopts CONFIGURE's, as the firmware
                            estop_normally_closed=estop.normally_closed if estop is not None else False)

@@ -37,6 +37,9 @@ class PlantPort(Protocol):
 
     def tick(self, duty: tuple[int, int] | list[int], direction: int) -> tuple[int, int, int]: ...
 
+    def start_session(self) -> None:
+        """The session starts now (an accepted CONFIGURE): scheduled changes count from here."""
+
 
 class InProcessHardware(HardwareInterface):
     """A lockstep device in this process; ``hello`` overrides fields of the device's HELLO (e.g.
@@ -127,6 +130,8 @@ class InProcessHardware(HardwareInterface):
         if isinstance(msg, Command):
             self._sent = (seq, time.perf_counter())
         self._receive(core.on_frame(Frame(seq, msg)))
+        if isinstance(msg, Configure) and core.config is msg:  # accepted: a session starts (scheduled changes)
+            self.plant.start_session()
         if isinstance(msg, Command) and core.streaming:
             periods = self._bursts[self._burst_i % len(self._bursts)]
             self._burst_i += 1

@@ -19,18 +19,21 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
 
 from rehab_hil.config import ConfigError, Field, RigSection, Section, SimulationSection, load_toml, model_validator
 from rehab_hil.config import validate as validate_config
 from rehab_hil.control.cascade import RecordedControllerSection
-from rehab_hil.effects import applicable, attach, check_spec, not_applicable_message
+from rehab_hil.effects import EFFECTS, applicable, attach, check_spec, not_applicable_message
 from rehab_hil.importing import ImportMapping
 from rehab_hil.interfaces import CommandInterface, StateInterface
 from rehab_hil.models.ports import MeasuredPort, Ports
+from rehab_hil.models.schedule import Schedule, ScheduleError, Timing, build_schedule
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 
 __all__ = [
     "AdcChannel",
+    "ChangeSpec",
     "DeviceBinding",
     "DutyInput",
     "EffectSpec",
@@ -49,6 +52,8 @@ __all__ = [
     "plants",
     "random_levels",
     "run_scenario",
+    "scheduled",
+    "with_change",
 ]
 
 
@@ -130,11 +135,42 @@ class EffectSpec(Section):
 
     name: str = Field(min_length=1, description="effect name in the library, e.g. coulomb_friction")
     params: dict[str, float] = Field(default_factory=dict, description="parameter values, SI units in the keys")
+    start_s: float = Field(0.0, ge=0.0, description="on a simulated rig: seconds from the session's start before "
+                           "the effect acts (docs/models.md, changes during a session) [s]")
+    ramp_s: float = Field(0.0, ge=0.0, description="on a simulated rig: seconds from start_s over which its "
+                          "magnitudes grow linearly from off to params (0: at once) [s]")
 
     @model_validator(mode="after")
     def _known(self) -> EffectSpec:
         check_spec(self.name, self.params)
         return self
+
+    @property
+    def timing(self) -> Timing:
+        return Timing(self.start_s, self.ramp_s)
+
+
+class ChangeSpec(Section):
+    """A plant parameter that changes mid-session on a simulated rig (``[[changes]]`` tables): a
+    dotted key of the plant's config, its new value (a factor, or a value in the key's unit), and
+    when. A patient's stiffness doubling at 30 s, the supply sagging 8 % (docs/models.md)."""
+
+    key: str = Field(min_length=1, description="dotted config key of this plant, e.g. contact.stiffness_n_per_m")
+    scale: float | None = Field(None, description="the new value is the config value times this factor")
+    value: float | None = Field(None, description="the new value, in the key's unit")
+    start_s: float = Field(0.0, ge=0.0, description="seconds from the session's start before the change [s]")
+    ramp_s: float = Field(0.0, ge=0.0, description="seconds from start_s over which the value moves linearly "
+                          "from the config value to the new one (0: at once) [s]")
+
+    @model_validator(mode="after")
+    def _one_target(self) -> ChangeSpec:
+        if (self.scale is None) == (self.value is None):
+            raise ValueError("give exactly one of scale (a factor) or value (the new value, in the key's unit)")
+        return self
+
+    @property
+    def timing(self) -> Timing:
+        return Timing(self.start_s, self.ramp_s)
 
 
 class PlantConfig(Section):
@@ -144,6 +180,8 @@ class PlantConfig(Section):
     simulation: SimulationSection
     rig: RigSection
     effects: list[EffectSpec] = Field(default_factory=list, description="added model effects")
+    changes: list[ChangeSpec] = Field(default_factory=list, description="plant parameters that change mid-session "
+                                      "on a simulated rig (docs/models.md)")
     controllers: dict[str, Any] = Field(default_factory=dict, description="controller settings, one "
                                         "[controllers.<name>] table per controller (rehab_hil.controllers)")
     recorded_controller: RecordedControllerSection | None = Field(None, description="the controller that produced "
@@ -229,6 +267,9 @@ class DeviceBinding:
     angle_output: str = ""  # the model's output for the encoder angle in degrees (the recorded column)
     encoder_direction: int = 1  # +1: counts rise with the angle; -1: the encoder counts the other way
     sums: tuple[str, ...] = ()  # the plant's summable signals (``Ports.sums``), for its diagram
+    # what changes mid-session (``[[effects]]`` with start_s/ramp_s, ``[[changes]]``); ``parts`` are then
+    # the plant at the session's start and ``PlantIO`` moves the values (models/schedule.py)
+    schedule: Schedule | None = None
 
     def __post_init__(self) -> None:
         if not self.encoder_source and self.encoder_signal:
@@ -325,7 +366,17 @@ class Plant:
 
     @classmethod
     def device(cls, cfg: Any) -> DeviceBinding:
-        """The rig's view, from the ports: actuators on PWM channels, the encoder port, ADC ports."""
+        """The rig's view, from the ports: actuators on PWM channels, the encoder port, ADC ports.
+
+        A config that schedules changes (``start_s``/``ramp_s`` on an effect, ``[[changes]]``) gets the
+        plant as it is at the session's start plus the schedule that a simulated rig applies."""
+        if not scheduled(cfg):
+            return cls._binding(cfg)
+        return _scheduled_binding(cls, cfg)
+
+    @classmethod
+    def _binding(cls, cfg: Any) -> DeviceBinding:
+        """The rig binding of ``cfg`` as written (every effect acting from the start)."""
         ports = cls.ports(cfg)
         parts = compose(cls, cfg)
         feeds = {(p.name, port): terms for p in parts for port, terms in p.connections.items()}
@@ -356,12 +407,108 @@ class Plant:
 
 def compose(plant: type[Plant], cfg: Any) -> list[Part]:
     """The plant's parts plus the config's ``[[effects]]``: the one place effects are added, for
-    simulation, replay and the simulated rig alike."""
+    simulation, replay and the simulated rig alike. Every effect acts from the start and
+    ``[[changes]]`` are not applied: their schedule is the simulated rig's (``Plant.device``)."""
     parts = plant.build(cfg)
     effects = [(e.name, e.params) for e in getattr(cfg, "effects", ())]
     if not effects:
         return parts
     return attach(plant.name, plant.ports(cfg), plant.step(cfg)[0], parts, effects)
+
+
+# --- changes during a session ---------------------------------------------------------------
+
+# the shared tables: not the plant's model, so no [[changes]] key points into them
+NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controllers", "recorded_controller", "import")
+
+
+def scheduled(cfg: Any) -> bool:
+    """Whether ``cfg`` schedules anything mid-session (an effect with start_s or ramp_s, a change)."""
+    return bool(getattr(cfg, "changes", ())) or any(e.timing.scheduled for e in getattr(cfg, "effects", ()))
+
+
+def changeable_keys(cfg: Any) -> dict[str, Any]:
+    """Every leaf of the plant's own tables by dotted TOML key -> its value (what a change may name)."""
+    out: dict[str, Any] = {}
+
+    def walk(obj: Any, prefix: str) -> None:
+        if isinstance(obj, BaseModel):
+            for name, f in type(obj).model_fields.items():
+                walk(getattr(obj, name), prefix + (f.alias or name) + ".")
+        elif isinstance(obj, dict):
+            for k, v in obj.items():
+                walk(v, f"{prefix}{k}.")
+        else:
+            out[prefix[:-1]] = obj
+
+    for name, f in type(cfg).model_fields.items():
+        if (f.alias or name) not in NOT_CHANGEABLE:
+            walk(getattr(cfg, name), (f.alias or name) + ".")
+    return out
+
+
+def _replaced(obj: Any, parts: Sequence[str], value: float) -> Any:
+    """``obj`` with the dotted key ``parts`` set to ``value``, every table on the way validated again."""
+    head, rest = parts[0], parts[1:]
+    if isinstance(obj, dict):
+        return {**obj, head: value if not rest else _replaced(obj[head], rest, value)}
+    fields = {(f.alias or k): k for k, f in type(obj).model_fields.items()}
+    data = {a: getattr(obj, k) for a, k in fields.items()}
+    data[head] = value if not rest else _replaced(data[head], rest, value)
+    return type(obj).model_validate(data)
+
+
+def with_change(cfg: Any, i: int) -> Any:
+    """``cfg`` with its change ``i`` (``[[changes]]`` entry) at its end value; ScheduleError names the
+    entry's key when the key is unknown, not a real number, or its new value is refused."""
+    ch = cfg.changes[i]
+    known = changeable_keys(cfg)
+    where = f"changes.{i}.key"
+    if ch.key.split(".")[0] in NOT_CHANGEABLE:
+        raise ScheduleError(where, f"{ch.key!r} is in a shared table ({ch.key.split('.')[0]}), not the plant's "
+                            "model; a change names a key of the plant's own tables")
+    if ch.key not in known:
+        near = difflib.get_close_matches(ch.key, [k for k, v in known.items() if type(v) is float], n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        raise ScheduleError(where, f"unknown key {ch.key!r}{hint}")
+    old = known[ch.key]
+    if type(old) is not float:
+        raise ScheduleError(where, f"{ch.key} is {old!r}, not a real number: only real-valued keys can change")
+    new = ch.value if ch.value is not None else old * ch.scale
+    try:
+        return _replaced(cfg, ch.key.split("."), new)
+    except ValidationError as e:
+        err = e.errors()[0]
+        raise ScheduleError(f"changes.{i}.{'value' if ch.value is not None else 'scale'}",
+                            f"{ch.key} = {new:g} is refused: {err['msg'].lower()}") from None
+
+
+def _scheduled_binding(plant: type[Plant], cfg: Any) -> DeviceBinding:
+    """The rig binding at the session's start (scheduled effects off, changed keys at their config
+    values) with the schedule that moves them to their end values."""
+    eff = [i for i, e in enumerate(cfg.effects) if e.timing.scheduled]
+    n_ch = len(cfg.changes)
+    keys = [f"effects.{i}" for i in eff] + [f"changes.{j}.key" for j in range(n_ch)]
+    timings = [cfg.effects[i].timing for i in eff] + [c.timing for c in cfg.changes]
+    ends_cfg = [with_change(cfg, j) for j in range(n_ch)]
+
+    def off(e: EffectSpec) -> EffectSpec:
+        full = check_spec(e.name, e.params)
+        return e.model_copy(update={"params": {p.name: (p.off if p.off is not None else full[p.name])
+                                               for p in EFFECTS[e.name].params}})
+
+    def binding_with(ends: frozenset[int]) -> DeviceBinding:
+        c = cfg
+        for j in range(n_ch):
+            if len(eff) + j in ends:
+                c = ends_cfg[j]  # one item at its end value at a time (build_schedule asks for no more)
+        effects = [off(e) if i in eff and eff.index(i) not in ends else e for i, e in enumerate(cfg.effects)]
+        return plant._binding(c.model_copy(update={"effects": effects, "changes": []}))
+
+    schedule = build_schedule(keys, timings, binding_with)
+    binding = binding_with(frozenset())
+    binding.schedule = schedule
+    return binding
 
 
 def plants() -> dict[str, type[Plant]]:
@@ -413,6 +560,11 @@ def load_config(path: str | Path, expect: str | None = None) -> Any:
     for i, e in enumerate(cfg.effects):
         if e.name not in ok:
             raise ConfigError(path, f"effects.{i}.name", not_applicable_message(e.name, plant, ports))
+    if scheduled(cfg):  # checked now (keys, values, structure), not when a simulated rig starts
+        try:
+            cls.device(cfg)
+        except ScheduleError as e:
+            raise ConfigError(path, e.key, e.message) from None
     from rehab_hil.controllers.build import validate_controllers  # controllers build on plants
 
     return validate_controllers(cfg, path)
