@@ -1,0 +1,273 @@
+"""The twin beside the loop: records in after the command is out, predictions, residuals and
+events out, on a thread of its own.
+
+``Twin`` is the whole computation and has no thread: ``feed`` takes the loop's records (the same
+``Record`` objects the recorder gets), turns each sample into the model's inputs (what the device
+says it applied) and measured channels, and every ``segment_s`` of samples runs the model
+(``TwinModel``), the residual test (``ResidualMonitor``), the online interaction estimate and,
+after a mismatch, the quick diagnosis. ``LiveTwin`` runs it off the hot path: the loop's ``offer``
+appends to a deque and ``wake`` sets an event, nothing more; the work happens while the loop waits
+for its next sample, and gives the interpreter back every few records. A twin that falls behind
+drops records from its queue (counted, reported) and never slows the loop.
+
+Outputs go to listeners (``TwinListener``): the recorder (``twin.csv`` beside ``run.csv``, MCAP
+``/twin/prediction`` and events on ``/rig/event``), zenoh (``rehab/<rig>/twin``) and Foxglove.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from rehab_hil.interchange import Recording
+from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.twin.model import TwinModel, check_rate
+from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
+from rehab_hil.twin.settings import TwinSection
+
+__all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener"]
+
+PREDICTION_EVERY = 10  # one prediction message per this many samples (100 Hz at 1 kHz): plots, not data
+HISTORY_S = 30.0  # how much of the session the twin keeps for a diagnosis
+YIELD_EVERY = 32  # records taken between two releases of the interpreter
+
+
+class TwinListener(Protocol):
+    def prediction(self, msg: dict[str, float]) -> None: ...
+
+    def mismatch(self, event: MismatchEvent, final: bool) -> None: ...
+
+
+class Twin:
+    """The model, its residual test and the interaction estimate, fed with the loop's records."""
+
+    def __init__(self, cfg: Any, binding: DeviceBinding, period_s: float, settings: TwinSection | None = None,
+                 out_dir: str | Path | None = None, listeners: Sequence[TwinListener] = (),
+                 check_speed: bool = True) -> None:
+        self.settings = settings or TwinSection()
+        self.cfg, self.binding, self.period_s = cfg, binding, period_s
+        self.model = TwinModel(cfg, binding, period_s, self.settings.segment_s, self.settings.channels or None)
+        self.rtf = check_rate(self.model) if check_speed else math.nan
+        self.monitor = ResidualMonitor(self.model.channels, self.model.resolution, self.settings.monitor())
+        self.listeners = list(listeners)
+        self.channels = self.model.channels
+        n_in = len(self.model.system.input_names)
+        cap = self.model.segment_samples
+        self._index = np.zeros(cap, dtype=np.int64)
+        self._U = np.zeros((cap, n_in))
+        self._Y = np.zeros((cap, len(self.channels)))
+        self._n = 0
+        self._last_t = -math.inf
+        self._angle = self.channels.index(binding.angle_output) if binding.angle_output in self.channels else -1
+        self._analog = [(k, c) for k, c in enumerate(self.channels) if k != self._angle]
+        self._sq = np.zeros(len(self.channels))  # squared residuals since the last anchor
+        self._sq_n = 0
+        self._seg_start = 0.0
+        keep = round(HISTORY_S / period_s)
+        self.history: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=max(2, keep // cap + 2))
+        self.anchors: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=max(2, keep // cap + 2))
+        self.samples = 0
+        self.segments = 0
+        self.busy_s = 0.0  # CPU time spent in the model, the test and the estimate
+        self.diagnoses: list[MismatchEvent] = []
+        self._to_diagnose: list[MismatchEvent] = []
+        self.diagnose_fn: Callable[[MismatchEvent, Recording, np.ndarray, np.ndarray], None] | None = None
+        self._csv_fd = -1
+        self.csv_path: Path | None = None
+        if out_dir is not None:
+            self.csv_path = Path(out_dir) / "twin.csv"
+            self._csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            cols = ["time_s", *(f"{c}_predicted" for c in self.channels), *(f"{c}_residual" for c in self.channels),
+                    *(f"{c}_cusum_counts" for c in self.channels)]
+            os.write(self._csv_fd, (",".join(cols) + "\n").encode())
+
+    # -- in ------------------------------------------------------------------------------------
+    def feed(self, record: Any) -> None:
+        """One loop record: a sample's is buffered; a full segment is processed."""
+        smp, st = record.sample, record.state
+        if smp is None or st is None or record.time_s <= self._last_t:
+            return
+        self._last_t = record.time_s
+        n = self._n
+        self._index[n] = round(record.time_s / self.period_s)
+        self._U[n] = self.model.inputs_of(smp.duty0, smp.duty1, smp.direction, st.analog)
+        y = self._Y[n]
+        if self._angle >= 0:
+            y[self._angle] = st.angle_deg
+        for k, c in self._analog:
+            y[k] = st.analog.get(c, math.nan)
+        self._n = n + 1
+        self.samples += 1
+        if self._n == self._index.size:
+            self.process()
+
+    def process(self) -> None:
+        """Run the model over the buffered samples, test the residuals, write and publish."""
+        n = self._n
+        if n == 0:
+            return
+        t0 = time.thread_time()
+        self._n = 0
+        index, U, Y = self._index[:n].copy(), self._U[:n].copy(), self._Y[:n].copy()
+        block = self.model.advance(index, U, Y)
+        self.history.append((index, U, Y))
+        r = block.residual
+        events: list[MismatchEvent] = []
+        ends = np.flatnonzero(block.anchored)
+        lo = 0
+        for e in [*ends, n - 1]:
+            seg = r[lo:e + 1]
+            if seg.size:
+                self._sq += np.nansum(seg**2, axis=0)
+                self._sq_n += seg.shape[0]
+            if e in ends:
+                rms = np.sqrt(self._sq / max(self._sq_n, 1))
+                t_end = float(block.t_s[e])
+                events += self.monitor.update(self._seg_start, t_end, rms)
+                self.anchors.append((int(index[e]) + 1, self.model.x.copy(), self.model.xd.copy()))
+                self._sq[:] = 0.0
+                self._sq_n = 0
+                self._seg_start = t_end
+                self.segments += 1
+            lo = e + 1
+        self.busy_s += time.thread_time() - t0
+        self._write(block)
+        for ev in events:
+            for lst in self.listeners:
+                lst.mismatch(ev, final=not self.settings.diagnose)
+            if self.settings.diagnose:
+                self._to_diagnose.append(ev)
+        self._diagnose_due(float(block.t_s[-1]))
+
+    # -- out -----------------------------------------------------------------------------------
+    def _write(self, block: Any) -> None:
+        g = self.monitor.statistic
+        if self._csv_fd >= 0:
+            cols = np.column_stack([block.t_s, block.predicted, block.residual,
+                                    np.broadcast_to(g, (block.t_s.size, g.size))])
+            lines = []
+            for k, row in enumerate(cols):
+                lines.append(",".join(f"{v:.8g}" for v in row))
+                if k % YIELD_EVERY == YIELD_EVERY - 1:
+                    time.sleep(0)
+            os.write(self._csv_fd, ("\n".join(lines) + "\n").encode())
+        if self.listeners:
+            for k in range(0, block.t_s.size, PREDICTION_EVERY):
+                msg = {"time_s": float(block.t_s[k])}
+                for j, c in enumerate(self.channels):
+                    msg[f"{c}_measured"] = float(block.measured[k, j])
+                    msg[f"{c}_predicted"] = float(block.predicted[k, j])
+                    msg[f"{c}_residual"] = float(block.residual[k, j])
+                    msg[f"{c}_cusum_counts"] = float(g[j])
+                for lst in self.listeners:
+                    lst.prediction(msg)
+            time.sleep(0)
+
+    # -- diagnosis -----------------------------------------------------------------------------
+    def _diagnose_due(self, now_s: float) -> None:
+        """Hand a mismatch to the diagnosis once ``diagnose_window_s`` of data after its start is in."""
+        if not self._to_diagnose or self.diagnose_fn is None:
+            return
+        for ev in list(self._to_diagnose):
+            if now_s < ev.t_s + self.settings.diagnose_window_s:
+                continue
+            self._to_diagnose.remove(ev)
+            window = self.window(ev.t_s, ev.t_s + self.settings.diagnose_window_s)
+            if window is not None:
+                self.diagnose_fn(ev, *window)
+
+    def window(self, start_s: float, end_s: float) -> tuple[Recording, np.ndarray, np.ndarray] | None:
+        """The session from the last anchor at or before ``start_s`` to ``end_s`` on the model's
+        signals, and the model's state at its start (None when the history no longer has it)."""
+        k0 = round(start_s / self.period_s)
+        start = [a for a in self.anchors if a[0] <= k0]
+        if not start:
+            return None
+        i0, x0, xd0 = start[-1]
+        i1 = round(end_s / self.period_s)
+        idx = np.concatenate([h[0] for h in self.history])
+        keep = (idx >= i0) & (idx <= i1)
+        if keep.sum() < 10:
+            return None
+        U = np.concatenate([h[1] for h in self.history])[keep]
+        Y = np.concatenate([h[2] for h in self.history])[keep]
+        t = (idx[keep] - i0) * self.period_s
+        signals = {n: U[:, j] for j, n in enumerate(self.model.system.input_names)}
+        signals.update({c: Y[:, j] for j, c in enumerate(self.channels)})
+        return Recording(t, signals, rig=True), x0, xd0
+
+    def finish(self) -> None:
+        """Process what is buffered and close the CSV."""
+        self.process()
+        if self._csv_fd >= 0:
+            os.close(self._csv_fd)
+            self._csv_fd = -1
+
+    def summary(self) -> dict[str, Any]:
+        """What metadata.json and the run summary say about the twin."""
+        return {"channels": self.channels, "segment_s": self.settings.segment_s, "samples": self.samples,
+                "segments": self.segments, "model_realtime_factor": self.rtf,
+                "cpu_per_sample_us": 1e6 * self.busy_s / max(self.samples, 1),
+                "normal_residual": {ch.name: ch.mu * ch.resolution for ch in self.monitor.channels}}
+
+
+class LiveTwin:
+    """``Twin`` on its own thread, fed as a loop sink (``offer``/``wake``) after the write."""
+
+    def __init__(self, twin: Twin, queue_size: int = 20_000) -> None:
+        self.twin = twin
+        self._q: deque[Any] = deque()
+        self._cap = queue_size
+        self.dropped = 0
+        self._kick = threading.Event()
+        self._closing = False
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="twin", daemon=True)
+        self._thread.start()
+
+    def offer(self, record: Any) -> bool:
+        if len(self._q) >= self._cap:
+            self.dropped += 1
+            return False
+        self._q.append(record)
+        return True
+
+    def wake(self) -> None:
+        self._kick.set()
+
+    def _run(self) -> None:
+        q, twin = self._q, self.twin
+        while True:
+            self._kick.wait(0.05)
+            self._kick.clear()
+            closing = self._closing
+            k = 0
+            try:
+                while q:
+                    twin.feed(q.popleft())
+                    k += 1
+                    if k % YIELD_EVERY == 0:
+                        time.sleep(0)
+            except Exception as e:  # a twin bug must never stop the loop: it is reported at the end
+                self.error = e
+                return
+            if closing:
+                return
+
+    def close(self) -> None:
+        """Take what is queued, finish the twin; idempotent."""
+        if self._closing:
+            return
+        self._closing = True
+        self._kick.set()
+        self._thread.join()
+        if self.error is None:
+            self.twin.finish()

@@ -1,0 +1,248 @@
+"""The plant model bound to the rig's samples: driven by the applied inputs, re-anchored to the
+measured states.
+
+The twin runs the same (augmented) diagram the discrepancy workflow replays (``Replay``: the
+plant, the config's ``[[effects]]`` and every applicable library effect attached disabled), so the
+quick diagnosis can switch a candidate on by editing the parameter vector. Its inputs are what
+the device reports it applied (each SAMPLE carries the duties and direction bits in force at that
+tick) and the constants of the config; an ADC that measures a plant input (the Finger Extensor's
+patient torque) feeds that input. The model predicts every measured output; every
+``segment_s`` the states a measured channel "is" (an encoder angle is the joint angle) are set
+to the measurement, the others carried on: the workflow's multiple shooting, run forward in time
+(``discrepancy/shooting.py``). The residual of a segment is what the model got wrong in
+``segment_s`` from a correct start, so it does not drift on an integrating plant.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rehab_hil.discrepancy.initial_state import MATCH_SHARE
+from rehab_hil.discrepancy.replay import Replay
+from rehab_hil.interchange import Recording
+from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
+from rehab_hil.protocol import DUTY_FULL
+
+__all__ = ["Block", "TwinModel", "TwinSetupError"]
+
+FD_STEP = 0.02  # finite-difference step on a state for the anchor gain (relative, and its floor): wider
+# than an encoder count, whose quantised output has no slope over a smaller step
+RATE_MARGIN = 2.0  # the model must run this many times faster than real time on one core
+
+
+class TwinSetupError(ValueError):
+    """The twin cannot run beside this rig (one line, said at start)."""
+
+
+@dataclass
+class Block:
+    """One block of samples the twin has processed: time, measured and predicted channels."""
+
+    t_s: np.ndarray  # device time of each sample [s]
+    measured: np.ndarray  # samples x channels (channel units: deg, N, A ...)
+    predicted: np.ndarray  # samples x channels
+    anchored: np.ndarray  # bool per sample: the model was re-anchored after this sample
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.measured - self.predicted
+
+
+class TwinModel:
+    """The (augmented) plant model stepped on blocks of rig samples, re-anchored every ``segment_s``."""
+
+    def __init__(self, cfg: Any, binding: DeviceBinding, period_s: float, segment_s: float = 0.5,
+                 channels: Sequence[str] | None = None) -> None:
+        self.cfg, self.binding, self.period_s = cfg, binding, period_s
+        self.spec: type[Plant] = get_plant(cfg.plant)
+        measured = [binding.angle_output] if binding.encoder_signal else []
+        measured += [a.signal for a in binding.adc]
+        outputs = set(self.spec.outputs)
+        ext = set(self.spec.external_inputs(cfg))
+        self.adc_inputs = [a.signal for a in binding.adc if a.signal in ext and a.signal not in outputs]
+        available = [c for c in measured if c in outputs]
+        if channels is None:
+            channels = available
+        bad = [c for c in channels if c not in available]
+        if bad:
+            raise TwinSetupError(f"residual on {bad[0]!r}: the rig does not measure it (it measures "
+                                 f"{available or 'no model output'})")
+        if not channels:
+            raise TwinSetupError(f"plant {cfg.plant!r}: the rig measures none of the model's outputs")
+        self.replay = _bind(self.spec, cfg, list(channels))
+        self.channels: list[str] = list(self.replay.channels)
+        sys_ = self.replay.system
+        self.system = sys_
+        self.steps_per_sample = max(1, round(period_s / sys_.dt))
+        if abs(self.steps_per_sample * sys_.dt - period_s) > 1e-9:
+            raise TwinSetupError(f"model step {sys_.dt} s does not divide the sample period {period_s} s")
+        self.segment_samples = max(1, round(segment_s / period_s))
+        self.P = self.replay.nominal_params()[: self.replay.n_diagram_params].copy()
+        self._slots = sys_.out_slots(self.channels)
+        self._ws = sys_.workspace()
+        names = sys_.input_names
+        self._duty = [(names.index(n), d.channel, d.scale, d.signed) for n, d in binding.duty_inputs.items()
+                      if n in names]
+        self._adc_in = [(names.index(n), n) for n in self.adc_inputs if n in names]
+        self._u_const = np.zeros(len(names))
+        for n, v in binding.constant_inputs.items():
+            if n in names:
+                self._u_const[names.index(n)] = v
+        self.resolution = np.array([self._resolution(c) for c in self.channels])
+        self.reset()
+        self.anchor_gain = self._anchor_gain()
+
+    # -- set-up ------------------------------------------------------------------------------
+    def _resolution(self, channel: str) -> float:
+        """The smallest change a channel shows: an encoder count in degrees, an ADC count in its unit."""
+        b = self.binding
+        if channel == b.angle_output:
+            return 360.0 / b.encoder_counts_per_rev
+        ch = next(a for a in b.adc if a.signal == channel)
+        return 1.0 / abs(ch.counts_per_unit)
+
+    def reset(self) -> None:
+        """Back to the config's rest state, not yet anchored."""
+        s = self.system
+        self.x, self.xd = s.x0.copy(), s.xd0.copy()
+        self.anchored = False
+        self._since_anchor = 0
+        self._last_index = -1
+        self._u_last = self._u_const.copy()
+
+    def _anchor_gain(self) -> np.ndarray:
+        """States x channels: a measured error -> the state correction (the states each channel
+        is, found as ``initial_state`` finds them: the output Jacobian's dominant entry)."""
+        C = self.output_jacobian(self.x, self.xd, self._u_const)
+        K = np.zeros((self.x.size, len(self.channels)))
+        matched: dict[int, int] = {}
+        for c in range(C.shape[0]):
+            row = np.abs(C[c])
+            norm = float(np.linalg.norm(row))
+            if norm > 1e-12 and row.max() >= MATCH_SHARE * norm:
+                matched[c] = int(np.argmax(row))
+        if matched:
+            chans = sorted(matched)
+            states = sorted(set(matched.values()))
+            K[np.ix_(states, chans)] = np.linalg.pinv(C[np.ix_(chans, states)])
+        return K
+
+    def output_jacobian(self, x: np.ndarray, xd: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """d outputs / d states at (x, xd) with inputs u (central differences of one model sample)."""
+        C = np.zeros((len(self.channels), x.size))
+        for i in range(x.size):
+            h = max(FD_STEP * abs(x[i]), FD_STEP)
+            xp, xm = x.copy(), x.copy()
+            xp[i] += h
+            xm[i] -= h
+            C[:, i] = (self._outputs_at(xp, xd, u) - self._outputs_at(xm, xd, u)) / (2 * h)
+        return C
+
+    def _outputs_at(self, x: np.ndarray, xd: np.ndarray, u: np.ndarray) -> np.ndarray:
+        s = self.system
+        _, Y = s.engine.simulate(x.copy(), xd.copy(), u[None, :].copy(), self.P, s.dt, s.substeps, self._slots,
+                                 *self._ws)
+        return Y[0]
+
+    def realtime_factor(self, seconds: float = 1.0) -> float:
+        """Model seconds per wall second on this machine (a rest run of ``seconds``), for the check
+        that the twin can keep up with the loop."""
+        import time
+
+        s = self.system
+        n = max(1, round(seconds / s.dt))
+        U = np.repeat(self._u_const[None, :], n, axis=0)
+        self._run(U, s.x0.copy(), s.xd0.copy())  # the first call loads the kernel
+        t0 = time.perf_counter()
+        self._run(U, s.x0.copy(), s.xd0.copy())
+        return n * s.dt / max(time.perf_counter() - t0, 1e-9)
+
+    # -- the inputs of a sample ----------------------------------------------------------------
+    def inputs_of(self, duty0: int, duty1: int, direction: int, analog: dict[str, float]) -> np.ndarray:
+        """The model's external inputs while a sample's duties were applied."""
+        u = self._u_const.copy()
+        duty = (duty0 / DUTY_FULL, duty1 / DUTY_FULL)
+        for i, ch, scale, signed in self._duty:
+            v = scale * duty[ch]
+            u[i] = -v if signed and direction >> ch & 1 else v
+        for i, name in self._adc_in:
+            u[i] = analog.get(name, 0.0)
+        return u
+
+    # -- stepping ------------------------------------------------------------------------------
+    def _run(self, U: np.ndarray, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
+        s = self.system
+        _, Y = s.engine.simulate(x, xd, U, self.P, s.dt, s.substeps, self._slots, *self._ws)
+        return Y
+
+    def anchor(self, measured: np.ndarray, u: np.ndarray) -> None:
+        """Set the matched states so the model's outputs equal ``measured`` (a few Newton steps)."""
+        K = self.anchor_gain
+        if not np.any(K):
+            return
+        for _ in range(2):
+            err = np.nan_to_num(measured - self._outputs_at(self.x, self.xd, u))
+            self.x += K @ err
+
+    def advance(self, index: np.ndarray, U: np.ndarray, measured: np.ndarray) -> Block:
+        """Predict ``len(index)`` samples (continued sample indices, gaps allowed; inputs per sample,
+        measured channels per sample), re-anchoring at every ``segment_samples`` boundary. The
+        model's state is at the instant of the next expected sample; a gap holds the last input."""
+        n = index.size
+        pred = np.empty((n, len(self.channels)))
+        anchored = np.zeros(n, dtype=bool)
+        if n == 0:
+            return Block(np.zeros(0), measured.copy(), pred, anchored)
+        if not self.anchored:
+            self.anchor(measured[0], U[0])
+            self.anchored = True
+            self._last_index = int(index[0]) - 1
+        S = self.steps_per_sample
+        k = 0
+        while k < n:
+            j = min(n, k + self.segment_samples - self._since_anchor)  # up to the next anchor point
+            idx = index[k:j]
+            gaps = np.maximum(np.diff(np.concatenate([[self._last_index], idx])) - 1, 0) * S
+            prev = np.concatenate([self._u_last[None, :], U[k:j - 1]])
+            rows = np.empty((2 * (j - k), U.shape[1]))
+            rows[0::2], rows[1::2] = prev, U[k:j]
+            counts = np.empty(2 * (j - k), dtype=np.int64)
+            counts[0::2], counts[1::2] = gaps, S
+            Y = self._run(np.ascontiguousarray(np.repeat(rows, counts, axis=0)), self.x, self.xd)
+            at = np.cumsum(counts)[0::2]  # the first step of each sample's own input: its instant
+            pred[k:j] = Y[at]
+            self._u_last = U[j - 1].copy()
+            self._last_index = int(idx[-1])
+            self._since_anchor += j - k
+            if self._since_anchor >= self.segment_samples:
+                self.x += self.anchor_gain @ np.nan_to_num(measured[j - 1] - pred[j - 1])
+                anchored[j - 1] = True
+                self._since_anchor = 0
+            k = j
+        return Block(index * self.period_s, measured.copy(), pred, anchored)
+
+
+def _bind(spec: type[Plant], cfg: Any, channels: list[str]) -> Replay:
+    """The workflow's augmented diagram for this plant and these channels (a placeholder record
+    gives ``Replay.build`` its channel list; the twin feeds its own inputs)."""
+    t = np.arange(0.0, 2.5, 0.01)
+    signals = {n: np.linspace(0.0, 1.0, t.size) for n in spec.external_inputs(cfg)}
+    signals.update({c: np.zeros(t.size) for c in channels})
+    try:
+        return Replay.build(spec, cfg, Recording(t, signals), "<twin>", closed_loop=False)
+    except ValueError as e:
+        raise TwinSetupError(f"plant {cfg.plant!r}: {e}") from None
+
+
+def check_rate(model: TwinModel) -> float:
+    """The model's real-time factor; refused in one line when it cannot keep up with the loop."""
+    rtf = model.realtime_factor()
+    if not math.isfinite(rtf) or rtf < RATE_MARGIN:
+        raise TwinSetupError(f"the {model.cfg.plant} model runs {rtf:.1f}x real time here; a twin beside the "
+                             f"loop needs at least {RATE_MARGIN:g}x (turn [twin] off or simplify the model)")
+    return rtf
