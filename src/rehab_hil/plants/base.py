@@ -30,6 +30,7 @@ from rehab_hil.interfaces import CommandInterface, StateInterface
 from rehab_hil.models.ports import MeasuredPort, Ports
 from rehab_hil.models.schedule import Schedule, ScheduleError, Timing, build_schedule
 from rehab_hil.models.system import Diagram, Part, SimulationResult
+from rehab_hil.twin.settings import TwinSection
 
 __all__ = [
     "AdcChannel",
@@ -189,6 +190,8 @@ class PlantConfig(Section):
                                                                   "workflow replays the loop from the reference")
     import_: ImportMapping | None = Field(None, alias="import", description="how a lab's logger files map onto "
                                           "the model's signals (rehab_hil.importing; rehab-hil import)")
+    twin: TwinSection | None = Field(None, description="the live twin: the model beside the rig, its residual "
+                                     "test and the online interaction estimate (docs/twin.md)")
 
 
 class EncoderSection(Section):
@@ -419,7 +422,7 @@ def compose(plant: type[Plant], cfg: Any) -> list[Part]:
 # --- changes during a session ---------------------------------------------------------------
 
 # the shared tables: not the plant's model, so no [[changes]] key points into them
-NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controllers", "recorded_controller", "import")
+NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controllers", "recorded_controller", "import", "twin")
 
 
 def scheduled(cfg: Any) -> bool:
