@@ -94,3 +94,60 @@ def test_estop_debounce_and_link_keys_are_validated(tmp_path, old, new, key):
     with pytest.raises(ConfigError) as e:
         load_config(write(tmp_path, edit(old, new)))
     assert e.value.key == key
+
+
+# --- changes during a session (issue 23 item 5): [[effects]] start_s / ramp_s, [[changes]] ---------------------
+
+
+@pytest.mark.parametrize(
+    ("tables", "key", "fragment"),
+    [
+        ('[[changes]]\nkey = "motor.supply_vv"\nscale = 0.9', "changes.0.key",
+         "unknown key 'motor.supply_vv' (did you mean 'motor.supply_v'?)"),
+        ('[[changes]]\nkey = "motor.supply_v"\nscale = 0.9\nvalue = 20.0', "changes.0",
+         "exactly one of scale (a factor) or value"),
+        ('[[changes]]\nkey = "motor.supply_v"', "changes.0", "exactly one of scale (a factor) or value"),
+        ('[[changes]]\nkey = "motor.supply_v"\nscale = -1.0', "changes.0.scale",
+         "motor.supply_v = -24 is refused: input should be greater than 0"),
+        ('[[changes]]\nkey = "motor.supply_v"\nvalue = 90.0', "changes.0.value", "motor.supply_v = 90 is refused"),
+        ('[[changes]]\nkey = "motor.supply_v"\nscale = 0.9\nstart_s = -1.0', "changes.0.start_s",
+         "greater than or equal to 0"),
+        ('[[changes]]\nkey = "motor.supply_v"\nscale = 0.9\nramp_s = -0.5', "changes.0.ramp_s",
+         "greater than or equal to 0"),
+        ('[[changes]]\nkey = "motor.supply_v"\nscale = "x"', "changes.0.scale", "wrong type"),
+        ('[[changes]]\nkey = "encoder.counts_per_rev"\nscale = 2.0', "changes.0.key", "not a real number"),
+        ('[[changes]]\nkey = "rig.limits.max_duty"\nscale = 0.5', "changes.0.key", "shared table (rig)"),
+        ('[[changes]]\nkey = "scenarios.step.target_deg"\nscale = 2.0', "changes.0.key", "changes nothing"),
+        ('[[changes]]\nkey = "torque_sensor.counts_per_nm"\nscale = 2.0', "changes.0.key",
+         "changes the plant's structure"),
+        ('[[changes]]\nkey = "motor.supply_v"\nscale = 0.9\n[[changes]]\nkey = "motor.supply_v"\nvalue = 20.0',
+         "changes.1.key", "moves scale motor_voltage_v, which changes.0 moves too"),
+        ('[[effects]]\nname = "coulomb_friction"\nstart_s = -2.0', "effects.0.start_s", "greater than or equal"),
+        ('[[effects]]\nname = "coulomb_friction"\nparams = { level_nm = 0.0 }\nstart_s = 1.0', "effects.0",
+         "changes nothing"),
+    ],
+)
+def test_each_bad_scheduled_change_is_one_line_naming_file_and_key(tmp_path, tables, key, fragment):
+    path = write(tmp_path, BASE + "\n" + tables + "\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    msg = str(err.value)
+    assert err.value.key == key, msg
+    assert msg.startswith(f"{path}: {key}: ") and fragment in msg and "\n" not in msg
+
+
+def test_scheduled_changes_load_and_the_host_model_keeps_the_config_as_written(tmp_path):
+    from rehab_hil.plants import compose, get_plant
+
+    path = write(tmp_path, BASE + '\n[[effects]]\nname = "coulomb_friction"\nparams = { level_nm = 0.05 }\n'
+                 'start_s = 30\nramp_s = 2.5\n\n[[changes]]\nkey = "motor.supply_v"\nscale = 0.92\nstart_s = 30.0\n')
+    cfg = load_config(path)
+    assert (cfg.effects[0].start_s, cfg.effects[0].ramp_s) == (30.0, 2.5)
+    assert (cfg.changes[0].key, cfg.changes[0].scale, cfg.changes[0].value) == ("motor.supply_v", 0.92, None)
+    plant = get_plant(cfg.plant)
+    friction = next(p for p in compose(plant, cfg) if p.name == "effect_coulomb_friction")
+    assert friction.param_values[0] == 0.05  # outside a simulated rig: the effect from the start, at its value
+    binding = plant.device(cfg)  # the simulated rig: the plant at the session's start, and the schedule
+    assert binding.duty_inputs["motor_voltage_v"].scale == 24.0
+    start = next(p for p in binding.parts if p.name == "effect_coulomb_friction")
+    assert start.param_values[0] == 0.0 and [i.key for i in binding.schedule.items] == ["effects.0", "changes.0.key"]

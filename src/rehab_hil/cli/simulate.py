@@ -11,7 +11,7 @@ from typing import Any
 from rehab_hil.cli import UserError
 from rehab_hil.interchange import write_csv
 from rehab_hil.plants import get_plant, load_config
-from rehab_hil.plants.base import run_scenario
+from rehab_hil.plants.base import run_scenario, scheduled
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -36,6 +36,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     spec = get_plant(cfg.plant)
+    if scheduled(cfg):  # docs/models.md, changes during a session
+        print(f"warning: {args.config} schedules changes mid-session (start_s / ramp_s, [[changes]]): simulate runs "
+              "every effect from the start at its value and applies no [[changes]]; the schedule acts on a "
+              "simulated rig (rehab-hil run --sim-plant)")
     if args.out is not None and args.out.is_dir():
         raise UserError(f"--out {args.out} is a directory; give the CSV file to write")
     if (args.scenario is None) == (args.controller is None):

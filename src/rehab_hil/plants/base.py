@@ -422,7 +422,8 @@ def compose(plant: type[Plant], cfg: Any) -> list[Part]:
 # --- changes during a session ---------------------------------------------------------------
 
 # the shared tables: not the plant's model, so no [[changes]] key points into them
-NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controllers", "recorded_controller", "import", "twin")
+NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controllers", "recorded_controller", "import",
+                  "twin")
 
 
 def scheduled(cfg: Any) -> bool:
