@@ -60,6 +60,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
     p.add_argument("--lockstep", action="store_true",
                    help="sim or avr device: virtual time, one sample period per command (deterministic)")
+    p.add_argument("--twin", action="store_true",
+                   help="run the plant model beside the rig: predictions, residuals, model-mismatch events and the "
+                        "patient's interaction estimate (docs/twin.md; [twin] in the config)")
     p.add_argument("--no-display", action="store_true", help="no live display (logs and CI)")
     p.add_argument("--telemetry", metavar="RIG", default=None,
                    help="publish telemetry over zenoh as rig RIG on loopback (docs/telemetry.md)")
@@ -117,6 +120,20 @@ def _foxglove(args: argparse.Namespace, binding: Any, telemetry: Any) -> Any:
     return LiveView(live, live.add_rig(binding), telemetry)
 
 
+def _twin(args: argparse.Namespace, cfg: Any, binding: Any, run_dir: Path | None, recorder: Any,
+          telemetry: Any) -> Any:
+    """The live twin for ``--twin`` or ``[twin] enabled`` (rehab_hil.twin), refused in one line."""
+    if not (args.twin or (cfg.twin is not None and cfg.twin.enabled)):
+        return None
+    from rehab_hil.twin.model import TwinSetupError
+    from rehab_hil.twin.session import start_twin
+
+    try:
+        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, recorder, telemetry)
+    except TwinSetupError as e:
+        raise UserError(f"{args.config}: [twin] {e}") from None
+
+
 def _progress_table(p: Progress) -> Table:
     t = Table(show_header=False, box=None)
     t.add_row("time", f"{p.t_s:7.2f} / {p.duration_s:.1f} s")
@@ -157,13 +174,33 @@ def summary_table(r: RunResult) -> Table:
     t.add_row("link dropped samples", str(ln["dropped_samples"]))
     t.add_row("command->echo latency p50/p99",
               f"{1e6 * ln['latency_p50_s']:.0f} / {1e6 * ln['latency_p99_s']:.0f} us")
-    t.add_row("recorder / telemetry drops", f"{r.recorder_dropped} / {r.telemetry_dropped}")
+    t.add_row("recorder / telemetry / twin drops", f"{r.recorder_dropped} / {r.telemetry_dropped} / {r.twin_dropped}")
     for ev in r.events:
         t.add_row(f"[red]safety {ev.reason}", f"t={ev.t_s:.3f} s {ev.detail}")
     if not r.events:
         t.add_row("safety events", "none")
     t.add_row("device PWM off at end", "yes" if r.pwm_off_at_end else "[red]NO")
+    _twin_rows(t, r.twin)
     return t
+
+
+def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
+    """The live twin's lines: its normal residual, the model events and the patient's estimate."""
+    if not meta:
+        return
+    tw = meta["twin"]
+    normal = ", ".join(f"{c} {v:.3g}" for c, v in tw.get("normal_residual", {}).items())
+    t.add_row("twin: normal residual / CPU per sample", f"{normal} / {tw.get('cpu_per_sample_us', 0):.1f} us")
+    if tw.get("error"):
+        t.add_row("[red]twin stopped", tw["error"])
+    for ev in meta.get("model_events", []):
+        t.add_row(f"[yellow]model_mismatch {ev['channel']}",
+                  f"t={ev['t_s']:.2f} s (seen {ev['detected_s']:.2f} s), {ev['size_counts']:.1f} counts; "
+                  f"{ev['cause'] or 'no cause named'}")
+    if not meta.get("model_events"):
+        t.add_row("model events", "none")
+    for name, est in meta.get("patient", {}).get("session", {}).items():
+        t.add_row(f"patient {name}", f"{est['value']:.4g} +/- {est['ci95']:.2g}")
 
 
 def recorded_line(r: RunResult) -> str | None:
@@ -249,10 +286,14 @@ def run(args: argparse.Namespace) -> int:
         if args.foxglove is not None:  # the Foxglove live view, tee'd with zenoh telemetry when that is on
             telemetry = _foxglove(args, binding, telemetry)
             stack.callback(telemetry.close)
+        twin = _twin(args, cfg, binding, run_dir if recorder is not None else None, recorder, telemetry)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
                           assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
                           assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink,
-                          meter=assembly.build_meter(cfg, controller, args.duration))
+                          meter=assembly.build_meter(cfg, controller, args.duration),
+                          twin=twin.live if twin is not None else None)
+        if twin is not None:
+            twin.on_stop = lambda text: svc.request_stop(text, "model_mismatch")
         if telemetry is not None:
             telemetry.watch(svc, hw)
         previous = {s: signal.signal(s, lambda n, f: svc.request_stop(signal.Signals(n).name))
@@ -285,8 +326,11 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(errors[0], HardwareError):
                 raise UserError(f"device: {errors[0]}")
             raise errors[0]
+        twin_meta = twin.close() if twin is not None else {}
+        if twin_meta:
+            result[0].twin = twin_meta
         if recorder is not None:
-            end = result_metadata(result[0], recorder.rows)
+            end = {**result_metadata(result[0], recorder.rows), **twin_meta}
             recorder.close(summary=end)
             write_metadata(run_dir, {**meta, **end})
             result[0].files.append(str(run_dir / METADATA_FILE))

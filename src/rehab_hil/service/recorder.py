@@ -133,6 +133,7 @@ class Recorder:
                                        "detail": {"type": "string"}}}).encode())
         self._ch_event = self._mcap.register_channel("/rig/event", "json", ev_schema)
         self._ch_cycle = self._channel("/rig/cycle", "rehab_hil.Cycle", list(CYCLE_FIELDS))
+        self._extra: dict[str, int] = {}  # topic -> channel of ``message``
         if metadata:
             self._mcap.add_metadata("rehab_hil.session", _metadata_strings(metadata))
         self._mcap.flush()
@@ -181,6 +182,14 @@ class Recorder:
             return
         self._q.append(("cycle", metrics))
 
+    def message(self, topic: str, schema: str, body: dict[str, Any]) -> None:
+        """One message on an extra JSON channel (the live twin's ``/twin/prediction``), registered at
+        its first message with the fields of that message; from any thread, never blocks."""
+        if len(self._q) >= self._cap:
+            self.dropped += 1
+            return
+        self._q.append(("message", (topic, schema, body)))
+
     def close(self, summary: dict[str, Any] | None = None) -> None:
         """Drain the queue, add ``summary`` as an MCAP metadata record (``rehab_hil.summary``: the
         run's figures and safety events), write the MCAP summary and close both files; idempotent."""
@@ -225,6 +234,16 @@ class Recorder:
     def _write(self, item: Record | tuple[str, Any]) -> None:
         if type(item) is Record:
             self._write_record(item)
+        elif item[0] == "message":
+            topic, schema, body = item[1]
+            ch = self._extra.get(topic)
+            if ch is None:
+                ch = self._extra[topic] = self._channel(topic, schema, list(body))
+            now = self._log_time(time.perf_counter())
+            self._mcap.add_message(ch, log_time=now, publish_time=now, sequence=0,
+                                   data=json.dumps({k: _clean(v) if isinstance(v, float) else v
+                                                    for k, v in body.items()}).encode())
+            self.messages += 1
         elif item[0] == "cycle":
             now = self._log_time(time.perf_counter())
             self._mcap.add_message(self._ch_cycle, log_time=now, publish_time=now, sequence=int(item[1]["index"]),

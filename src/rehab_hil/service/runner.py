@@ -74,11 +74,13 @@ class RunResult:
     events: list[SafetyEvent]
     recorder_dropped: int
     telemetry_dropped: int
+    twin_dropped: int
     final_sample: Sample | None
     stop_reason: str
     files: list[str] = field(default_factory=list)
     session: dict[str, float] = field(default_factory=dict)  # per-cycle figures summed up (session_metrics)
     session_cycles: list[dict[str, float]] = field(default_factory=list)
+    twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
 
     @property
     def pwm_off_at_end(self) -> bool:
@@ -197,23 +199,28 @@ class LoopService:
 
     def __init__(self, hw: HardwareInterface, configure: Configure, controller: Controller, estimator: Estimator,
                  supervisor: Supervisor, period_s: float, recorder: Recorder | None = None,
-                 telemetry: TelemetrySink | None = None, meter: SessionMeter | None = None) -> None:
+                 telemetry: TelemetrySink | None = None, meter: SessionMeter | None = None,
+                 twin: Any = None) -> None:
         self.hw, self.configure_msg, self.controller = hw, configure, controller
         self.estimator, self.supervisor, self.period_s = estimator, supervisor, period_s
         self.recorder, self.telemetry = recorder, telemetry or NullSink()
-        self.meter = meter
+        self.meter, self.twin = meter, twin  # the live twin: one more sink after the write (rehab_hil.twin)
         actuator = getattr(controller, "actuator", None)
         self._effort_of = actuator.effort if actuator is not None else (lambda cmd: math.nan)
         # who takes the records after the write, and who is woken once they are all there
-        self._sinks = [x.offer for x in (recorder, self.telemetry) if x is not None and not isinstance(x, NullSink)]
-        self._wakes = [w for w in (getattr(x, "wake", None) for x in (recorder, self.telemetry)) if callable(w)]
+        after = (recorder, self.telemetry, twin)
+        self._sinks = [x.offer for x in after if x is not None and not isinstance(x, NullSink)]
+        self._wakes = [w for w in (getattr(x, "wake", None) for x in after) if callable(w)]
         self.progress = Progress()
         self._stop_reason = ""
+        self._stop_kind = "stop_request"
         self._host_clock = True  # link loss judged on the host's clock (run(lockstep=True): empty waits)
         self.session = Session(period_s, 1, 0)
 
-    def request_stop(self, reason: str) -> None:
-        """From a signal handler: the loop trips into the safe state at its next cycle and exits."""
+    def request_stop(self, reason: str, kind: str = "stop_request") -> None:
+        """From a signal handler (or the twin, ``kind`` "model_mismatch"): the loop trips into the
+        safe state at its next cycle and exits."""
+        self._stop_kind = kind
         self._stop_reason = reason
 
     # ------------------------------------------------------------------------------------------
@@ -255,7 +262,7 @@ class LoopService:
         while (taken := pace.wait()) is not None:
             t_s = pace.t_s()
             if self._stop_reason:
-                sup.trip(t_s, "stop_request", self._stop_reason)
+                sup.trip(t_s, self._stop_kind, self._stop_reason)
             self._check_reboot()  # an unsolicited HELLO without a sample after it
             if taken == 0:  # real time: silence on the host clock; virtual time: empty waits in a row
                 sup.no_sample(t_s, time.perf_counter() if self._host_clock else None)
@@ -433,7 +440,8 @@ class LoopService:
             tracking=metrics.tracking_metrics(refs[ok], angles[ok]) if ok.any() else {},
             link=self.hw.stats.as_dict(), events=list(sup.events),
             recorder_dropped=self.recorder.dropped if self.recorder else 0,
-            telemetry_dropped=int(getattr(self.telemetry, "dropped", 0)), final_sample=s.final,
+            telemetry_dropped=int(getattr(self.telemetry, "dropped", 0)),
+            twin_dropped=int(getattr(self.twin, "dropped", 0)), final_sample=s.final,
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",
             files=[str(self.recorder.csv_path), str(self.recorder.mcap_path)] if self.recorder else [],
             session=self.meter.summary() if self.meter else {},

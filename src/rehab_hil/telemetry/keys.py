@@ -79,6 +79,11 @@ class RigKeys:
     def info(self) -> str:
         return f"{self.base}/info"
 
+    @property
+    def twin(self) -> str:
+        """The live twin's predictions, residuals and model-mismatch events (JSON)."""
+        return f"{self.base}/twin"
+
     @staticmethod
     def any_alive() -> str:
         """Liveliness key expression matching every rig (used to list running rigs)."""

@@ -65,7 +65,8 @@ class TelemetryPublisher:
         self._stats_period = stats_period_s
         self._info = dict(info or {})
         self._queue: collections.deque[Any] = collections.deque()
-        self._events: collections.deque[tuple[str, dict[str, Any]]] = collections.deque(maxlen=1024)
+        # (key, kind, JSON body) for the worker to put: safety events, the twin's predictions and events
+        self._events: collections.deque[tuple[str, str, dict[str, Any]]] = collections.deque(maxlen=4096)
         self._loop_stats: dict[str, Any] = {}
         self._on_command = on_command
         self._stats_source = stats_source
@@ -116,7 +117,11 @@ class TelemetryPublisher:
 
     def offer_safety(self, event: Mapping[str, Any]) -> None:
         """Queue a safety event (e.g. ``{"state": "tripped", "reason": "force"}``) for ``.../safety``."""
-        self._events.append(("safety", dict(event)))
+        self._events.append((self.keys.safety, "safety", {"rig": self.keys.rig_id, "time_s": time.time(), **event}))
+
+    def offer_twin(self, kind: str, body: Mapping[str, Any]) -> None:
+        """Queue a live twin message (``prediction`` or ``model_mismatch``) for ``.../twin``."""
+        self._events.append((self.keys.twin, kind, {"rig": self.keys.rig_id, **body}))
 
     def update_stats(self, stats: Mapping[str, Any]) -> None:
         """Replace the loop and link figures merged into the next 1 Hz ``.../stats`` message."""
@@ -199,8 +204,8 @@ class TelemetryPublisher:
                 self._put_batch(pending, pending_samples)
                 pending, pending_samples = [], 0
             while self._events:
-                kind, body = self._events.popleft()
-                self._put_json(self.keys.safety, kind, {"rig": self.keys.rig_id, "time_s": time.time(), **body})
+                key, kind, body = self._events.popleft()
+                self._put_json(key, kind, body)
             if now >= next_stats or stopping:
                 next_stats = now + self._stats_period
                 if self._stats_source is not None:

@@ -216,7 +216,7 @@ class Twin:
         return {"channels": self.channels, "segment_s": self.settings.segment_s, "samples": self.samples,
                 "segments": self.segments, "model_realtime_factor": self.rtf,
                 "cpu_per_sample_us": 1e6 * self.busy_s / max(self.samples, 1),
-                "normal_residual": {ch.name: ch.mu * ch.resolution for ch in self.monitor.channels}}
+                "normal_residual": {ch.name: ch.first_mu * ch.resolution for ch in self.monitor.channels}}
 
 
 class LiveTwin:

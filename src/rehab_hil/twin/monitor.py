@@ -67,6 +67,7 @@ class _Channel:
         self.learn_from = 0.0
         self.mu = math.nan
         self.sigma = math.nan
+        self.first_mu = math.nan  # the session's normal level (the first one learned)
         self.g = 0.0
         self.last_zero_s = 0.0
 
@@ -102,6 +103,8 @@ class ResidualMonitor:
                 if t_end_s >= ch.learn_from + s.learn_s and len(ch.learning) >= 3:
                     ch.mu = float(np.mean(ch.learning))
                     ch.sigma = float(np.std(ch.learning))
+                    if not math.isfinite(ch.first_mu):
+                        ch.first_mu = ch.mu
                     ch.learning = []
                     ch.g, ch.last_zero_s = 0.0, t_end_s
                 continue

@@ -1,0 +1,110 @@
+"""The live twin in a ``rehab-hil run``: built from the config, wired to the recording, zenoh and
+Foxglove, diagnosing on a worker thread, and summed up for ``metadata.json`` and the summary."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rehab_hil.plants.base import DeviceBinding, get_plant
+from rehab_hil.twin.live import LiveTwin, Twin
+from rehab_hil.twin.model import TwinSetupError
+from rehab_hil.twin.monitor import MismatchEvent
+from rehab_hil.twin.outputs import FoxgloveOutput, RecordingOutput, ZenohOutput
+from rehab_hil.twin.settings import TwinSection
+
+__all__ = ["TwinRun", "start_twin"]
+
+DIAGNOSIS_WAIT_S = 20.0  # at the session's end, how long a running diagnosis is waited for
+
+
+class TwinRun:
+    """A running twin and its diagnoses; ``close`` finishes both and gives the metadata."""
+
+    def __init__(self, live: LiveTwin, cfg: Any) -> None:
+        self.live, self.cfg = live, cfg
+        self.twin = live.twin
+        self._threads: list[threading.Thread] = []
+        self.on_stop: Callable[[str], None] | None = None
+        self.twin.diagnose_fn = self._diagnose if self.twin.settings.diagnose else None
+        self.twin.listeners.append(self)
+
+    # a listener of its own twin: a mismatch may stop the rig (``[twin] stop_on_mismatch``)
+    def prediction(self, msg: dict[str, float]) -> None:
+        pass
+
+    def mismatch(self, event: MismatchEvent, final: bool) -> None:
+        """Called once, when the monitor fires (its diagnosis is announced to the others only)."""
+        if self.twin.settings.stop_on_mismatch and self.on_stop is not None:
+            self.on_stop(event.text())
+
+    def _diagnose(self, event: MismatchEvent, rec: Any, x0: Any, xd0: Any) -> None:
+        th = threading.Thread(target=self._run_diagnosis, args=(event, rec, x0, xd0), name="twin-diagnosis",
+                              daemon=True)
+        self._threads.append(th)
+        th.start()
+
+    def _run_diagnosis(self, event: MismatchEvent, rec: Any, x0: Any, xd0: Any) -> None:
+        from rehab_hil.twin.diagnosis import diagnose
+
+        try:
+            d = diagnose(get_plant(self.cfg.plant), self.cfg, rec, x0, xd0)
+            event.cause = d.text
+            event.candidates = [{"name": c.name, "family": c.family, "relative_change": c.relative_change,
+                                 "reduction": c.reduction, "text": c.text} for c in d.causes[:3]]
+        except Exception as e:  # a failed diagnosis leaves the event standing, said so
+            event.cause = f"not diagnosed ({type(e).__name__}: {e})"
+        self._announce(event)
+
+    def _announce(self, event: MismatchEvent) -> None:
+        for lst in self.twin.listeners:
+            if lst is not self:
+                lst.mismatch(event, final=True)
+
+    def close(self) -> dict[str, Any]:
+        """Finish the twin (and wait for running diagnoses); the ``twin`` and ``model_events`` metadata."""
+        self.live.close()
+        end = time.monotonic() + DIAGNOSIS_WAIT_S
+        for th in self._threads:
+            th.join(max(0.0, end - time.monotonic()))
+        pending = [ev for ev in self.twin.monitor.events if not ev.cause]
+        for ev in pending:  # found too close to the end for a window, or diagnosis off
+            ev.cause = "" if not self.twin.settings.diagnose else "not diagnosed: the session ended first"
+            if self.twin.settings.diagnose:
+                self._announce(ev)
+        summary = self.twin.summary()
+        summary["dropped_records"] = self.live.dropped
+        if self.live.error is not None:
+            summary["error"] = f"{type(self.live.error).__name__}: {self.live.error}"
+        return {"twin": summary, "model_events": [model_event(ev) for ev in self.twin.monitor.events]}
+
+
+def model_event(ev: MismatchEvent) -> dict[str, Any]:
+    """One ``metadata.json`` ``model_events`` entry."""
+    return {"kind": ev.kind, "t_s": round(ev.t_s, 4), "detected_s": round(ev.detected_s, 4), "channel": ev.channel,
+            "size": ev.size, "size_counts": ev.size_counts, "cause": ev.cause, "candidates": ev.candidates}
+
+
+def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str | Path | None = None,
+               recorder: Any = None, telemetry: Any = None) -> TwinRun:
+    """The twin for ``cfg`` (its ``[twin]`` table, or the defaults), writing ``twin.csv`` into ``run_dir``
+    and feeding the recorder, zenoh and Foxglove that are on. Raises ``TwinSetupError`` (one line)."""
+    settings = cfg.twin or TwinSection()
+    listeners: list[Any] = []
+    if recorder is not None:
+        listeners.append(RecordingOutput(recorder))
+    zenoh = getattr(telemetry, "zenoh", None) if hasattr(telemetry, "feed") else telemetry
+    if zenoh is not None:
+        listeners.append(ZenohOutput(zenoh.sink))
+    if hasattr(telemetry, "feed"):
+        listeners.append(FoxgloveOutput(telemetry.live, telemetry.feed))
+    try:
+        twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners)
+    except TwinSetupError:
+        raise
+    except ValueError as e:
+        raise TwinSetupError(str(e)) from None
+    return TwinRun(LiveTwin(twin), cfg)
