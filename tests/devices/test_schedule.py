@@ -123,3 +123,29 @@ def test_the_in_process_rig_starts_the_session_clock_at_configure(tmp_path: Path
     assert plant.session_ticks == 0 and plant._alpha == [0.0]
     k = binding.schedule.items[0].param_index[0]
     assert plant.stepper.params[k] == 0.0  # back off until 0.05 s into the session
+
+
+def test_the_python_device_starts_the_session_clock_at_an_accepted_configure(tmp_path: Path) -> None:
+    """The simulated device on its pty: a CONFIGURE frame restarts the clock; a refused one does not."""
+    import dataclasses
+
+    from rehab_hil.devices.sim_device import SimDevice
+    from rehab_hil.protocol import encode_frame
+
+    path = config_with_changes(FE, tmp_path / "fe.toml", effects=[
+        {"name": "constant_load", "params": {"level_nm": 0.4}, "start_s": 0.05}])
+    cfg = load_config(path)
+    binding = get_plant(cfg.plant).device(cfg)
+    plant = PlantIO(binding)
+    device = SimDevice(plant, 0, clock="lockstep")
+    try:
+        for _ in range(120):  # 0.12 s of device time since power-on
+            device.tick()
+        assert plant.session_ticks == 120 and plant._alpha == [1.0]
+        good = assembly.firmware_configure(cfg, binding)
+        device.on_bytes(encode_frame(dataclasses.replace(good, watchdog_ms=0), 1))  # refused: BAD_PARAMETER
+        assert device.core.config is None and plant.session_ticks == 120
+        device.on_bytes(encode_frame(good, 2))
+        assert device.core.config == good and plant.session_ticks == 0 and plant._alpha == [0.0]
+    finally:
+        device.close()

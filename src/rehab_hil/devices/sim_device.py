@@ -6,7 +6,8 @@ Run: ``python -m sim_devices.python_device --config configs/finger_extensor.toml
 The first stdout line is the pty's slave path. Clocks: ``realtime`` ticks at 1 kHz on absolute
 wall-clock deadlines (late ticks are caught up, never skipped: device time is tick count);
 ``lockstep`` advances one sample period (k base ticks, one SAMPLE) per valid COMMAND while
-streaming, deterministic and as fast as the host goes.
+streaming, deterministic and as fast as the host goes. An accepted CONFIGURE starts the session
+clock of the plant's scheduled changes (``PlantIO.start_session``; docs/models.md).
 
 Control channel (stdin, one command per line; each answered by one stdout line ``ok ...`` or
 ``error ...``); stdin closing ends the process:
