@@ -121,7 +121,7 @@ def _foxglove(args: argparse.Namespace, binding: Any, telemetry: Any) -> Any:
 
 
 def _twin(args: argparse.Namespace, cfg: Any, binding: Any, run_dir: Path | None, recorder: Any,
-          telemetry: Any) -> Any:
+          telemetry: Any, cycle_s: float | None) -> Any:
     """The live twin for ``--twin`` or ``[twin] enabled`` (rehab_hil.twin), refused in one line."""
     if not (args.twin or (cfg.twin is not None and cfg.twin.enabled)):
         return None
@@ -129,7 +129,7 @@ def _twin(args: argparse.Namespace, cfg: Any, binding: Any, run_dir: Path | None
     from rehab_hil.twin.session import start_twin
 
     try:
-        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, recorder, telemetry)
+        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, recorder, telemetry, cycle_s)
     except TwinSetupError as e:
         raise UserError(f"{args.config}: [twin] {e}") from None
 
@@ -286,7 +286,9 @@ def run(args: argparse.Namespace) -> int:
         if args.foxglove is not None:  # the Foxglove live view, tee'd with zenoh telemetry when that is on
             telemetry = _foxglove(args, binding, telemetry)
             stack.callback(telemetry.close)
-        twin = _twin(args, cfg, binding, run_dir if recorder is not None else None, recorder, telemetry)
+        ref = controller.controller.reference
+        twin = _twin(args, cfg, binding, run_dir if recorder is not None else None, recorder, telemetry,
+                     ref.period_s if ref.kind == "session" else None)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
                           assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
                           assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink,

@@ -29,6 +29,7 @@ import numpy as np
 
 from rehab_hil.interchange import Recording
 from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
 from rehab_hil.twin.model import TwinModel, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
 from rehab_hil.twin.settings import TwinSection
@@ -59,6 +60,11 @@ class Twin:
         self.monitor = ResidualMonitor(self.model.channels, self.model.resolution, self.settings.monitor())
         self.listeners = list(listeners)
         self.channels = self.model.channels
+        names = self.settings.estimate or default_estimates(self.model)
+        self.estimator = (InteractionEstimator(TwinModel(cfg, binding, period_s, self.settings.segment_s,
+                                                         self.settings.channels or None),
+                                               names, self.settings.forgetting_s) if names else None)
+        self.estimate_history: list[tuple[float, list[Estimate]]] = []  # (segment end, estimates)
         n_in = len(self.model.system.input_names)
         cap = self.model.segment_samples
         self._index = np.zeros(cap, dtype=np.int64)
@@ -119,6 +125,9 @@ class Twin:
         index, U, Y = self._index[:n].copy(), self._U[:n].copy(), self._Y[:n].copy()
         block = self.model.advance(index, U, Y)
         self.history.append((index, U, Y))
+        if self.estimator is not None:
+            self.estimator.update(index, U, Y)
+            self.estimate_history.append((float(index[-1] * self.period_s), self.estimator.estimates()))
         r = block.residual
         events: list[MismatchEvent] = []
         ends = np.flatnonzero(block.anchored)
@@ -160,6 +169,7 @@ class Twin:
                     time.sleep(0)
             os.write(self._csv_fd, ("\n".join(lines) + "\n").encode())
         if self.listeners:
+            ests = self.estimate_history[-1][1] if self.estimate_history else []
             for k in range(0, block.t_s.size, PREDICTION_EVERY):
                 msg = {"time_s": float(block.t_s[k])}
                 for j, c in enumerate(self.channels):
@@ -167,6 +177,8 @@ class Twin:
                     msg[f"{c}_predicted"] = float(block.predicted[k, j])
                     msg[f"{c}_residual"] = float(block.residual[k, j])
                     msg[f"{c}_cusum_counts"] = float(g[j])
+                for e in ests:
+                    msg[f"patient_{e.name.split('.', 1)[1]}"] = e.value
                 for lst in self.listeners:
                     lst.prediction(msg)
             time.sleep(0)
@@ -210,6 +222,29 @@ class Twin:
         if self._csv_fd >= 0:
             os.close(self._csv_fd)
             self._csv_fd = -1
+
+    def patient(self, cycle_s: float | None = None) -> dict[str, Any]:
+        """The interaction estimate per cycle (the value at each cycle's end, ``cycle_s`` apart) and
+        per session (the mean over the cycles after the first, which the estimate needs to settle,
+        with a 95 % interval from their spread; the last value and its RLS interval beside it)."""
+        if not self.estimate_history:
+            return {}
+        last_t, last = self.estimate_history[-1]
+        T = cycle_s if cycle_s and cycle_s > 0 else max(last_t, self.period_s)
+        cycles: list[dict[str, float]] = []
+        k = 1
+        for t, ests in self.estimate_history:
+            if t + 1e-9 >= k * T:
+                cycles.append({"index": k - 1, "t_end_s": round(t, 4), **{e.name: e.value for e in ests},
+                               **{f"{e.name}_ci95": e.ci95 for e in ests}})
+                k += 1
+        session: dict[str, dict[str, float]] = {}
+        for e in last:
+            vals = np.array([c[e.name] for c in cycles[1:]]) if len(cycles) > 2 else np.array([e.value])
+            ci = 1.96 * float(np.std(vals, ddof=1)) / math.sqrt(vals.size) if vals.size > 1 else e.ci95
+            session[e.name] = {"value": float(np.mean(vals)), "ci95": ci, "final": e.value, "final_ci95": e.ci95,
+                               "nominal": e.nominal, "cycles_used": int(vals.size)}
+        return {"session": session, "cycles": cycles, "cycle_s": T, "forgetting_s": self.settings.forgetting_s}
 
     def summary(self) -> dict[str, Any]:
         """What metadata.json and the run summary say about the twin."""

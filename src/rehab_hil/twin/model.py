@@ -189,6 +189,20 @@ class TwinModel:
             err = np.nan_to_num(measured - self._outputs_at(self.x, self.xd, u))
             self.x += K @ err
 
+    def plan(self, index: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The model-step inputs that take the state from now through samples ``index`` (a gap holds
+        the last input over it), and the step at which each sample is read. No state changes."""
+        S = self.steps_per_sample
+        m = index.size
+        gaps = np.maximum(np.diff(np.concatenate([[self._last_index], index])) - 1, 0) * S
+        rows = np.empty((2 * m, U.shape[1]))
+        rows[0::2] = np.concatenate([self._u_last[None, :], U[:m - 1]])
+        rows[1::2] = U
+        counts = np.empty(2 * m, dtype=np.int64)
+        counts[0::2], counts[1::2] = gaps, S
+        steps = np.ascontiguousarray(np.repeat(rows, counts, axis=0))
+        return steps, np.cumsum(counts)[0::2]  # a sample is read at the first step of its own input
+
     def advance(self, index: np.ndarray, U: np.ndarray, measured: np.ndarray) -> Block:
         """Predict ``len(index)`` samples (continued sample indices, gaps allowed; inputs per sample,
         measured channels per sample), re-anchoring at every ``segment_samples`` boundary. The
@@ -202,22 +216,14 @@ class TwinModel:
             self.anchor(measured[0], U[0])
             self.anchored = True
             self._last_index = int(index[0]) - 1
-        S = self.steps_per_sample
         k = 0
         while k < n:
             j = min(n, k + self.segment_samples - self._since_anchor)  # up to the next anchor point
-            idx = index[k:j]
-            gaps = np.maximum(np.diff(np.concatenate([[self._last_index], idx])) - 1, 0) * S
-            prev = np.concatenate([self._u_last[None, :], U[k:j - 1]])
-            rows = np.empty((2 * (j - k), U.shape[1]))
-            rows[0::2], rows[1::2] = prev, U[k:j]
-            counts = np.empty(2 * (j - k), dtype=np.int64)
-            counts[0::2], counts[1::2] = gaps, S
-            Y = self._run(np.ascontiguousarray(np.repeat(rows, counts, axis=0)), self.x, self.xd)
-            at = np.cumsum(counts)[0::2]  # the first step of each sample's own input: its instant
+            steps, at = self.plan(index[k:j], U[k:j])
+            Y = self._run(steps, self.x, self.xd)
             pred[k:j] = Y[at]
             self._u_last = U[j - 1].copy()
-            self._last_index = int(idx[-1])
+            self._last_index = int(index[j - 1])
             self._since_anchor += j - k
             if self._since_anchor >= self.segment_samples:
                 self.x += self.anchor_gain @ np.nan_to_num(measured[j - 1] - pred[j - 1])

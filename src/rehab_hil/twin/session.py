@@ -24,8 +24,8 @@ DIAGNOSIS_WAIT_S = 20.0  # at the session's end, how long a running diagnosis is
 class TwinRun:
     """A running twin and its diagnoses; ``close`` finishes both and gives the metadata."""
 
-    def __init__(self, live: LiveTwin, cfg: Any) -> None:
-        self.live, self.cfg = live, cfg
+    def __init__(self, live: LiveTwin, cfg: Any, cycle_s: float | None = None) -> None:
+        self.live, self.cfg, self.cycle_s = live, cfg, cycle_s
         self.twin = live.twin
         self._threads: list[threading.Thread] = []
         self.on_stop: Callable[[str], None] | None = None
@@ -79,7 +79,11 @@ class TwinRun:
         summary["dropped_records"] = self.live.dropped
         if self.live.error is not None:
             summary["error"] = f"{type(self.live.error).__name__}: {self.live.error}"
-        return {"twin": summary, "model_events": [model_event(ev) for ev in self.twin.monitor.events]}
+        out = {"twin": summary, "model_events": [model_event(ev) for ev in self.twin.monitor.events]}
+        patient = self.twin.patient(self.cycle_s)
+        if patient:
+            out["patient"] = patient
+        return out
 
 
 def model_event(ev: MismatchEvent) -> dict[str, Any]:
@@ -89,9 +93,10 @@ def model_event(ev: MismatchEvent) -> dict[str, Any]:
 
 
 def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str | Path | None = None,
-               recorder: Any = None, telemetry: Any = None) -> TwinRun:
+               recorder: Any = None, telemetry: Any = None, cycle_s: float | None = None) -> TwinRun:
     """The twin for ``cfg`` (its ``[twin]`` table, or the defaults), writing ``twin.csv`` into ``run_dir``
-    and feeding the recorder, zenoh and Foxglove that are on. Raises ``TwinSetupError`` (one line)."""
+    and feeding the recorder, zenoh and Foxglove that are on; ``cycle_s``: the session's open-close
+    period (per-cycle interaction estimates). Raises ``TwinSetupError`` (one line)."""
     settings = cfg.twin or TwinSection()
     listeners: list[Any] = []
     if recorder is not None:
@@ -107,4 +112,4 @@ def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str |
         raise
     except ValueError as e:
         raise TwinSetupError(str(e)) from None
-    return TwinRun(LiveTwin(twin), cfg)
+    return TwinRun(LiveTwin(twin), cfg, cycle_s)
