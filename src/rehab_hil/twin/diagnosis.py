@@ -10,17 +10,21 @@ state, and one single-term fit per candidate: every candidate gets the workflow'
 parameters over their grid) and is screened by how much that start cuts the weighted residual; the
 best ``refine`` are refined by a short ``least_squares`` (``fitting.fit_joint`` from the start).
 Candidates are ranked by how much each single term cuts the weighted residual of the window
-(``Replay.residual(weighted=True)``, the quantity the workflow's fits minimise). The likeliest is
-named only when the window's residual is beyond the noise at all (``verdict.unexplained_channels``:
-4 noise floors and 2 % of the spread on some channel), the cause cuts some channel's RMS error by
-the workflow's 15 % (``selection.improvement``), is more than a rounding of "off"
-(``Term.relevant``) and cuts the weighted residual by at least ``MIN_REDUCTION``; otherwise the
-event says "no single effect explains it". The workflow's BIC margin is not used: on a few
-seconds of a smooth residual the effective sample count (``selection.effective_fraction``) is a
-handful, and no single term reaches a BIC 10 lower (a Coulomb friction cutting 74 % of a Finger
-Extensor window did not); the monitor's own sequential test has already said there is a mismatch. The full workflow
-(``discrepancy/workflow.py``) stays the offline
-tool: no held-out part here (a window of a few seconds has none to spare), no second round.
+(``Replay.residual(weighted=True)``, the quantity the workflow's fits minimise).
+
+The likeliest is named only when the window's residual is beyond the noise at all
+(``verdict.unexplained_channels``: 4 noise floors and 2 % of the spread on some channel), and the
+cause cuts some channel's RMS error by the workflow's 15 % (``selection.improvement``), is more
+than a rounding of "off" (``Term.relevant``), is a sensor effect only on a channel that is itself
+off (the workflow's ``_sensor_demanded``: from an estimated TCP start a force-sensor offset of 36
+counts was named for a passive muscle) and cuts the weighted residual by at least
+``MIN_REDUCTION``; otherwise the event says "no single effect explains it". The workflow's BIC
+margin is not used: on a few seconds of a smooth residual the effective sample count
+(``selection.effective_fraction``) is a handful, and no single term reaches a BIC 10 lower (a
+Coulomb friction cutting 74 % of a Finger Extensor window did not); the monitor's own sequential
+test has already said there is a mismatch. The full workflow (``discrepancy/workflow.py``) stays
+the offline tool: no held-out part here (a window of a few seconds has none to spare), no second
+round, no joint fit.
 
 Candidates beyond the workflow's (``Plant.fit_parameters``): the magnitude parameters of the
 config's own ``[[effects]]`` (a patient model's contact stiffness doubling is "+100 %" of the
@@ -54,6 +58,7 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.selection import MIN_IMPROVEMENT, bic, effective_fraction, improvement
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.verdict import unexplained_channels
+from rehab_hil.discrepancy.workflow import _demanding, _sensor_demanded
 from rehab_hil.effects import EFFECTS, EffectParam
 from rehab_hil.interchange import CsvError, Recording
 from rehab_hil.plants.base import FitParameter, Plant
@@ -119,7 +124,7 @@ class Cause:
     params: dict[str, float]  # fitted values, SI (a parameter: {"error_fraction": relative error})
     relative_change: float | None  # a parameter's relative error; None for an effect from nothing
     reduction: float  # 1 - weighted sum of squares with it / without it, on the window
-    significant: bool  # the workflow's rule (BIC, 15 % of a channel) and more than a rounding of "off"
+    significant: bool  # cuts a channel's error by 15 %, more than a rounding of "off", a sensor where it is off
     refined: bool  # refined by least squares (else: the regression start of the screen)
     text: str  # "passive stiffness rising: passive_muscle, +40 %"
 
@@ -297,6 +302,7 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
         return Diagnosis([], None, "no cause named: the model fits the window within the noise",
                          list(replay.channels), mode, float(np.sqrt(ss0)), time.thread_time() - t0,
                          sims + obj.count + 1)
+    demanding = _demanding(replay, nominal, hold)  # a sensor effect only where its own channel is off
     kinds = {c: replay.ports.measured_kind(c) or "" for c in replay.channels}
     lag = localise.signatures(replay.t[hold], {c: v[hold] for c, v in replay.measured.items()},
                               {c: v[hold] for c, v in nominal.items()}, replay.channels[:1], kinds)[replay.channels[0]]
@@ -327,7 +333,8 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
         if refined:
             sc = bic(replay.residual(replay.simulate(P), hold), len(term.params), frac, replay.fit_weight)
             sims += 1
-            sig = improvement(sc, base) >= MIN_IMPROVEMENT and term.relevant(values)
+            sig = improvement(sc, base) >= MIN_IMPROVEMENT and term.relevant(values) \
+                and _sensor_demanded(replay, term, demanding)
         relative = float(values[ERROR.name]) if term.kind == "parameter" else None
         family = _family(replay, term.name)
         causes.append(Cause(term.name, term.kind, family, dict(values), relative, red, sig, refined,

@@ -56,7 +56,6 @@ class Twin:
         self.settings = settings or TwinSection()
         self.cfg, self.binding, self.period_s = cfg, binding, period_s
         self.model = TwinModel(cfg, binding, period_s, self.settings.segment_s, self.settings.channels or None)
-        self.rtf = check_rate(self.model) if check_speed else math.nan
         self.monitor = ResidualMonitor(self.model.channels, self.model.resolution, self.settings.monitor())
         self.listeners = list(listeners)
         self.channels = self.model.channels
@@ -65,6 +64,8 @@ class Twin:
                                                          self.settings.channels or None),
                                                names, self.settings.forgetting_s) if names else None)
         self.estimate_history: list[tuple[float, list[Estimate]]] = []  # (segment end, estimates)
+        runs = 1 + (2 + len(names) if self.estimator is not None else 0)
+        self.rtf = check_rate(self.model, runs, self.settings.min_realtime_factor) if check_speed else math.nan
         n_in = len(self.model.system.input_names)
         cap = self.model.segment_samples
         self._index = np.zeros(cap, dtype=np.int64)

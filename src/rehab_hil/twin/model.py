@@ -32,7 +32,6 @@ __all__ = ["Block", "TwinModel", "TwinSetupError"]
 
 FD_STEP = 0.02  # finite-difference step on a state for the anchor gain (relative, and its floor): wider
 # than an encoder count, whose quantised output has no slope over a smaller step
-RATE_MARGIN = 2.0  # the model must run this many times faster than real time on one core
 
 
 class TwinSetupError(ValueError):
@@ -245,10 +244,14 @@ def _bind(spec: type[Plant], cfg: Any, channels: list[str]) -> Replay:
         raise TwinSetupError(f"plant {cfg.plant!r}: {e}") from None
 
 
-def check_rate(model: TwinModel) -> float:
-    """The model's real-time factor; refused in one line when it cannot keep up with the loop."""
+def check_rate(model: TwinModel, runs: int, margin: float) -> float:
+    """The model's real-time factor; refused in one line when ``runs`` model runs per segment would
+    not keep up with the loop with ``margin`` to spare (``[twin] min_realtime_factor``)."""
     rtf = model.realtime_factor()
-    if not math.isfinite(rtf) or rtf < RATE_MARGIN:
-        raise TwinSetupError(f"the {model.cfg.plant} model runs {rtf:.1f}x real time here; a twin beside the "
-                             f"loop needs at least {RATE_MARGIN:g}x (turn [twin] off or simplify the model)")
+    need = margin * runs
+    if not math.isfinite(rtf) or rtf < need:
+        raise TwinSetupError(f"the {model.cfg.plant} model runs {rtf:.0f}x real time here; the twin needs "
+                             f"{need:g}x ({runs} model runs per segment x min_realtime_factor {margin:g}): "
+                             "it cannot keep up with the loop (turn it off, estimate fewer parameters or "
+                             "simplify the model)")
     return rtf

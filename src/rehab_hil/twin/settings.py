@@ -33,6 +33,9 @@ class TwinSection(Section):
                                 "diagram parameters (part.param) or effect parameters (effect.param); default: "
                                 "the contact's stiffness and damping when the model has a contact")
     forgetting_s: float = Field(2.0, gt=0.0, description="memory of the online estimate (RLS forgetting) [s]")
+    min_realtime_factor: float = Field(5.0, gt=0.0, description="the model must run this many times faster than "
+                                       "real time here, per model run a segment needs (the twin, the estimate and "
+                                       "one per estimated parameter), or the twin is refused at start")
 
     def monitor(self) -> MonitorSettings:
         return MonitorSettings(learn_s=self.learn_s, settle_s=self.settle_s, drift_sigma=self.drift_sigma,
