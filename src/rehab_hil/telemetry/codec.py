@@ -52,7 +52,7 @@ STATE_RECORD = struct.Struct("<ddB" + "IIiHHHHBHHHH" + "ddddd" + "ddBdI" + "dB")
 MAX_BATCH = 1000
 MAX_ANALOG = 2
 SAFETY_STATES = ("unknown", "ok", "warning", "tripped", "estop", "link_lost")
-JSON_KINDS = ("stats", "safety", "info", "command")
+JSON_KINDS = ("stats", "safety", "info", "command", "prediction", "model_mismatch")  # the last two: the live twin
 
 _RAW = ("device_time_us", "sample_index", "encoder_count", "adc0", "adc1", "duty0", "duty1",
         "direction", "status", "faults", "cmd_seq_echo", "rx_bad_frames")

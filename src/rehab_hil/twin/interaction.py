@@ -137,10 +137,7 @@ class InteractionEstimator:
         self._apply(self.P, self.theta)
 
     def _run(self, P: np.ndarray, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        s = self.model.system
-        _, Y = s.engine.simulate(x0.copy(), xd0.copy(), steps, P, s.dt, s.substeps, self.model._slots,
-                                 *self.model._ws)
-        return Y
+        return self.model.run(steps, x0.copy(), xd0.copy(), P)
 
     def estimates(self) -> list[Estimate]:
         """The current values and their 95 % intervals (SI)."""

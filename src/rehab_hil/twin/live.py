@@ -108,7 +108,7 @@ class Twin:
         self._U[n] = self.model.inputs_of(smp.duty0, smp.duty1, smp.direction, st.analog)
         y = self._Y[n]
         if self._angle >= 0:
-            y[self._angle] = st.angle_deg
+            y[self._angle] = st.angle_deg + self.model.encoder_centre_deg
         for k, c in self._analog:
             y[k] = st.analog.get(c, math.nan)
         self._n = n + 1

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy.initial_state import MATCH_SHARE
-from rehab_hil.discrepancy.replay import Replay
+from rehab_hil.discrepancy.replay import ADC_FULL_SCALE_COUNTS, Replay
 from rehab_hil.interchange import Recording
 from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
 from rehab_hil.protocol import DUTY_FULL
@@ -93,6 +93,12 @@ class TwinModel:
             if n in names:
                 self._u_const[names.index(n)] = v
         self.resolution = np.array([self._resolution(c) for c in self.channels])
+        # the ADC a channel is read through: the model's value is clipped to the converter's range as
+        # the rig's reading is (a 10-bit ADC shows no negative force), never rounded (fits need a slope)
+        self._adc = [(j, a.offset_counts, a.counts_per_unit) for j, c in enumerate(self.channels)
+                     for a in binding.adc if a.signal == c]
+        # an encoder reads floor(angle x counts per unit): the middle of the count is the unbiased angle
+        self.encoder_centre_deg = 0.5 * binding.encoder_direction * 360.0 / binding.encoder_counts_per_rev
         self.reset()
         self.anchor_gain = self._anchor_gain()
 
@@ -146,7 +152,7 @@ class TwinModel:
         s = self.system
         _, Y = s.engine.simulate(x.copy(), xd.copy(), u[None, :].copy(), self.P, s.dt, s.substeps, self._slots,
                                  *self._ws)
-        return Y[0]
+        return self.sensed(Y)[0]
 
     def realtime_factor(self, seconds: float = 1.0) -> float:
         """Model seconds per wall second on this machine (a rest run of ``seconds``), for the check
@@ -156,9 +162,9 @@ class TwinModel:
         s = self.system
         n = max(1, round(seconds / s.dt))
         U = np.repeat(self._u_const[None, :], n, axis=0)
-        self._run(U, s.x0.copy(), s.xd0.copy())  # the first call loads the kernel
+        self.run(U, s.x0.copy(), s.xd0.copy())  # the first call loads the kernel
         t0 = time.perf_counter()
-        self._run(U, s.x0.copy(), s.xd0.copy())
+        self.run(U, s.x0.copy(), s.xd0.copy())
         return n * s.dt / max(time.perf_counter() - t0, 1e-9)
 
     # -- the inputs of a sample ----------------------------------------------------------------
@@ -174,9 +180,17 @@ class TwinModel:
         return u
 
     # -- stepping ------------------------------------------------------------------------------
-    def _run(self, U: np.ndarray, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
+    def run(self, U: np.ndarray, x: np.ndarray, xd: np.ndarray, P: np.ndarray | None = None) -> np.ndarray:
+        """Channel outputs of the model steps ``U`` from (x, xd), advanced in place, as the rig reads them."""
         s = self.system
-        _, Y = s.engine.simulate(x, xd, U, self.P, s.dt, s.substeps, self._slots, *self._ws)
+        _, Y = s.engine.simulate(x, xd, U, self.P if P is None else P, s.dt, s.substeps, self._slots, *self._ws)
+        return self.sensed(Y)
+
+    def sensed(self, Y: np.ndarray) -> np.ndarray:
+        """Model outputs through the rig's ADC range (in place; see ``_adc``)."""
+        for j, offset, per_unit in self._adc:
+            c = np.clip(offset + per_unit * Y[:, j], 0.0, ADC_FULL_SCALE_COUNTS)
+            Y[:, j] = (c - offset) / per_unit
         return Y
 
     def anchor(self, measured: np.ndarray, u: np.ndarray) -> None:
@@ -219,7 +233,7 @@ class TwinModel:
         while k < n:
             j = min(n, k + self.segment_samples - self._since_anchor)  # up to the next anchor point
             steps, at = self.plan(index[k:j], U[k:j])
-            Y = self._run(steps, self.x, self.xd)
+            Y = self.run(steps, self.x, self.xd)
             pred[k:j] = Y[at]
             self._u_last = U[j - 1].copy()
             self._last_index = int(index[j - 1])

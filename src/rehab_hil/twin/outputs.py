@@ -45,7 +45,8 @@ class ZenohOutput:
         self.publisher.offer_twin("prediction", {k: (v if math.isfinite(v) else None) for k, v in msg.items()})
 
     def mismatch(self, event: MismatchEvent, final: bool) -> None:
-        self.publisher.offer_twin(EVENT_KIND, {**event.as_dict(), "final": final, "text": event.text()})
+        body = {k: v for k, v in event.as_dict().items() if k != "kind"}  # the envelope carries the kind
+        self.publisher.offer_twin(EVENT_KIND, {**body, "final": final, "text": event.text()})
 
 
 class FoxgloveOutput:

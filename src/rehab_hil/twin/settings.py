@@ -27,7 +27,7 @@ class TwinSection(Section):
     stop_on_mismatch: bool = Field(False, description="a model mismatch trips the rig into its safe state "
                                    "(default: an event only)")
     diagnose: bool = Field(True, description="name the likeliest cause of a mismatch on the recent window")
-    diagnose_window_s: float = Field(3.0, gt=0.5, le=30.0, description="data after the change the diagnosis "
+    diagnose_window_s: float = Field(5.0, gt=0.5, le=30.0, description="data after the change the diagnosis "
                                      "fits on [s]")
     estimate: list[str] = Field(default_factory=list, description="interaction parameters estimated online, as "
                                 "diagram parameters (part.param) or effect parameters (effect.param); default: "

@@ -1,0 +1,106 @@
+"""``rehab-hil run --twin`` through the real CLI, the simulated device on a pty in lockstep: a sim plant
+whose friction appears mid-session gives one model_mismatch event at the right time, named, in
+metadata.json, the MCAP and on zenoh; a clean session gives none; the config may make it a stop."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from rehab_hil.cli import main
+from rehab_hil.interchange import read_csv
+from rehab_hil.service.recorder import read_mcap
+from rehab_hil.telemetry.codec import decode_json
+from rehab_hil.testing import CONFIGS, config_with_changes
+
+from ..telemetry.conftest import open_hub, wait_until
+
+CHANGE_S = 5.0
+TWIN = "\n[twin]\nlearn_s = 2.5\n"
+
+
+def _host(tmp: Path, extra: str = "") -> Path:
+    host = tmp / "host.toml"
+    host.write_text((CONFIGS / "finger_extensor.toml").read_text() + TWIN + extra)
+    return host
+
+
+def _friction_at(tmp: Path, start_s: float | None) -> Path:
+    eff = [{"name": "coulomb_friction", "params": {"level_nm": 0.05}, "start_s": start_s}] if start_s else []
+    return config_with_changes(CONFIGS / "finger_extensor.toml", tmp / "device.toml", effects=eff)
+
+
+def _run(tmp: Path, capsys, host: Path, device: Path, *extra: str) -> tuple[int, Path, str]:
+    root = tmp / "runs"
+    code = main(["run", "--config", str(host), "--sim-plant", str(device), "--device", "sim", "--lockstep",
+                 "--duration", "11", "--record", str(root), "--no-display", "--twin", *extra])
+    out = capsys.readouterr()
+    (run,) = root.iterdir()
+    return code, run, out.out + out.err
+
+
+@pytest.mark.slow
+def test_friction_appearing_mid_session_is_one_event_at_its_start_with_its_cause(tmp_path, capsys):
+    code, run, out = _run(tmp_path, capsys, _host(tmp_path), _friction_at(tmp_path, CHANGE_S))
+    assert code == 0, out
+    meta = json.loads((run / "metadata.json").read_text())
+    (ev,) = meta["model_events"]
+    assert ev["kind"] == "model_mismatch" and ev["channel"] == "iris_angle_deg"
+    assert CHANGE_S - 0.3 <= ev["t_s"] <= CHANGE_S + 1.0
+    assert ev["detected_s"] - CHANGE_S <= 2.0
+    assert "coulomb_friction" in ev["cause"], ev
+    assert meta["twin"]["samples"] == read_csv(run / "run.csv").t.size
+    assert read_csv(run / "twin.csv").t.size == meta["twin"]["samples"]
+    messages = list(read_mcap(run / "run.mcap"))
+    assert sum(topic == "/twin/prediction" for topic, _, _ in messages) >= 1000  # 100 Hz for 11 s
+    events = [m for topic, _, m in messages if topic == "/rig/event" and m["kind"] == "model_mismatch"]
+    assert len(events) == 1 and "coulomb_friction" in events[0]["detail"]
+    assert "model_mismatch iris_angle_deg" in out
+
+
+@pytest.mark.slow
+def test_a_clean_session_has_no_model_event(tmp_path, capsys):
+    code, run, out = _run(tmp_path, capsys, _host(tmp_path), _friction_at(tmp_path, None))
+    assert code == 0, out
+    meta = json.loads((run / "metadata.json").read_text())
+    assert meta["model_events"] == []
+    assert meta["twin"]["normal_residual"]["iris_angle_deg"] < 0.2  # degrees: about a count
+
+
+@pytest.mark.slow
+def test_stop_on_mismatch_trips_the_rig_into_its_safe_state(tmp_path, capsys):
+    host = _host(tmp_path, "stop_on_mismatch = true\n")
+    code, run, out = _run(tmp_path, capsys, host, _friction_at(tmp_path, CHANGE_S))
+    assert code == 1, out
+    meta = json.loads((run / "metadata.json").read_text())
+    assert meta["stop_reason"] == "safety trip: model_mismatch"
+    assert meta["pwm_off_at_end"] is True
+    assert meta["rows"] < 11000 - 1500  # stopped soon after the change, not at the end
+
+
+@pytest.mark.slow
+def test_the_twin_publishes_predictions_and_the_event_on_zenoh(tmp_path, capsys):
+    session, port = open_hub()
+    got: list[tuple[str, dict]] = []
+
+    def take(sample: zenoh.Sample) -> None:
+        body = decode_json(bytes(sample.payload))
+        got.append((body["kind"], body))
+
+    sub = session.declare_subscriber("rehab/twintest/twin", take)
+    try:
+        code, _, out = _run(tmp_path, capsys, _host(tmp_path), _friction_at(tmp_path, CHANGE_S),
+                            "--telemetry", "twintest", "--telemetry-port", str(port))
+        assert code == 0, out
+        assert wait_until(lambda: any(k == "model_mismatch" and b.get("final") for k, b in got))
+    finally:
+        sub.undeclare()
+        session.close()
+    predictions = [b for k, b in got if k == "prediction"]
+    assert len(predictions) >= 1000
+    assert {"iris_angle_deg_predicted", "iris_angle_deg_residual"} <= set(predictions[0])
+    final = [b for k, b in got if k == "model_mismatch" and b.get("final")]
+    assert "coulomb_friction" in final[0]["cause"]

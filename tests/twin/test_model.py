@@ -1,0 +1,84 @@
+"""The twin's model follows the plant it models: driven by the duties the device reports applied,
+re-anchored every segment, it predicts every measured channel to about a sensor count, with and
+without samples lost on the way; a channel the rig does not measure is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rehab_hil.plants.base import get_plant, load_config
+from rehab_hil.twin.live import Twin
+from rehab_hil.twin.model import TwinModel, TwinSetupError
+from rehab_hil.twin.settings import TwinSection
+
+from .conftest import CONFIGS, plant_records
+
+N = 4000
+
+
+def _residual_counts(config, duty, keep=None) -> np.ndarray:
+    cfg, binding, records = plant_records(config, duty, keep=keep)
+    twin = Twin(cfg, binding, 1.0 / cfg.rig.sample_rate_hz, TwinSection(diagnose=False), check_speed=False)
+    rows: list[list[float]] = []
+
+    class Keep:
+        def prediction(self, msg: dict[str, float]) -> None:
+            rows.append([msg[f"{c}_residual"] for c in twin.channels])
+
+        def mismatch(self, event, final: bool) -> None:
+            raise AssertionError(f"a model mismatch on its own plant: {event.text()}")
+
+    twin.listeners.append(Keep())
+    for r in records:
+        twin.feed(r)
+    twin.finish()
+    return np.abs(np.array(rows)) / twin.model.resolution
+
+
+def _levels(signed: bool, seed: int = 1) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    lv = np.repeat(rng.uniform(-1.0 if signed else 0.0, 1.0, N // 200), 200)
+    return 0.6 * lv if signed else lv
+
+
+@pytest.mark.parametrize("plant,signed", [("finger_extensor", True), ("tcp_finger", False),
+                                          ("sma_exoskeleton", False)])
+def test_the_twin_predicts_its_own_plant_to_about_a_count(plant: str, signed: bool) -> None:
+    r = _residual_counts(CONFIGS / f"{plant}.toml", _levels(signed))
+    assert np.sqrt(np.mean(r**2, axis=0)).max() < 1.5
+    assert r.max() < 3.0
+
+
+def test_lost_samples_hold_the_last_input_and_the_prediction_stays_close() -> None:
+    keep = np.random.default_rng(2).random(N) > 0.1  # one sample in ten never reaches the twin
+    r = _residual_counts(CONFIGS / "finger_extensor.toml", _levels(True), keep)
+    assert np.sqrt(np.mean(r**2)) < 1.5
+    assert r.max() < 5.0
+
+
+def test_a_model_that_is_wrong_leaves_residuals_many_counts_large() -> None:
+    """The same records against a model whose motor is 30 % weaker: the residual test has something to see."""
+    cfg, binding, records = plant_records(CONFIGS / "finger_extensor.toml", _levels(True))
+    weak = TwinModel(cfg, binding, 1.0 / cfg.rig.sample_rate_hz, 0.25)
+    weak.P[weak.system.diagram.param_index("motor.kt_nm_per_a")] *= 0.7
+    index = np.array([round(r.time_s * 1000) for r in records])
+    U = np.array([weak.inputs_of(r.sample.duty0, 0, r.sample.direction, {}) for r in records])
+    Y = np.array([[r.state.angle_deg + weak.encoder_centre_deg] for r in records])
+    r = np.abs(weak.advance(index, U, Y).residual) / weak.resolution
+    assert np.sqrt(np.mean(r**2)) > 5.0
+
+
+def test_a_residual_on_a_channel_the_rig_does_not_measure_is_refused_naming_it() -> None:
+    cfg = load_config(CONFIGS / "sma_exoskeleton.toml")
+    binding = get_plant(cfg.plant).device(cfg)
+    with pytest.raises(TwinSetupError, match="'theta_pip_deg': the rig does not measure it"):
+        TwinModel(cfg, binding, 0.001, channels=["theta_pip_deg"])
+
+
+def test_a_model_too_slow_for_the_loop_is_refused_in_one_line() -> None:
+    cfg = load_config(CONFIGS / "tcp_finger.toml")
+    binding = get_plant(cfg.plant).device(cfg)
+    with pytest.raises(TwinSetupError) as e:
+        Twin(cfg, binding, 0.001, TwinSection(min_realtime_factor=1e9))
+    assert "cannot keep up with the loop" in str(e.value) and "\n" not in str(e.value)
