@@ -34,11 +34,16 @@ from rehab_hil.twin.model import TwinModel, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
 from rehab_hil.twin.settings import TwinSection
 
-__all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener"]
+__all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener", "patient_column"]
 
 PREDICTION_EVERY = 10  # one prediction message per this many samples (100 Hz at 1 kHz): plots, not data
 HISTORY_S = 30.0  # how much of the session the twin keeps for a diagnosis
 YIELD_EVERY = 32  # records taken between two releases of the interpreter
+
+
+def patient_column(name: str) -> str:
+    """The recorded column of an estimated parameter (``part.param`` -> ``patient_part_param``)."""
+    return "patient_" + name.replace(".", "_")
 
 
 class TwinListener(Protocol):
@@ -93,7 +98,8 @@ class Twin:
             self.csv_path = Path(out_dir) / "twin.csv"
             self._csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
             cols = ["time_s", *(f"{c}_predicted" for c in self.channels), *(f"{c}_residual" for c in self.channels),
-                    *(f"{c}_cusum_counts" for c in self.channels)]
+                    *(f"{c}_cusum_counts" for c in self.channels),
+                    *(patient_column(n) for n in (self.estimator.names if self.estimator else ()))]
             os.write(self._csv_fd, (",".join(cols) + "\n").encode())
 
     # -- in ------------------------------------------------------------------------------------
@@ -161,8 +167,10 @@ class Twin:
     def _write(self, block: Any) -> None:
         g = self.monitor.statistic
         if self._csv_fd >= 0:
+            est = np.array([e.value for e in self.estimate_history[-1][1]]) if self.estimate_history else np.zeros(0)
             cols = np.column_stack([block.t_s, block.predicted, block.residual,
-                                    np.broadcast_to(g, (block.t_s.size, g.size))])
+                                    np.broadcast_to(g, (block.t_s.size, g.size)),
+                                    np.broadcast_to(est, (block.t_s.size, est.size))])
             lines = []
             for k, row in enumerate(cols):
                 lines.append(",".join(f"{v:.8g}" for v in row))
@@ -179,7 +187,7 @@ class Twin:
                     msg[f"{c}_residual"] = float(block.residual[k, j])
                     msg[f"{c}_cusum_counts"] = float(g[j])
                 for e in ests:
-                    msg[f"patient_{e.name.split('.', 1)[1]}"] = e.value
+                    msg[patient_column(e.name)] = e.value
                 for lst in self.listeners:
                     lst.prediction(msg)
             time.sleep(0)
