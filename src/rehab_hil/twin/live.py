@@ -137,23 +137,23 @@ class Twin:
             self.estimate_history.append((float(index[-1] * self.period_s), self.estimator.estimates()))
         r = block.residual
         events: list[MismatchEvent] = []
-        ends = np.flatnonzero(block.anchored)
+        ends = set(np.flatnonzero(block.anchored).tolist())
         lo = 0
-        for e in [*ends, n - 1]:
+        for e in sorted(ends | {n - 1}):  # each anchored segment's end, then what is left of the block
             seg = r[lo:e + 1]
-            if seg.size:
-                self._sq += np.nansum(seg**2, axis=0)
-                self._sq_n += seg.shape[0]
-            if e in ends:
-                rms = np.sqrt(self._sq / max(self._sq_n, 1))
-                t_end = float(block.t_s[e])
-                events += self.monitor.update(self._seg_start, t_end, rms)
-                self.anchors.append((int(index[e]) + 1, self.model.x.copy(), self.model.xd.copy()))
-                self._sq[:] = 0.0
-                self._sq_n = 0
-                self._seg_start = t_end
-                self.segments += 1
+            self._sq += np.nansum(seg**2, axis=0)
+            self._sq_n += seg.shape[0]
             lo = e + 1
+            if e not in ends:
+                continue
+            rms = np.sqrt(self._sq / max(self._sq_n, 1))
+            t_end = float(block.t_s[e])
+            events += self.monitor.update(self._seg_start, t_end, rms)
+            self.anchors.append((int(index[e]) + 1, self.model.x.copy(), self.model.xd.copy()))
+            self._sq[:] = 0.0
+            self._sq_n = 0
+            self._seg_start = t_end
+            self.segments += 1
         self.busy_s += time.thread_time() - t0
         self._write(block)
         for ev in events:

@@ -1,0 +1,40 @@
+"""The twin's thread: a twin that falls behind drops and counts records instead of holding the loop,
+and carries on over the hole; its records are taken in order and all of them when it keeps up."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rehab_hil.twin.live import LiveTwin, Twin
+from rehab_hil.twin.settings import TwinSection
+
+from .conftest import CONFIGS, plant_records
+
+
+def _twin() -> tuple[Twin, list]:
+    duty = np.repeat(np.random.default_rng(3).uniform(-0.6, 0.6, 10), 200)
+    cfg, binding, records = plant_records(CONFIGS / "finger_extensor.toml", duty)
+    return Twin(cfg, binding, 0.001, TwinSection(diagnose=False), check_speed=False), records
+
+
+def test_a_twin_that_falls_behind_counts_what_it_dropped_and_goes_on() -> None:
+    twin, records = _twin()
+    live = LiveTwin(twin, queue_size=600)
+    taken = [live.offer(r) for r in records]  # 2000 records in far less than the twin's 50 ms wake
+    live.close()
+    assert live.error is None
+    assert live.dropped == taken.count(False) > 0
+    assert twin.samples == len(records) - live.dropped
+    assert twin.segments >= 1  # what it got was processed: its hole is a gap in the sample index
+
+
+def test_a_twin_that_keeps_up_takes_every_record() -> None:
+    twin, records = _twin()
+    live = LiveTwin(twin)
+    for k, r in enumerate(records):
+        live.offer(r)
+        if k % 4 == 3:
+            live.wake()
+    live.close()
+    assert live.dropped == 0 and twin.samples == len(records)
+    assert twin.segments == len(records) // twin.model.segment_samples
