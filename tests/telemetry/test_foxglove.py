@@ -22,6 +22,7 @@ from rehab_hil.service.runner import LoopService
 from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, rig_prefix, schemas, topics
 from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths
 from rehab_hil.testing import free_port
+from rehab_hil.twin.outputs import GENERIC_TWIN_FIELDS, prediction_topic
 
 from .fake_rig import LockstepRig, RampController
 from .fgclient import FoxgloveClient
@@ -80,6 +81,8 @@ def test_a_websocket_client_sees_the_channels_and_the_samples_of_the_local_recor
                    for ch in summary.channels.values()
                    if ch.message_encoding == "json" and summary.schemas[ch.schema_id].encoding == "jsonschema"}
     for topic, field in message_paths(json.loads(LAYOUT.read_text())):
+        if topic == "/twin/prediction":  # recorded with --twin only (tests/twin/test_live_session.py)
+            continue
         assert field is None or field in mcap_fields[topic], f"{topic}.{field}"
 
 
@@ -93,8 +96,9 @@ def test_the_shipped_layout_parses_and_names_only_existing_channels_and_fields(c
         pytest.skip(f"config does not load: {e}")
     t = topics("/rig")
     fields = {t[k]: set(json.loads(s.data)["properties"]) for k, s in schemas(binding).items()}
+    fields["/twin/prediction"] = set(GENERIC_TWIN_FIELDS)  # the live twin's plant-independent fields
     named = message_paths(doc)
-    assert {topic for topic, _ in named} == {t["sample"], t["event"]}
+    assert {topic for topic, _ in named} == {t["sample"], t["event"], "/twin/prediction"}
     for topic, field in named:
         assert topic in fields, topic
         assert field is None or field in fields[topic], f"{topic}.{field}"
@@ -202,5 +206,6 @@ def test_a_lab_layout_has_one_tab_per_rig_naming_only_that_rigs_channels() -> No
     doc = json.loads(layout_json(rigs))
     assert [tab["title"] for tab in doc["content"]["tabs"]] == ["a", "b"]
     fields = {topics(p)[k]: set(json.loads(s.data)["properties"]) for p, _ in rigs for k, s in schemas(binding).items()}
+    fields.update({prediction_topic(p): set(GENERIC_TWIN_FIELDS) for p, _ in rigs})
     for topic, field in message_paths(doc):
         assert topic.startswith(("/rigs/a/", "/rigs/b/")) and (field is None or field in fields[topic])

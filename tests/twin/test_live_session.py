@@ -15,6 +15,7 @@ from rehab_hil.interchange import read_csv
 from rehab_hil.service.recorder import read_mcap
 from rehab_hil.telemetry.codec import decode_json
 from rehab_hil.testing import CONFIGS, config_with_changes
+from rehab_hil.twin.outputs import GENERIC_TWIN_FIELDS
 
 from ..telemetry.conftest import open_hub, wait_until
 
@@ -55,7 +56,9 @@ def test_friction_appearing_mid_session_is_one_event_at_its_start_with_its_cause
     assert meta["twin"]["samples"] == read_csv(run / "run.csv").t.size
     assert read_csv(run / "twin.csv").t.size == meta["twin"]["samples"]
     messages = list(read_mcap(run / "run.mcap"))
-    assert sum(topic == "/twin/prediction" for topic, _, _ in messages) >= 1000  # 100 Hz for 11 s
+    predictions = [m for topic, _, m in messages if topic == "/twin/prediction"]
+    assert len(predictions) >= 1000  # 100 Hz for 11 s
+    assert set(GENERIC_TWIN_FIELDS) <= set(predictions[0])  # what docs/foxglove_layout.json plots
     events = [m for topic, _, m in messages if topic == "/rig/event" and m["kind"] == "model_mismatch"]
     assert len(events) == 1 and "coulomb_friction" in events[0]["detail"]
     assert "model_mismatch iris_angle_deg" in out

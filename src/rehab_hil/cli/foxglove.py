@@ -15,13 +15,15 @@ from typing import Any
 
 from rehab_hil.cli import UserError
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
+from rehab_hil.telemetry.codec import PayloadError, decode_json
 from rehab_hil.telemetry.foxglove import DEFAULT_HOST, DEFAULT_PORT, FoxgloveError, FoxgloveLive, RigFeed, rig_prefix
 from rehab_hil.telemetry.foxglove_layout import layout_json
-from rehab_hil.telemetry.keys import RigIdError, validate_rig_id
+from rehab_hil.telemetry.keys import RigIdError, RigKeys, validate_rig_id
 from rehab_hil.telemetry.lab import LabError, RigWatch, binding_from_info
 from rehab_hil.telemetry.session import TelemetryConfigError, open_session
 from rehab_hil.telemetry.subscriber import Subscription, list_rigs, query_info, subscribe
 from rehab_hil.telemetry.zrecord import to_record
+from rehab_hil.twin.outputs import FoxgloveOutput, prediction_topic
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -44,6 +46,7 @@ class Bridge:
         self.session, self.live, self.several, self.config = session, live, several, config
         self.feeds: dict[str, RigFeed] = {}
         self.subs: dict[str, Subscription] = {}
+        self.twins: dict[str, Any] = {}
         self.bad = 0
 
     def add(self, rig: str) -> str:
@@ -66,12 +69,32 @@ class Bridge:
                        str(m.get("detail", "")))
 
         self.subs[rig] = subscribe(rig, on_sample, on_stats=feed.stats, on_safety=on_safety, session=self.session)
+        self.twins[rig] = self._twin(rig, feed)
         self.feeds[rig] = feed
-        return f"rig {rig} -> {feed.prefix}/{{sample,command,event,stats}}"
+        return f"rig {rig} -> {feed.prefix}/{{sample,command,event,stats}}, {prediction_topic(feed.prefix)}"
+
+    def _twin(self, rig: str, feed: RigFeed) -> Any:
+        """The rig's live twin (``rehab/<rig>/twin``, when it runs one) onto its prediction topic and events."""
+        out = FoxgloveOutput(self.live, feed)
+
+        def on_twin(s: Any) -> None:
+            try:
+                m = decode_json(s.payload.to_bytes())
+            except PayloadError:
+                self.bad += 1
+                return
+            if m["kind"] == "prediction":
+                out.prediction({k: v for k, v in m.items() if isinstance(v, float | int) and k != "v"})
+            elif m["kind"] == "model_mismatch" and m.get("final"):
+                feed.event(float(m.get("t_s", math.nan)), "model_mismatch", str(m.get("text", "")))
+
+        return self.session.declare_subscriber(RigKeys(rig).twin, on_twin)
 
     def close(self) -> None:
         for s in self.subs.values():
             s.close()
+        for t in self.twins.values():
+            t.undeclare()
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,4 +1,5 @@
-"""The Foxglove layout for rig telemetry: angle vs reference, force/torque, duty, temperature, state.
+"""The Foxglove layout for rig telemetry: angle vs reference, force/torque, duty, temperature, state,
+and the live twin's prediction, residual and residual test (``rehab-hil run --twin``).
 
 Built with the SDK's layout types (``foxglove.layouts``) on the plant-independent fields of the
 ``<prefix>/sample`` channel, so one layout fits every plant, the live server and MCAP recordings.
@@ -17,6 +18,7 @@ from typing import Any
 import foxglove.layouts as fl
 
 from rehab_hil.telemetry.foxglove import topics
+from rehab_hil.twin.outputs import prediction_topic
 
 __all__ = ["layout", "layout_json", "message_paths"]
 
@@ -30,6 +32,7 @@ def _plot(title: str, series: list[tuple[str, str]], y_label: str) -> fl.PlotPan
 def _rig_view(prefix: str, name: str) -> fl.SplitContainer:
     t = topics(prefix)
     s, e = t["sample"], t["event"]
+    p = prediction_topic(prefix)
     tag = f"{name}: " if name else ""
     plots = fl.SplitContainer(direction="column", items=[
         fl.SplitItem(content=_plot(f"{tag}angle vs reference", [(f"{s}.angle_deg", "angle"),
@@ -51,7 +54,16 @@ def _rig_view(prefix: str, name: str) -> fl.SplitContainer:
         fl.SplitItem(proportion=1, content=fl.RawMessagesPanel(title=f"{tag}latest event",
                                                                config=fl.RawMessagesConfig(topic_path=e))),
     ])
+    twin = fl.SplitContainer(direction="column", items=[
+        fl.SplitItem(content=_plot(f"{tag}twin: measured vs predicted angle",
+                                   [(f"{p}.angle_measured_deg", "measured"), (f"{p}.angle_predicted_deg", "twin")],
+                                   "deg")),
+        fl.SplitItem(content=_plot(f"{tag}twin: angle residual", [(f"{p}.angle_residual_deg", "residual")], "deg")),
+        fl.SplitItem(content=_plot(f"{tag}twin: residual test (CUSUM; an event above its threshold)",
+                                   [(f"{p}.cusum_max_counts", "CUSUM")], "counts")),
+    ])
     return fl.SplitContainer(direction="row", items=[fl.SplitItem(proportion=3, content=plots),
+                                                     fl.SplitItem(proportion=2, content=twin),
                                                      fl.SplitItem(proportion=1, content=state)])
 
 

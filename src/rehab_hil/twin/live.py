@@ -188,6 +188,12 @@ class Twin:
                     msg[f"{c}_cusum_counts"] = float(g[j])
                 for e in ests:
                     msg[patient_column(e.name)] = e.value
+                a = self._angle
+                if a >= 0:  # outputs.GENERIC_TWIN_FIELDS
+                    msg["angle_measured_deg"] = float(block.measured[k, a])
+                    msg["angle_predicted_deg"] = float(block.predicted[k, a])
+                    msg["angle_residual_deg"] = float(block.residual[k, a])
+                msg["cusum_max_counts"] = float(g.max())
                 for lst in self.listeners:
                     lst.prediction(msg)
             time.sleep(0)

@@ -14,11 +14,20 @@ from typing import Any
 
 from rehab_hil.twin.monitor import MismatchEvent
 
-__all__ = ["EVENT_KIND", "PREDICTION_TOPIC", "FoxgloveOutput", "RecordingOutput", "ZenohOutput"]
+__all__ = ["EVENT_KIND", "GENERIC_TWIN_FIELDS", "PREDICTION_TOPIC", "FoxgloveOutput", "RecordingOutput",
+           "ZenohOutput", "prediction_topic"]
 
 PREDICTION_TOPIC = "/twin/prediction"
+# plant-independent fields of every prediction message, so one Foxglove layout plots every plant's twin
+GENERIC_TWIN_FIELDS = ("angle_measured_deg", "angle_predicted_deg", "angle_residual_deg", "cusum_max_counts")
 PREDICTION_SCHEMA = "rehab_hil.TwinPrediction"
 EVENT_KIND = "model_mismatch"
+
+
+def prediction_topic(prefix: str = "/rig") -> str:
+    """A rig's twin prediction topic: ``/twin/prediction`` for the one rig of a session (as recorded),
+    ``/rigs/<rig>/twin/prediction`` beside that rig's channels in a lab view."""
+    return PREDICTION_TOPIC if prefix == "/rig" else f"{prefix}{PREDICTION_TOPIC}"
 
 
 class RecordingOutput:
@@ -54,6 +63,7 @@ class FoxgloveOutput:
 
     def __init__(self, live: Any, feed: Any) -> None:
         self.live, self.feed = live, feed
+        self.topic = prediction_topic(feed.prefix)
         self._channel: Any = None
 
     def prediction(self, msg: dict[str, float]) -> None:
@@ -63,7 +73,7 @@ class FoxgloveOutput:
             schema = foxglove.Schema(name=PREDICTION_SCHEMA, encoding="jsonschema", data=json.dumps(
                 {"title": PREDICTION_SCHEMA, "type": "object",
                  "properties": {k: {"type": "number"} for k in msg}}).encode())
-            self._channel = foxglove.Channel(PREDICTION_TOPIC, schema=schema, message_encoding="json",
+            self._channel = foxglove.Channel(self.topic, schema=schema, message_encoding="json",
                                              context=self.live.context)
         if self._channel.has_sinks():
             self._channel.log(json.dumps({k: (v if math.isfinite(v) else None) for k, v in msg.items()}).encode())
