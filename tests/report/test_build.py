@@ -53,3 +53,30 @@ def test_report_mistakes_are_one_line_naming_the_path(tmp_path, make_run, capsys
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and err.startswith("rehab-hil report: error: ")
     assert str(tmp_path) in err
+
+
+def _with_twin(run_dir, stiffness: float):
+    import json
+
+    meta_path = run_dir / "metadata.json"
+    meta = json.loads(meta_path.read_text())
+    meta["twin"] = {"channels": ["iris_angle_deg"]}
+    meta["model_events"] = [{"kind": "model_mismatch", "t_s": 15.0, "detected_s": 15.25, "channel": "iris_angle_deg",
+                             "size_counts": 5.2, "cause": "friction appearing: coulomb_friction, level_nm=0.05"}]
+    meta["patient"] = {"session": {"contact_spring_damper.stiffness_nm_per_rad": {
+        "value": stiffness, "ci95": 0.01, "final": stiffness, "nominal": 0.8}}}
+    meta_path.write_text(json.dumps(meta))
+    return run_dir
+
+
+def test_a_twin_run_reports_its_model_events_and_the_patients_estimate(tmp_path, make_run):
+    text = report_page([load_run(_with_twin(make_run(tmp_path, "20261101T090000Z-a"), 1.02))]).html()
+    assert "friction appearing: coulomb_friction" in text and "model_mismatch" in text
+    assert "contact_spring_damper.stiffness_nm_per_rad" in text and ">1.02<" in text
+
+
+def test_progress_follows_the_interaction_stiffness_across_sessions(tmp_path, make_run):
+    runs = [load_run(_with_twin(make_run(tmp_path, n), k)) for n, k in
+            [("20261101T0900Z-a", 1.0), ("20261108T0900Z-a", 1.6)]]
+    assert [r["stiffness"] for r in progress_rows(runs)] == [1.0, 1.6]
+    assert "no session ran the live twin" not in report_page(runs).html()

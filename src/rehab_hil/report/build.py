@@ -83,6 +83,7 @@ def _run_section(page: Page, run: RunData) -> None:
                        [[e.get("t_s"), e.get("reason"), e.get("detail")] for e in run.events], left=0))
     else:
         page.text("Safety events: none.")
+    _twin_section(page, run)
     page.figure(figures.session_figure(run))
     if run.cycles:
         page.heading("Cycles")
@@ -91,6 +92,32 @@ def _run_section(page: Page, run: RunData) -> None:
         page.raw(_cycle_table(run))
     else:
         page.text("No complete open-close cycle in this run.")
+
+
+def _twin_section(page: Page, run: RunData) -> None:
+    """The live twin's model events and the patient's interaction estimate (``run --twin``; docs/twin.md)."""
+    m = run.meta
+    if "twin" not in m:
+        page.text("Live twin: not run in this session (rehab-hil run --twin).")
+        return
+    events = m.get("model_events") or []
+    if events:
+        page.raw(table(["start t [s]", "seen at [s]", "model mismatch on", "size [counts]", "likely cause"],
+                       [[e.get("t_s"), e.get("detected_s"), e.get("channel"), e.get("size_counts"), e.get("cause")]
+                        for e in events], left=2))
+    else:
+        page.text("Model events (live twin): none; the model held over the whole session.")
+    est = _get(m, "patient", "session") or {}
+    if est:
+        page.raw(table(["interaction parameter", "session", "95 % interval", "at the end", "config"],
+                       [[name, v.get("value"), v.get("ci95"), v.get("final"), v.get("nominal")]
+                        for name, v in est.items()], left=1))
+
+
+def interaction_stiffness(meta: dict[str, Any]) -> float | None:
+    """The session's estimate of the first stiffness the twin estimated, or None."""
+    est = _get(meta, "patient", "session") or {}
+    return next((v.get("value") for name, v in est.items() if "stiffness" in name), None)
 
 
 def _fmt(v: Any) -> str:
@@ -108,6 +135,7 @@ def progress_rows(runs: Sequence[RunData]) -> list[dict[str, Any]]:
                     "rom_deg": s.get("rom_deg"), "peak_force": float(np.nanmean(peaks))
                     if np.isfinite(peaks).any() else None, "rmse_deg": s.get("rmse_deg"),
                     "energy_per_cycle_j": s.get("energy_per_cycle_j"), "controller": r.meta.get("controller"),
+                    "stiffness": interaction_stiffness(r.meta),
                     "rig": r.meta.get("rig_id")})
     return out
 
@@ -131,11 +159,12 @@ def report_page(runs: Sequence[RunData]) -> Page:
     page.text(f"From {runs[0].meta.get('start_time_utc')} to {last.meta.get('start_time_utc')}; per session the "
               f"mean over its cycles (peak {force} per cycle, from the record).", cls="sub")
     page.figure(figures.progress_figure(rows))
-    page.note("Interaction stiffness: not shown, no recording holds an estimate of it yet.")
+    if not any(r["stiffness"] is not None for r in rows):
+        page.note("Interaction stiffness: no session ran the live twin with an interaction estimate (docs/twin.md).")
     page.raw(table(["run", "start (UTC)", "rig", "controller", "cycles", "range of motion [deg]",
-                    f"peak {force}", "RMSE [deg]", "energy per cycle [J]"],
+                    f"peak {force}", "RMSE [deg]", "energy per cycle [J]", "interaction stiffness"],
                    [[r["label"], r["start"], r["rig"], r["controller"], r["cycles"], r["rom_deg"], r["peak_force"],
-                     r["rmse_deg"], r["energy_per_cycle_j"]] for r in rows], left=4))
+                     r["rmse_deg"], r["energy_per_cycle_j"], r["stiffness"]] for r in rows], left=4))
     page.heading(f"Newest session: {last.label}", level=2)
     _run_section(page, last)
     return page

@@ -57,14 +57,14 @@ def _line(t: np.ndarray, y: np.ndarray, name: str, buckets: int, **kw: Any) -> g
     return go.Scatter(x=_f32(tt), y=_f32(yy), name=name, mode="lines", **kw)
 
 
-def _event_shapes(fig: go.Figure, events: Sequence[dict[str, Any]], rows: int) -> None:
+def _event_shapes(fig: go.Figure, events: Sequence[dict[str, Any]], rows: int, color: str = "crimson") -> None:
     for ev in events:
         t = ev.get("t_s")
         if not isinstance(t, int | float) or not math.isfinite(t):
             continue
-        fig.add_vline(x=t, line={"color": "crimson", "dash": "dot", "width": 1.5}, row="all", col=1)
+        fig.add_vline(x=t, line={"color": color, "dash": "dot", "width": 1.5}, row="all", col=1)
         fig.add_annotation(x=t, y=1.0, yref="paper", text=str(ev.get("reason", "event")), showarrow=False,
-                           font={"color": "crimson", "size": 11}, xanchor="left", yanchor="bottom",
+                           font={"color": color, "size": 11}, xanchor="left", yanchor="bottom",
                            hovertext=str(ev.get("detail", "")))
 
 
@@ -88,6 +88,8 @@ def session_figure(run: RunData, buckets: int = SESSION_BUCKETS) -> go.Figure:
     for name, y in run.duty.items():
         fig.add_trace(_line(t, y, name, buckets, line={"shape": "hv"}), row=row["duty"], col=1)
     _event_shapes(fig, run.events, len(rows))
+    _event_shapes(fig, [{"t_s": e.get("t_s"), "reason": "model_mismatch", "detail": e.get("cause", "")}
+                        for e in run.meta.get("model_events") or []], len(rows), color="darkorange")
     fig.update_xaxes(title_text="time [s]", row=len(rows), col=1)
     fig.update_layout(**_LAYOUT, height=230 * len(rows) + 80, title="Session")
     return fig
