@@ -25,14 +25,38 @@ def avr_skip_reason() -> str | None:
     return reason() if callable(reason) else None
 
 
+_RUNNING: dict[tuple[str, str], tuple[Any, Any]] = {}  # the pool's devices: (kind, clock) -> (device, hardware)
+HERE = Path(__file__).resolve().parent
+
+
+def _close_pool() -> None:
+    while _RUNNING:
+        dev, hw = _RUNNING.popitem()[1]
+        hw.close()
+        dev.close()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    """Stop the pool's devices once this worker leaves the device tests (after the test's own
+    fixtures are torn down): a real-time firmware in simavr spins a quarter of a core while it
+    lives, and the rest of the suite needs that core."""
+    try:
+        return (yield)
+    finally:
+        if nextitem is None or HERE not in Path(nextitem.path).resolve().parents:
+            _close_pool()
+
+
 @pytest.fixture(scope="session")
 def device_pool() -> Iterator[Callable[..., Any]]:
     """``get(kind, clock)`` -> (running device, connected ``SerialHardware``), shared
-    by the tests; one connection per device keeps the host's sequence numbers unique."""
+    by the tests; one connection per device keeps the host's sequence numbers unique. A device
+    stopped since (``pytest_runtest_teardown``) is started again when asked for."""
     from rehab_hil.devices import spawn_device
     from rehab_hil.hardware import SerialHardware
 
-    running: dict[tuple[str, str], tuple[Any, SerialHardware]] = {}
+    running = _RUNNING
 
     def get(kind: str, clock: str = "realtime") -> tuple[Any, SerialHardware]:
         key = (kind, clock)
@@ -48,6 +72,4 @@ def device_pool() -> Iterator[Callable[..., Any]]:
     try:
         yield get
     finally:
-        for dev, hw in running.values():
-            hw.close()
-            dev.close()
+        _close_pool()
