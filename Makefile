@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	rm -f $(VENV)/.installed-* && touch $@
 
 run: $(STAMP)
-	$(BIN)/rehab-hil run --config configs/sma_exoskeleton.toml --device sim --duration 30 --record out/
+	$(BIN)/rehab-hil run --config configs/sma_exoskeleton.toml --device sim --duration 30 --twin --record out/
 
 test: $(STAMP) toolchain browser clients firmware harness
 	$(BIN)/ruff check .

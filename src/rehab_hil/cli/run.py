@@ -332,6 +332,8 @@ def run(args: argparse.Namespace) -> int:
         twin_meta = twin.close() if twin is not None else {}
         if twin_meta:
             result[0].twin = twin_meta
+            if twin.twin.csv_path is not None:
+                result[0].files.append(str(twin.twin.csv_path))
         if recorder is not None:
             end = {**result_metadata(result[0], recorder.rows), **twin_meta}
             recorder.close(summary=end)
