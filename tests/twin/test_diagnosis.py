@@ -126,10 +126,13 @@ def test_a_clean_window_names_no_cause(plant):
     assert diagnose(spec, cfg, _cut(spec, cfg, rec, 4.0, 8.0)).likeliest is None
 
 
-def test_a_window_that_nothing_excites_names_no_cause_instead_of_failing(sma):
+def test_a_held_duty_is_diagnosed_from_the_twin_state_and_refused_without_it(sma):
     spec, cfg = sma
-    w = changed_window(spec, cfg, input_scale={"supply_voltage_v": 0.92}, seed=3)  # duty constant all window
-    d = diagnose(spec, cfg, w.recording, w.x0, w.xd0)
+    w = changed_window(spec, cfg, input_scale={"supply_voltage_v": 0.92}, seed=3)  # duty 0.4 all window
+    assert np.ptp(w.recording["pwm_duty"]) == 0.0
+    d = diagnose(spec, cfg, w.recording, w.x0, w.xd0)  # the wire heats from the twin's state: a step response
+    assert d.likeliest is not None and d.likeliest.name == "drive.supply_voltage_v", d.text
+    d = diagnose(spec, cfg, w.recording)  # no state: the workflow's check refuses it, said in the event
     assert d.likeliest is None and d.causes == []
     assert "constant" in d.text
 
