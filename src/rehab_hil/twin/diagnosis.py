@@ -38,6 +38,17 @@ Wording: candidates that change the same physical quantity share a ``family`` (a
 is the ``passive_muscle`` or ``contact_spring_damper`` effect, the FE iris spring, the SMA contact
 or muscle parameters), so the event reads "passive stiffness rising: passive_muscle, +40 %"
 whichever of them ranks first, and names the others of the family that explain it about as well.
+
+Measured (``bench/diagnosis.py``: 10 kinds of change and a clean case on the three plants, 5 seeds,
+4 s windows from the change at 800 Hz on the rig's columns, this 2-core machine shared with other
+work): with the twin's state, the likeliest cause was of the changed quantity in 28 of the 28
+windows that show the change (29 of 50 in all: a TCP Coulomb friction of 0.01 N m and a doubled
+SMA pad stiffness never move the rig's channels beyond the noise gate) and no clean window named a
+cause (15 of 15); from the workflow's start estimate instead, 14 of 28 (a TCP start guessed with a
+wrong coil temperature is named as a force-sensor offset). CPU per call (this thread, kernels
+loaded), a full diagnosis: Finger Extensor median 0.45 s (max 0.58), TCP finger 1.38 s (1.96), SMA
+exoskeleton 2.17 s (4.59); a window the model fits within the noise returns in 0.04-0.7 s. With 6 s
+windows: 33 of 34 shown changes, 15 of 15 clean, SMA median 2.5 s.
 """
 
 from __future__ import annotations
@@ -296,7 +307,8 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
 
     ``x0``/``xd0``: the model state at the window's start in the twin's layout (the ``Replay``
     diagram, ``twin.model.TwinModel.x``/``xd``); without them the workflow's start estimate is used.
-    ``budget_s``: CPU seconds (this thread) after which no further candidate is screened or refined."""
+    ``budget_s``: CPU seconds (this thread): the screen stops at 60 % of it, and a refinement starts
+    only if one more as long as the previous fits in it."""
     t0 = time.thread_time()
     try:
         replay = _build(spec, cfg, rec, steady_ok=x0 is not None)
@@ -346,10 +358,13 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
     screened.sort(key=lambda s: -s[0])
     sims += obj.count
     causes: list[Cause] = []
+    last_fit_s = 0.0  # the previous refinement's cost: the next one starts only if it fits in the budget
     for k, (red, term, start) in enumerate(screened):
         values, P, refined = start, term.apply(P0, start), False
-        if k < refine and time.thread_time() - t0 < budget_s:
+        if k < refine and time.thread_time() - t0 + last_fit_s < budget_s:
+            t_fit = time.thread_time()
             fit = fit_joint(replay, P0, [term], [start], N)[0]
+            last_fit_s = time.thread_time() - t_fit
             sims += fit.n_simulations
             red_fit = 1.0 - fit.train_cost / ss0 if ss0 > 0 else 0.0
             if red_fit >= red:
