@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
 from rehab_hil.models.engine import cache_dir
 
@@ -59,6 +58,8 @@ def learn(simulate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: in
     u = np.zeros(n)
     lead = max(0, round(s.lead_s / step_s))
     release = max(0, round(s.release_lead_s / step_s))
+    from scipy.signal import butter, filtfilt  # 1.1 s of import: only when a feedforward is learned
+
     b, a = butter(2, min(s.filter_hz * 2.0 * step_s, 0.99))
     best: tuple[float, np.ndarray, dict[str, float]] = (np.inf, u.copy(), {})
     for _ in range(max(1, s.iterations)):
