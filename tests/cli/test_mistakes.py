@@ -28,6 +28,7 @@ WITH_CONFIG = {
     "sensitivity": ["sensitivity", "--config", "{cfg}"],
     "discrepancy": ["discrepancy", "--config", "{cfg}", "--data", "{tmp}/data.csv", "--out", "{tmp}/rep"],
     "replay": ["replay", "--config", "{cfg}", "--data", "{tmp}/data.csv"],
+    "twin": ["twin", "{tmp}/data.csv", "--config", "{cfg}"],
     "doctor": ["doctor", "--config", "{cfg}", "--device", "inprocess", "--yes"],
     "calibrate": ["calibrate", "force", "--config", "{cfg}", "--device", "inprocess", "--weights-g", "50,100",
                   "--sensor-id", "s1", "--yes"],

@@ -17,7 +17,7 @@ __all__ = ["SUBCOMMANDS", "UserError", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
-               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report", "import_data"]
+               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report", "import_data", "twin"]
 
 
 class UserError(Exception):
