@@ -26,6 +26,7 @@ Targets (one function and one table each):
   --device sim`` in real time through the pty (60 s sessions, off and on alternated).
 
     .venv/bin/python bench/live_twin.py [--plants finger_extensor,tcp_finger] [--minutes-clean 30] [--quick]
+    .venv/bin/python bench/live_twin.py --reaction-only     # the real-time reaction runs again, into the JSON
 
 Prints one table per target, writes bench/results/live_twin.json.
 """
@@ -395,8 +396,10 @@ def estimate_target(est: dict[str, dict[str, Any]]) -> dict[str, Any]:
             ok = p["tracked_s"] is not None and p["tracked_s"] <= TARGET_TRACK_S
             p["met"] = ok
             tr = f"{p['tracked_s']:.2f}" if p["tracked_s"] is not None else "never"
+            trip = e["safety_events"]["doubling"]
             print(f"{plant:16s} {p['name']:38s} {p['before']:9.4g} {p['truth']:9.4g} {p['final']:9.4g} "
-                  f"{p['new_truth']:9.4g} {tr:>9s} {'<= 5':>7s}  {'met' if ok else 'MISSED'}")
+                  f"{p['new_truth']:9.4g} {tr:>9s} {'<= 5':>7s}  {'met' if ok else 'MISSED'}"
+                  + (f" (rig tripped: {trip[0]})" if trip else ""))
     return est
 
 
@@ -405,14 +408,20 @@ def reaction_target(runs: list[dict[str, Any]]) -> dict[str, Any]:
     print(f"\n== loop reaction (sample in -> command out), rehab-hil run --device sim, real time: p99 with the "
           f"twin no more than {100 * TARGET_REACTION:.0f} % worse ==")
     print(f"{'run':>4s} {'plant':16s} {'twin':>5s} {'p50 us':>8s} {'p99 us':>8s} {'p99.9 us':>9s} {'max us':>9s} "
-          f"{'missed':>7s}")
+          f"{'missed':>7s} {'samples':>8s} {'load':>5s}  stop")
     for i, r in enumerate(runs):
         print(f"{i + 1:4d} {r['plant']:16s} {'on' if r['twin'] else 'off':>5s} {r['p50']:8.1f} {r['p99']:8.1f} "
-              f"{r['p99_9']:9.1f} {r['max']:9.1f} {r['missed']:>7s}")
+              f"{r['p99_9']:9.1f} {r['max']:9.1f} {r['missed']:>7s} {r.get('samples', -1):8d} "
+              f"{r.get('load_1min', math.nan):5.1f}  {r.get('stop', '?')} {' '.join(r.get('safety', []))}")
     out: dict[str, Any] = {"runs": runs}
-    for plant in dict.fromkeys(r["plant"] for r in runs):
-        off = [r["p99"] for r in runs if r["plant"] == plant and not r["twin"]]
-        on = [r["p99"] for r in runs if r["plant"] == plant and r["twin"]]
+    full = [r for r in runs if r.get("stop") == "duration reached"]
+    if len(full) < len(runs):
+        print(f"{len(runs) - len(full)} of {len(runs)} runs stopped before their duration (shown above); the "
+              "comparison below uses the runs that reached it, when both ways have one")
+    use = full if {r["twin"] for r in full} == {False, True} else runs
+    for plant in dict.fromkeys(r["plant"] for r in use):
+        off = [r["p99"] for r in use if r["plant"] == plant and not r["twin"]]
+        on = [r["p99"] for r in use if r["plant"] == plant and r["twin"]]
         if not off or not on:
             continue
         m_off, m_on = float(np.mean(off)), float(np.mean(on))
@@ -509,6 +518,7 @@ def estimate_sessions(plant: str, folder: Path, log: Callable[[str], None]) -> d
                                 "tracked_s": _track(doubled.estimates, name, 2 * v, CHANGE_S),
                                 "history": [(round(t, 3), vals[name]) for t, vals in doubled.estimates[::4]]})
     out["events"] = {"steady": steady.model_events, "doubling": doubled.model_events}
+    out["safety_events"] = {"steady": steady.safety_events, "doubling": doubled.safety_events}
     log(f"{plant} estimate: steady {[round(p['final'], 5) for p in out['steady']]}, doubled "
         f"{[round(p['final'], 5) for p in out['doubling']]}")
     return out
@@ -516,6 +526,8 @@ def estimate_sessions(plant: str, folder: Path, log: Callable[[str], None]) -> d
 
 _REACTION = re.compile(r"reaction.*?p50/p99/p99\.9/max\s*[│|]\s*([\d.]+) / ([\d.]+) / ([\d.]+) / ([\d.]+) us")
 _MISSED = re.compile(r"missed cycles\s*[│|]\s*(\S+ \([^)]*\))")
+_STOP = re.compile(r"rehab-hil run: ([^\n│|]*?)\s*$", re.M)
+_SAMPLES = re.compile(r"cycles / samples / gaps / reboots\s*[│|]\s*\d+ / (\d+) /")
 
 
 def reaction_runs(plant: str, pairs: int, duration_s: float, log: Callable[[str], None]) -> list[dict[str, Any]]:
@@ -526,16 +538,23 @@ def reaction_runs(plant: str, pairs: int, duration_s: float, log: Callable[[str]
         twin = i % 2 == 1
         cmd = [exe, "run", "--config", str(CONFIGS / f"{plant}.toml"), "--device", "sim", "--duration",
                f"{duration_s:g}", "--no-display", *(["--twin"] if twin else [])]
+        load = os.getloadavg()[0]  # the machine is shared: what else ran is part of the figure
         p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "COLUMNS": "250"},
                            timeout=duration_s + 300)
         m = _REACTION.search(p.stdout)
         if m is None:
             raise RuntimeError(f"no reaction line in the output of {' '.join(cmd)}:\n{p.stdout}\n{p.stderr}")
         mm = _MISSED.search(p.stdout)
+        stop = _STOP.search(p.stdout)
+        samples = _SAMPLES.search(p.stdout)
         r = {"plant": plant, "twin": twin, "p50": float(m[1]), "p99": float(m[2]), "p99_9": float(m[3]),
-             "max": float(m[4]), "missed": mm[1].split()[0] if mm else "?", "command": " ".join(cmd[1:])}
+             "max": float(m[4]), "missed": mm[1].split()[0] if mm else "?", "stop": stop[1] if stop else "?",
+             "samples": int(samples[1]) if samples else -1, "load_1min": load,
+             "safety": [ln.strip(" │|") for ln in p.stdout.splitlines() if "safety " in ln and "events" not in ln],
+             "command": " ".join(cmd[1:])}
         runs.append(r)
-        log(f"reaction {plant} twin {'on' if twin else 'off'}: p99 {r['p99']:.1f} us")
+        log(f"reaction {plant} twin {'on' if twin else 'off'}: p99 {r['p99']:.1f} us, {r['samples']} samples, "
+            f"{r['stop']} {r['safety']}, load {load:.1f}")
     return runs
 
 
@@ -546,8 +565,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--quick", action="store_true", help="no small changes, one reaction pair of 20 s")
     ap.add_argument("--reaction-plant", default="finger_extensor")
     ap.add_argument("--no-reaction", action="store_true", help="skip the real-time reaction runs")
+    ap.add_argument("--reaction-only", action="store_true",
+                    help="run the real-time reaction runs only, replacing 'reaction' in an existing --out")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
+    if args.reaction_only:
+        reaction_only(args)
+        return
     plants = [p for p in args.plants.split(",") if p]
     t_start = time.perf_counter()
 
@@ -567,7 +591,11 @@ def main(argv: Sequence[str] | None = None) -> None:
                 est[plant] = estimate_sessions(plant, folder, log)
     reaction: list[dict[str, Any]] = []
     if not args.no_reaction:
-        reaction = reaction_runs(args.reaction_plant, 1 if args.quick else 2, 20.0 if args.quick else SESSION_S, log)
+        try:
+            reaction = reaction_runs(args.reaction_plant, 1 if args.quick else 2, 20.0 if args.quick else SESSION_S,
+                                     log)
+        except (RuntimeError, subprocess.TimeoutExpired) as e:  # the sessions' figures still get written
+            log(f"reaction runs failed: {e}")
     wall = time.perf_counter() - t_start
 
     results = {
@@ -588,6 +616,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1, default=_json_default))
     print(f"\nwall time {wall / 60:.1f} min; wrote {args.out}")
+
+
+def reaction_only(args: argparse.Namespace) -> None:
+    """The loop-reaction part alone, written into the results of an earlier full run."""
+    results = json.loads(args.out.read_text())
+    t0 = time.perf_counter()
+    runs = reaction_runs(args.reaction_plant, 1 if args.quick else 2, 20.0 if args.quick else SESSION_S,
+                         lambda text: print(f"[{time.perf_counter() - t0:7.1f} s] {text}", flush=True))
+    results["reaction"] = reaction_target(runs)
+    args.out.write_text(json.dumps(results, indent=1, default=_json_default))
+    print(f"wrote {args.out} (reaction replaced)")
 
 
 def _json_default(o: Any) -> Any:
