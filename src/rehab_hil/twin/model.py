@@ -30,6 +30,7 @@ from rehab_hil.protocol import DUTY_FULL
 
 __all__ = ["Block", "TwinModel", "TwinSetupError"]
 
+ANCHOR_SAMPLES = 10  # the anchoring error is the mean over this many samples: sensor noise averages out
 FD_STEP = 0.02  # finite-difference step on a state for the anchor gain (relative, and its floor): wider
 # than an encoder count, whose quantised output has no slope over a smaller step
 
@@ -193,6 +194,13 @@ class TwinModel:
             Y[:, j] = (c - offset) / per_unit
         return Y
 
+    def beyond_resolution(self, err: np.ndarray) -> np.ndarray:
+        """The part of an error a sensor can vouch for: within half a count of the reading the
+        truth may lie anywhere, and anchoring a slow state (a coil's heat behind a force) on that
+        rounding walks it away from a model that was right."""
+        e = np.nan_to_num(err)
+        return np.sign(e) * np.maximum(np.abs(e) - 0.5 * self.resolution, 0.0)
+
     def anchor(self, measured: np.ndarray, u: np.ndarray) -> None:
         """Set the matched states so the model's outputs equal ``measured`` (a few Newton steps)."""
         K = self.anchor_gain
@@ -239,7 +247,9 @@ class TwinModel:
             self._last_index = int(index[j - 1])
             self._since_anchor += j - k
             if self._since_anchor >= self.segment_samples:
-                self.x += self.anchor_gain @ np.nan_to_num(measured[j - 1] - pred[j - 1])
+                tail = slice(max(k, j - ANCHOR_SAMPLES), j)  # the error's mean over the segment's last samples
+                err = np.nanmean(measured[tail] - pred[tail], axis=0)
+                self.x += self.anchor_gain @ self.beyond_resolution(err)
                 anchored[j - 1] = True
                 self._since_anchor = 0
             k = j
