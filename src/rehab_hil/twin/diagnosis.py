@@ -105,6 +105,11 @@ SESSION_PARAMETERS: dict[str, tuple[FitParameter, ...]] = {
         FitParameter("finger.spring_nm_per_deg",  # seed 001 Table 2: K of every joint
                      diagram=("spring_mcp.stiffness_nm_per_rad", "spring_pip.stiffness_nm_per_rad",
                               "spring_dip.stiffness_nm_per_rad")),
+        # the heating power at full duty scales with the supply voltage squared (seed 001 eq 1: P = V^2 / R)
+        FitParameter("muscle.max_power_w", inputs=("power_w",)),
+    ),
+    "finger_extensor": (
+        FitParameter("motor.supply_v", inputs=("motor_voltage_v",)),  # seed 002 sec 3.2: the PWM's full scale
     ),
 }
 
@@ -118,6 +123,7 @@ FAMILY: dict[str, str] = {
     "sma_hysteresis": "SMA hysteresis", "nonlinear_convection": "cooling",
     "sensor_gain_offset": "force sensor calibration", "sensor_creep_hysteresis": "force sensor creep",
     "drive.supply_voltage_v": "supply voltage", "sma.prestrain": "SMA wire prestrain",
+    "motor.supply_v": "supply voltage", "muscle.max_power_w": "supply voltage",
     "sma.h1_w_per_m2_c": "wire cooling", "motor.kt_nm_per_a": "motor torque constant",
     "motor.resistance_ohm": "motor resistance", "motor.rotor_inertia_kg_m2": "inertia",
 }
@@ -202,6 +208,7 @@ def _session_terms(replay: Replay) -> list[ParameterTerm]:
             idx = tuple(d.param_index(q) for q in fp.diagram)
         except (KeyError, ValueError):
             continue
+        idx += tuple(replay.input_scale_index(u) for u in fp.inputs if u in replay.system.input_names)
         nominal = tuple(float(P[i]) for i in idx)
         if any(v != 0.0 for v in nominal):
             out.append(ParameterTerm(fp, idx, nominal))
