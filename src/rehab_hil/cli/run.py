@@ -189,7 +189,8 @@ def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
     if not meta:
         return
     tw = meta["twin"]
-    normal = ", ".join(f"{c} {v:.3g}" for c, v in tw.get("normal_residual", {}).items())
+    normal = ", ".join(f"{c} {v:.3g}" if v is not None else f"{c} still learning" for c, v in
+                       tw.get("normal_residual", {}).items())
     t.add_row("twin: normal residual / CPU per sample", f"{normal} / {tw.get('cpu_per_sample_us', 0):.1f} us")
     if tw.get("error"):
         t.add_row("[red]twin stopped", tw["error"])

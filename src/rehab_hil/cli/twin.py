@@ -89,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"model_mismatch {ev.text()}")
     if not twin.monitor.events:
         print(f"no model event over {twin.samples} samples (normal residual: "
-              + ", ".join(f"{c.name} {c.first_mu * c.resolution:.3g}" for c in twin.monitor.channels) + ")")
+              + ", ".join(f"{c} {v:.3g}" if v is not None else f"{c} still learning"
+                          for c, v in twin.summary()["normal_residual"].items()) + ")")
     patient = twin.patient()
     for name, v in patient.get("session", {}).items():
         print(f"patient {name}: {v['final']:.4g} +/- {v['final_ci95']:.2g} at the end (config {v['nominal']:.4g})")

@@ -266,7 +266,9 @@ class Twin:
         return {"channels": self.channels, "segment_s": self.settings.segment_s, "samples": self.samples,
                 "segments": self.segments, "model_realtime_factor": self.rtf,
                 "cpu_per_sample_us": 1e6 * self.busy_s / max(self.samples, 1),
-                "normal_residual": {ch.name: ch.first_mu * ch.resolution for ch in self.monitor.channels}}
+                # None: the session ended before the normal level was learned (settle_s + learn_s)
+                "normal_residual": {ch.name: ch.first_mu * ch.resolution if math.isfinite(ch.first_mu) else None
+                                    for ch in self.monitor.channels}}
 
 
 class LiveTwin:
