@@ -118,58 +118,76 @@ def test_a_closed_standard_input_at_a_prompt_is_one_line(argv, tmp_path):
                       "terminal, or pass --yes (doctor, calibrate) or --home none (run)"
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("device", ["sim", "avr"])
-def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path, device):
-    """Ctrl-C typed in a real terminal (a pty whose line discipline sends SIGINT to its whole
-    foreground process group): the host's, and the simulated device's (for the firmware: its driver
-    and simavr) unless the device runs in a process group of its own. The live display is on, as in
-    a terminal."""
-    import pty
-    import select
+class Terminal:
+    """``rehab-hil ARGS`` in a real terminal (a pty whose line discipline sends SIGINT to its whole
+    foreground process group), its output collected; killed and closed on exit."""
 
-    pid, fd = pty.fork()
-    if pid == 0:  # the child: its own session, the pty its controlling terminal
-        os.chdir(ROOT)
-        os.execv(sys.executable, [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(FE), "--device",
-                                  device, "--lockstep", "--duration", "600", "--record", str(tmp_path),
-                                  "--home", "none"])
-    out = bytearray()
+    def __init__(self, *args: str) -> None:
+        import pty
 
-    def pump(seconds: float) -> bool:
+        self.pid, self.fd = pty.fork()
+        if self.pid == 0:  # the child: its own session, the pty its controlling terminal
+            os.chdir(ROOT)
+            os.execv(sys.executable, [sys.executable, "-m", "rehab_hil.cli", *args])
+        self.out = bytearray()
+
+    def pump(self, seconds: float) -> bool:
+        """Collect output for ``seconds``; False once the child closed the terminal."""
+        import select
+
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            if select.select([fd], [], [], 0.1)[0]:
+            if select.select([self.fd], [], [], 0.1)[0]:
                 try:
-                    data = os.read(fd, 65536)
-                except OSError:  # the child closed the terminal
+                    data = os.read(self.fd, 65536)
+                except OSError:
                     return False
                 if not data:
                     return False
-                out.extend(data)
+                self.out.extend(data)
         return True
 
-    try:
+    def type(self, key: bytes) -> int:
+        """Type ``key``, collect the rest of the output (up to 120 s) and return the exit code."""
+        os.write(self.fd, key)
+        deadline = time.monotonic() + 120
+        while self.pump(0.5) and time.monotonic() < deadline:
+            pass
+        return os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
+
+    @property
+    def text(self) -> str:
+        return self.out.decode(errors="replace")
+
+    def __enter__(self) -> Terminal:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            os.kill(self.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        os.close(self.fd)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("device", ["sim", "avr"])
+def test_ctrl_c_in_a_terminal_stops_a_simulated_rig_cleanly(tmp_path, device):
+    """Ctrl-C typed in a real terminal: the host's process group gets SIGINT, and the simulated
+    device's (for the firmware: its driver and simavr) unless the device runs in a process group of
+    its own. The live display is on, as in a terminal."""
+    with Terminal("run", "--config", str(FE), "--device", device, "--lockstep", "--duration", "600", "--record",
+                  str(tmp_path), "--home", "none") as term:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
-            pump(0.2)
+            term.pump(0.2)
             found = list(tmp_path.glob("*/run.csv"))
             if found and found[0].stat().st_size > 20000:
                 break
-        assert found, out.decode(errors="replace")[-2000:]
-        os.write(fd, b"\x03")  # Ctrl-C
-        deadline = time.monotonic() + 120
-        while pump(0.5) and time.monotonic() < deadline:
-            pass
-        _, status = os.waitpid(pid, 0)
-    finally:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        os.close(fd)
-    text = out.decode(errors="replace")
-    assert os.waitstatus_to_exitcode(status) == 0, text[-3000:]
+        assert found, term.text[-2000:]
+        code = term.type(b"\x03")  # Ctrl-C
+    text = term.text
+    assert code == 0, text[-3000:]
     assert "Traceback" not in text and "link_loss" not in text
     assert "stop_request" in text and "SIGINT" in text
     assert "yes" in text.split("device PWM off at end")[1].splitlines()[0]
@@ -191,38 +209,13 @@ def test_monitor_with_no_hub_is_one_line_with_a_hint(capsys):
 
 def test_ctrl_d_at_the_homing_prompt_is_one_line(tmp_path):
     """On a terminal ``run`` asks before it zeroes the encoder; Ctrl-D there ends it in one line."""
-    import pty
-    import select
-
-    pid, fd = pty.fork()
-    if pid == 0:
-        os.chdir(ROOT)
-        os.execv(sys.executable, [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(FE), "--device",
-                                  "inprocess", "--duration", "5", "--no-display", "--record", str(tmp_path)])
-    out = bytearray()
-    try:
+    with Terminal("run", "--config", str(FE), "--device", "inprocess", "--duration", "5", "--no-display",
+                  "--record", str(tmp_path)) as term:
         deadline = time.monotonic() + 120
-        while b"press Enter" not in out and time.monotonic() < deadline:
-            if select.select([fd], [], [], 0.2)[0]:
-                out.extend(os.read(fd, 65536))
-        assert b"press Enter" in out, out.decode(errors="replace")
-        os.write(fd, b"\x04")  # Ctrl-D
-        while True:
-            try:
-                data = os.read(fd, 65536)
-            except OSError:
-                break
-            if not data:
-                break
-            out.extend(data)
-        _, status = os.waitpid(pid, 0)
-    finally:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        os.close(fd)
-    text = out.decode(errors="replace")
-    assert os.waitstatus_to_exitcode(status) == 2 and "Traceback" not in text
-    assert "rehab-hil run: error: standard input closed while waiting for an answer" in text
+        while b"press Enter" not in term.out and time.monotonic() < deadline:
+            term.pump(0.2)
+        assert b"press Enter" in term.out, term.text
+        code = term.type(b"\x04")  # Ctrl-D
+    assert code == 2 and "Traceback" not in term.text
+    assert "rehab-hil run: error: standard input closed while waiting for an answer" in term.text
     assert not list(tmp_path.glob("*/run.csv"))  # nothing recorded: the session never started
