@@ -24,6 +24,7 @@ re-anchors with.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -37,7 +38,8 @@ from rehab_hil.discrepancy.verdict import SPREAD_SHARE
 if TYPE_CHECKING:
     from rehab_hil.discrepancy.replay import Replay
 
-__all__ = ["MATCH_SHARE", "MAX_MEMORY_SHARE", "RANGE_MARGIN", "WINDOW_S", "InitialState", "estimate_initial_state"]
+__all__ = ["MATCH_SHARE", "MAX_MEMORY_SHARE", "RANGE_MARGIN", "WINDOW_S", "InitialState", "estimate_initial_state",
+           "matched_states"]
 
 MATCH_SHARE = 0.95  # a channel "is" a state when that state carries this share of its sensitivity
 WINDOW_S = 1.5  # nuisance states are fitted on this much of the record's start
@@ -99,6 +101,19 @@ def _jacobian(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, h: n
     return C
 
 
+def matched_states(C: np.ndarray, channels: Sequence[int], tol: float = 1e-9) -> dict[int, int]:
+    """channel -> the state it "is": the one that carries ``MATCH_SHARE`` of its row of the output
+    Jacobian ``C`` (an encoder angle is the joint angle times a gain); channels that are no one state
+    are left out. The live twin re-anchors on the same pairs (``twin/model.py``)."""
+    matched: dict[int, int] = {}
+    for c in channels:
+        row = np.abs(C[c])
+        norm = float(np.linalg.norm(row))
+        if norm > tol and row.max() >= MATCH_SHARE * norm:
+            matched[c] = int(np.argmax(row))
+    return matched
+
+
 def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> InitialState:
     """Set ``replay.x0``, ``xd0`` and ``anchor_gain`` from the data; returns what was done."""
     s = replay.system
@@ -108,14 +123,9 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     h = FD_SHARE * scales
     C = _jacobian(replay, P, x, xd, h)
     target = replay.measured_grid[:, 0] / replay.scale
-    matched: dict[int, int] = {}  # channel -> state
-    for c in range(C.shape[0]):
-        if replay.channels[c] not in replay.spec.outputs:  # a replayed loop's effort is no state of the plant
-            continue
-        row = np.abs(C[c])
-        norm = float(np.linalg.norm(row))
-        if norm > 1e-9 and row.max() >= MATCH_SHARE * norm and np.isfinite(target[c]):
-            matched[c] = int(np.argmax(row))
+    # a replayed loop's effort is no state of the plant
+    matched = matched_states(C, [c for c in range(C.shape[0]) if replay.channels[c] in replay.spec.outputs
+                                 and np.isfinite(target[c])])
     states = sorted(set(matched.values()))
     chans = sorted(matched)
     K = np.zeros((x.size, C.shape[0]))

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.discrepancy.initial_state import MATCH_SHARE
+from rehab_hil.discrepancy.initial_state import matched_states
 from rehab_hil.discrepancy.replay import ADC_FULL_SCALE_COUNTS, Replay
 from rehab_hil.interchange import Recording
 from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
@@ -126,12 +126,7 @@ class TwinModel:
         is, found as ``initial_state`` finds them: the output Jacobian's dominant entry)."""
         C = self.output_jacobian(self.x, self.xd, self._u_const)
         K = np.zeros((self.x.size, len(self.channels)))
-        matched: dict[int, int] = {}
-        for c in range(C.shape[0]):
-            row = np.abs(C[c])
-            norm = float(np.linalg.norm(row))
-            if norm > 1e-12 and row.max() >= MATCH_SHARE * norm:
-                matched[c] = int(np.argmax(row))
+        matched = matched_states(C, range(C.shape[0]), tol=1e-12)
         if matched:
             chans = sorted(matched)
             states = sorted(set(matched.values()))

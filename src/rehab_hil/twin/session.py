@@ -108,8 +108,6 @@ def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str |
         listeners.append(FoxgloveOutput(telemetry.live, telemetry.feed))
     try:
         twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners)
-    except TwinSetupError:
-        raise
-    except ValueError as e:
+    except ValueError as e:  # a TwinSetupError, or a model the twin cannot bind: one line either way
         raise TwinSetupError(str(e)) from None
     return TwinRun(LiveTwin(twin), cfg, cycle_s)
