@@ -76,6 +76,22 @@ def test_patient_contact_stiffness_doubling_is_named_as_the_configured_effect_pl
     assert "+9" in d.text or "+10" in d.text
 
 
+def test_a_patient_contact_stiffening_as_a_whole_is_named_as_the_whole_effect_and_a_stiffer_spring_alone_is_not(fe):
+    spec, cfg = fe
+    contact = {"stiffness_nm_per_rad": 1.0, "damping_nm_s_per_rad": 0.025, "contact_angle_rad": 0.4}
+    patient = cfg.model_copy(update={"effects": [EffectSpec(name="contact_spring_damper", params=contact)]})
+    w = changed_window(spec, patient, effects={"contact_spring_damper": contact}, seed=1)  # k and c x 2
+    d = diagnose(spec, patient, w.recording, w.x0, w.xd0)
+    assert d.likeliest is not None and d.likeliest.name == "effects.0.params", d.text
+    assert d.likeliest.relative_change == pytest.approx(1.0, abs=0.1)
+    assert d.text.startswith("passive stiffness rising: contact_spring_damper as a whole (effects.0.params), +")
+
+    spring = {**contact, "damping_nm_s_per_rad": 0.0}
+    w = changed_window(spec, patient, effects={"contact_spring_damper": spring}, seed=1)  # k x 2 only
+    d = diagnose(spec, patient, w.recording, w.x0, w.xd0)
+    assert d.likeliest is not None and d.likeliest.name == "effects.0.params.stiffness_nm_per_rad", d.text
+
+
 def test_passive_muscle_appearing_on_the_sma_finger_is_a_passive_stiffness(sma):
     spec, cfg = sma
     w = changed_window(spec, cfg, effects={"passive_muscle": {"scale_nm": 0.02, "shape_per_rad": 2.0,

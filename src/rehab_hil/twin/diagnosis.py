@@ -31,8 +31,10 @@ config's own ``[[effects]]`` (a patient model's contact stiffness doubling is "+
 configured effect, named by its config path ``effects.<i>.params.<param>``), and the patient- and
 wire-side parameters a session can see change (``SESSION_PARAMETERS``: the SMA wire's prestrain,
 seed 000 Table 2 / eq 14; the SMA contact pad's stiffness, seed 000 eq 18-28 / Table 4; the TCP
-finger's joint springs, seed 001 Table 2). A parameter's relative error may reach +200 % here
-(``ERROR``; the workflow's own stops at +100 %, and a doubling must not sit on the bound).
+finger's joint springs, seed 001 Table 2), and a configured effect's magnitudes scaled together (a
+patient's contact stiffening as a whole). A parameter's relative error may reach -80 % .. +500 % here
+(``ERROR``; the workflow's own stops at -50 % .. +100 %, and a change of a session must not sit on
+the bound).
 
 Wording: candidates that change the same physical quantity share a ``family`` (a passive stiffness
 is the ``passive_muscle`` or ``contact_spring_damper`` effect, the FE iris spring, the SMA contact
@@ -77,17 +79,20 @@ from rehab_hil.plants.base import FitParameter, Plant
 __all__ = ["ERROR", "MIN_REDUCTION", "SESSION_PARAMETERS", "Cause", "Diagnosis", "Window", "candidate_terms",
            "changed_window", "diagnose", "rig_channels"]
 
-# a diagnosis parameter's relative error: factor 0.5 .. 3 of the config's value (a stiffness doubling
-# inside the bounds, not on them)
-ERROR = EffectParam(ERROR_PARAM.name, -0.5, 2.0, ERROR_PARAM.typical)
+# a diagnosis parameter's relative error: factor 0.2 .. 6 of the config's value (a stiffness doubling
+# or a passive muscle five times as strong inside the bounds, not on them; a TCP heating power halved
+# by a sagging supply sat on the old lower bound of -50 %)
+ERROR = EffectParam(ERROR_PARAM.name, -0.8, 5.0, ERROR_PARAM.typical)
 MIN_REDUCTION = 0.5  # the likeliest cause must cut the window's weighted residual (sum of squares) this much
-REFINE = 4  # candidates refined after the screen
+# candidates refined after the screen (a Coulomb friction's regression start, linearised at "off",
+# screened 7th on an SMA window it explained best once refined)
+REFINE = 8
 START_WINDOW_S = 1.0  # the unmeasured start states are refined on this much of the window
 START_DIFF_STEP = 0.3  # their finite-difference step, a share of each state's spread (sees through a count)
 # a parameter's screen also tries these relative errors: the SMA is far from linear in its supply
 # (the transformation's threshold), and the regression's step of +10 % pointed a supply 8 % low the
 # wrong way (refined to -0.4 %, while an actuator dead zone took the first place)
-ERROR_GRID = (-0.3, -0.15, -0.07, 0.1, 0.4, 1.0)
+ERROR_GRID = (-0.3, -0.15, -0.07, 0.1, 0.4, 1.0, 3.0)
 # an effect and a parameter whose leftover residuals are within this factor are a tie, and the
 # parameter is named (the workflow's rule, ``verdict``: a supply 8 % low and a driver dead zone of
 # 0.06 are the same thing at one duty level)
@@ -177,7 +182,10 @@ def _scans(term: Term) -> bool:
 
 
 def _configured_effect_terms(replay: Replay) -> list[ParameterTerm]:
-    """The config's own ``[[effects]]`` magnitude parameters (non-zero) as relative-error terms."""
+    """The config's own ``[[effects]]`` magnitude parameters (non-zero) as relative-error terms, and,
+    for an effect with several, all of them scaled together (``effects.<i>.params``: a patient's
+    contact that stiffens as a whole, stiffness and damping alike, as spasticity does; a stiffness-only
+    term left 1.5x the residual of a supply sag on such a doubling)."""
     out = []
     seen: dict[str, int] = {}
     P = replay.nominal_params()
@@ -185,6 +193,7 @@ def _configured_effect_terms(replay: Replay) -> list[ParameterTerm]:
     for i, spec in enumerate(getattr(replay.cfg, "effects", ()) or ()):
         seen[spec.name] = seen.get(spec.name, 0) + 1
         part = f"effect_{spec.name}" + (f"_{seen[spec.name]}" if seen[spec.name] > 1 else "")
+        mags: list[tuple[str, int]] = []
         for p in EFFECTS[spec.name].params:
             if not p.linear or p.off is None:
                 continue
@@ -193,9 +202,13 @@ def _configured_effect_terms(replay: Replay) -> list[ParameterTerm]:
             except (KeyError, ValueError):
                 continue
             if P[idx] != 0.0:
+                mags.append((p.name, idx))
                 fp = FitParameter(f"effects.{i}.params.{p.name}", diagram=(f"{part}.{p.name}",),
                                   label=f"effects.{i}.params.{p.name}")
                 out.append(ParameterTerm(fp, (idx,), (float(P[idx]),)))
+        if len(mags) > 1:
+            fp = FitParameter(f"effects.{i}.params", diagram=tuple(f"{part}.{n}" for n, _ in mags))
+            out.append(ParameterTerm(fp, tuple(j for _, j in mags), tuple(float(P[j]) for _, j in mags)))
     return out
 
 
@@ -419,7 +432,9 @@ def _sentence_for(replay: Replay, term: Term, family: str, values: Mapping[str, 
     name = term.name
     if name.startswith("effects."):
         i = int(name.split(".")[1])
-        name = f"{replay.cfg.effects[i].name}.{name.split('.')[-1]} ({name})"
+        what = "as a whole" if name.endswith(".params") else name.split(".")[-1]
+        name = f"{replay.cfg.effects[i].name} {what} ({name})" if what == "as a whole" \
+            else f"{replay.cfg.effects[i].name}.{what} ({name})"
     return f"{head}: {name}, {_change_text(term, values, relative)}"
 
 

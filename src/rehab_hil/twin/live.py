@@ -214,7 +214,10 @@ class Twin:
     def window(self, start_s: float, end_s: float) -> tuple[Recording, np.ndarray, np.ndarray] | None:
         """The session from the last anchor at or before ``start_s`` to ``end_s`` on the model's
         signals, and the model's state at its start (None when the history no longer has it)."""
-        k0 = round(start_s / self.period_s)
+        # a segment's anchor is taken after its last sample (index + 1), and an event's start is that
+        # sample's time: the anchor at the start is the one at k0 + 1 (was k0: the window began a
+        # segment early, and the change fitted over it was in force 0.25 s before it was)
+        k0 = round(start_s / self.period_s) + 1
         start = [a for a in self.anchors if a[0] <= k0]
         if not start:
             return None
