@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rehab_hil.plants.base import EffectSpec
 from rehab_hil.twin.live import LiveTwin, Twin
 from rehab_hil.twin.settings import TwinSection
 
@@ -55,3 +56,20 @@ def test_the_diagnosis_window_of_an_event_starts_at_the_anchor_taken_at_its_star
     rec, x0, _ = window
     np.testing.assert_array_equal(x0, x_at)
     assert rec.t[0] == 0.0 and rec.t.size == round(0.2 / twin.period_s)
+
+
+def test_a_monitor_over_long_segments_keeps_the_estimate_on_its_own_short_ones() -> None:
+    # a slow plant's residual is tested over 1 s segments while the contact estimate still updates every
+    # 0.25 s (the TCP finger's config): four estimate updates per tested segment, none across an anchor
+    duty = np.repeat(np.random.default_rng(3).uniform(-0.6, 0.6, 20), 200)
+    cfg, binding, records = plant_records(CONFIGS / "finger_extensor.toml", duty)
+    cfg = cfg.model_copy(update={"effects": [EffectSpec(name="contact_spring_damper", params={
+        "stiffness_nm_per_rad": 1.0, "damping_nm_s_per_rad": 0.02, "contact_angle_rad": 0.3})]})
+    twin = Twin(cfg, binding, 0.001, TwinSection(diagnose=False, segment_s=1.0, estimate_segment_s=0.25),
+                check_speed=False)
+    for r in records:
+        twin.feed(r)
+    twin.process()
+    assert twin.model.segment_samples == 1000 and twin.estimator.model.segment_samples == 250
+    assert twin.segments == len(records) // 1000
+    assert twin.estimator.updates == len(records) // 250 - 1  # every segment after the first anchor

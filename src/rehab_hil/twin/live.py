@@ -65,14 +65,18 @@ class Twin:
         self.listeners = list(listeners)
         self.channels = self.model.channels
         names = self.settings.estimate or default_estimates(self.model)
-        self.estimator = (InteractionEstimator(TwinModel(cfg, binding, period_s, self.settings.segment_s,
+        est_segment_s = self.settings.estimate_segment_s or self.settings.segment_s
+        self.estimator = (InteractionEstimator(TwinModel(cfg, binding, period_s, est_segment_s,
                                                          self.settings.channels or None),
                                                names, self.settings.forgetting_s) if names else None)
         self.estimate_history: list[tuple[float, list[Estimate]]] = []  # (segment end, estimates)
         runs = 1 + (2 + len(names) if self.estimator is not None else 0)
         self.rtf = check_rate(self.model, runs, self.settings.min_realtime_factor) if check_speed else math.nan
         n_in = len(self.model.system.input_names)
-        cap = self.model.segment_samples
+        # a block is the shorter of the two models' segments: the estimate's RLS takes one segment of
+        # its own model at a time, and the monitor sums a longer segment over several blocks
+        cap = min(self.model.segment_samples,
+                  self.estimator.model.segment_samples if self.estimator is not None else self.model.segment_samples)
         self._index = np.zeros(cap, dtype=np.int64)
         self._U = np.zeros((cap, n_in))
         self._Y = np.zeros((cap, len(self.channels)))

@@ -32,6 +32,9 @@ class TwinSection(Section):
     estimate: list[str] = Field(default_factory=list, description="interaction parameters estimated online, as "
                                 "diagram parameters (part.param) or effect parameters (effect.param); default: "
                                 "the contact's stiffness and damping when the model has a contact")
+    estimate_segment_s: float | None = Field(None, gt=0.0, le=5.0, description="re-anchoring period of the online "
+                                             "estimate's own model [s] (default: segment_s); a slow plant's "
+                                             "monitor may look over longer segments than its estimate needs")
     forgetting_s: float = Field(2.0, gt=0.0, description="memory of the online estimate (RLS forgetting) [s]")
     min_realtime_factor: float = Field(5.0, gt=0.0, description="the model must run this many times faster than "
                                        "real time here, per model run a segment needs (the twin, the estimate and "
