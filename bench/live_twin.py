@@ -85,7 +85,7 @@ SUPPLY = {"finger_extensor": ("motor.supply_v", 0.92), "tcp_finger": ("muscle.ma
 # other supply levels (share of the voltage left) and Coulomb friction levels [N m], (value, small): the
 # closed loop hides much of a change (the FE's 8 % sag moved the angle < 1 count, 40 % ~4 counts; the
 # TCP finger holds 2 deg through 30-38 s and no friction or sag tried moved it 3 counts)
-BIG_SAG = {"finger_extensor": ((0.6, False),), "tcp_finger": ((0.5, False),),
+BIG_SAG = {"finger_extensor": ((0.6, False),), "tcp_finger": ((0.5, False), (0.4, False)),
            "sma_exoskeleton": ((0.99, True),)}
 FRICTION_NM = {"finger_extensor": ((0.1, False), (0.02, True)), "tcp_finger": ((0.05, False), (0.01, True)),
                "sma_exoskeleton": ((0.03, False), (0.005, True))}
@@ -257,13 +257,19 @@ def angle_rms_counts(s: SessionResult, clean: SessionResult, t0: float = CHANGE_
     return float(np.sqrt(np.mean(d**2)) / s.counts_deg)
 
 
-def visible_after(s: SessionResult, clean: SessionResult, t0: float = CHANGE_S,
-                  counts: float = 1.0) -> float | None:
-    """Seconds after ``t0`` until the measured angle first differs from the clean session's by ``counts``
-    (lockstep and the same seed: before the change the two are the same sample for sample)."""
+def visible_after(s: SessionResult, clean: SessionResult, t0: float = CHANGE_S, counts: float = 1.0,
+                  window_s: float = 0.25) -> float | None:
+    """Seconds after ``t0`` until the change first shows in the measured angle: the first ``window_s``
+    over which its RMS difference from the clean session's (lockstep, same seed: sample for sample the
+    same before the change) reaches ``counts``. One sample a count apart is a count's flicker, not yet
+    the change (an SMA friction that moved the held finger 0.19 counts RMS over 2 s 'showed' at 0.02 s)."""
     n = min(s.t.size, clean.t.size)
-    off = (s.t[:n] >= t0) & (np.abs(s.angle[:n] - clean.angle[:n]) >= counts * s.counts_deg - 1e-9)
-    return float(s.t[:n][off][0] - t0) if off.any() else None
+    t = s.t[:n]
+    d2 = ((s.angle[:n] - clean.angle[:n]) / s.counts_deg) ** 2
+    w = max(1, round(window_s / float(np.median(np.diff(t))))) if n > 1 else 1
+    rms = np.sqrt(np.convolve(d2, np.ones(w) / w, mode="valid"))  # rms[i]: samples i .. i + w - 1
+    hit = (t[:rms.size] >= t0) & (rms >= counts - 1e-9)
+    return float(t[:rms.size][hit][0] - t0) if hit.any() else None
 
 
 def _key(e: dict[str, Any]) -> tuple[str, float]:
@@ -300,29 +306,36 @@ def named(event: dict[str, Any] | None, quantity: str) -> tuple[bool, str]:
 
 # -- targets -------------------------------------------------------------------------------------
 def detection_target(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """A change of >= MIN_COUNTS angle RMS flagged within TARGET_DELAY_S of its start."""
+    """A change of >= MIN_COUNTS angle RMS flagged within TARGET_DELAY_S of its start, judged two ways:
+    from the start the sim plant was given, and from when the change first shows in the measured angle
+    (``visible_after``). A change made while the finger is at rest with no drive (friction, a supply)
+    leaves every measured channel as it was until the finger next moves: no test of the measurements
+    can flag it before, so the second reading is the one a detector can be held to."""
     print(f"\n== detection: a change moving the angle >= {MIN_COUNTS:g} counts RMS flagged within "
-          f"{TARGET_DELAY_S:g} s (change at {CHANGE_S:g} s; 'visible s': when the angle first differs from the clean "
-          "session's by 1 count, 'after vis.': the delay from then) ==")
+          f"{TARGET_DELAY_S:g} s (change at {CHANGE_S:g} s; 'shows s': when it first shows in the measured angle, "
+          "1 count RMS over 0.25 s against the clean session; 'after shows': the delay from then) ==")
     print(f"{'plant':16s} {'case':38s} {'RMS 30-60s':>10s} {'30-32s':>7s} {'flagged':>8s} {'delay s':>8s} "
-          f"{'est. start':>10s} {'visible s':>9s} {'after vis.':>10s} {'channel':>16s} {'target':>8s}  verdict")
+          f"{'est. start':>10s} {'shows s':>8s} {'after shows':>11s} {'channel':>16s} {'from start':>10s} "
+          f"{'from shows':>10s}")
     out = {}
     for r in rows:
         big = r["rms_counts"] >= MIN_COUNTS
-        ok = (r["delay_s"] is not None and r["delay_s"] <= TARGET_DELAY_S) if big else None
-        r["detection_ok"] = ok
-        delay = f"{r['delay_s']:.2f}" if r["delay_s"] is not None else "-"
+        flagged = r["delay_s"] is not None
+        ok = (flagged and r["delay_s"] <= TARGET_DELAY_S) if big else None
+        after = r["delay_s"] - r["visible_s"] if flagged and r["visible_s"] is not None else None
+        ok_shown = (after is not None and after <= TARGET_DELAY_S) if big else None
+        r["detection_ok"], r["detection_after_shown_ok"] = ok, ok_shown
+        delay = f"{r['delay_s']:.2f}" if flagged else "-"
         start = f"{r['start_s']:.2f}" if r["start_s"] is not None else "-"
         seen = f"{r['visible_s']:.2f}" if r["visible_s"] is not None else "-"
-        verdict = "met" if ok else ("MISSED" if big else "(small: not judged)")
-        after = (f"{r['delay_s'] - r['visible_s']:.2f}" if r["delay_s"] is not None and r["visible_s"] is not None
-                 else "-")
-        if r["safety_events"]:
-            verdict += f" (rig tripped: {r['safety_events'][0]})"
+
+        def verdict(v: bool | None, big: bool = big) -> str:
+            return "met" if v else ("MISSED" if big else "(small)")
+        trip = f" (rig tripped: {r['safety_events'][0]})" if r["safety_events"] else ""
         print(f"{r['plant']:16s} {r['case']:38s} {r['rms_counts']:10.2f} {r['rms_early_counts']:7.2f} "
-              f"{'yes' if r['delay_s'] is not None else 'no':>8s} {delay:>8s} {start:>10s} {seen:>9s} {after:>10s} "
-              f"{r['channel']:>16s} "
-              f"{'<= ' + format(TARGET_DELAY_S, 'g') if big else '-':>8s}  {verdict}")
+              f"{'yes' if flagged else 'no':>8s} {delay:>8s} {start:>10s} {seen:>8s} "
+              f"{format(after, '.2f') if after is not None else '-':>11s} {r['channel']:>16s} "
+              f"{verdict(ok):>10s} {verdict(ok_shown):>10s}{trip}")
     shared = [r for r in rows if r["clean_session_events_also_here"]]
     if shared:
         print(f"not counted as detections: events the clean session with the same seed has too, in {len(shared)} "
@@ -331,10 +344,13 @@ def detection_target(rows: list[dict[str, Any]]) -> dict[str, Any]:
     for plant in dict.fromkeys(r["plant"] for r in rows):
         big = [r for r in rows if r["plant"] == plant and r["rms_counts"] >= MIN_COUNTS]
         met = sum(bool(r["detection_ok"]) for r in big)
+        met_shown = sum(bool(r["detection_after_shown_ok"]) for r in big)
         delays = [r["delay_s"] for r in big if r["delay_s"] is not None]
-        out[plant] = {"judged": len(big), "met": met, "max_delay_s": max(delays) if delays else None}
-        print(f"{plant}: {met}/{len(big)} changes >= {MIN_COUNTS:g} counts flagged within {TARGET_DELAY_S:g} s"
-              + (f", slowest {max(delays):.2f} s" if delays else ""))
+        out[plant] = {"judged": len(big), "met": met, "met_after_shown": met_shown,
+                      "max_delay_s": max(delays) if delays else None}
+        print(f"{plant}: {met}/{len(big)} changes >= {MIN_COUNTS:g} counts flagged within {TARGET_DELAY_S:g} s of "
+              f"their start, {met_shown}/{len(big)} within {TARGET_DELAY_S:g} s of showing in the angle"
+              + (f"; slowest {max(delays):.2f} s from the start" if delays else ""))
     return out
 
 
