@@ -508,17 +508,54 @@ def _track(history: list[tuple[float, dict[str, float]]], name: str, truth: floa
     return None if since is None else since - after_s
 
 
+def scaled_values(base: Path, out: Path, scale: dict[str, float]) -> Path:
+    """``base`` with the config keys ``table.key`` multiplied by their factor (the host's model of a
+    patient it does not know yet); the line keeps its comment."""
+    text = base.read_text()
+    for key, f in scale.items():
+        table, name = key.rsplit(".", 1)
+        head = re.search(rf"^\[{re.escape(table)}\][^\n]*$", text, re.M)
+        if head is None:
+            raise KeyError(f"{base.name}: no [{table}] table")
+        line = re.compile(rf"^({re.escape(name)}\s*=\s*)([-+0-9.eE]+)", re.M)
+        m = line.search(text, head.end())
+        if m is None:
+            raise KeyError(f"{base.name}: no {key}")
+        text = text[:m.start(2)] + repr(float(m.group(2)) * f) + text[m.end(2):]
+    out.write_text(text)
+    return out
+
+
+def estimate_setup(plant: str, folder: Path) -> tuple[Path, Path, Path, dict[str, float]]:
+    """(host, steady rig, doubling rig, truth by estimate name) of ``plant``'s estimate sessions. The
+    finger plants' patient is a configured contact (``CONTACT``), doubled by a second identical one
+    from 30 s; the SMA finger's is its own seed 000 contact (eq 30's k and c, ``[twin] estimate`` in
+    its config), doubled by ``[[changes]]`` of both from 30 s."""
+    if plant in CONTACT:
+        truth = CONTACT[plant]
+        host = host_config(plant, "contact", folder, ESTIMATE_LOW)
+        steady = sim_config(Case(plant, "steady contact", "stiffness", "contact"), folder)
+        doubled = sim_config(Case(plant, "contact doubles (estimate)", "stiffness", "contact", effects=[
+            {"name": "contact_spring_damper", "params": truth, "start_s": CHANGE_S}]), folder)
+        return host, steady, doubled, {f"contact_spring_damper.{k}": truth[k]
+                                       for k in ("stiffness_nm_per_rad", "damping_nm_s_per_rad")}
+    cfg = load_config(CONFIGS / f"{plant}.toml")
+    names = list(cfg.twin.estimate)
+    if not names:
+        raise ValueError(f"{plant}: no [twin] estimate in its config")
+    truth = {n: float(getattr(getattr(cfg, n.split(".")[0]), n.split(".")[1])) for n in names}
+    host = scaled_values(CONFIGS / f"{plant}.toml", folder / f"{plant}-host-estimate.toml",
+                         {n: ESTIMATE_LOW for n in names})
+    doubled = sim_config(Case(plant, "contact doubles (estimate)", "stiffness", "plain",
+                              changes=[_change(n, 2.0) for n in names]), folder)
+    return host, CONFIGS / f"{plant}.toml", doubled, truth
+
+
 def estimate_sessions(plant: str, folder: Path, log: Callable[[str], None]) -> dict[str, Any]:
-    """The contact's k and c estimated with the host's model ESTIMATE_LOW of the truth: a steady session,
-    and one where a second identical contact from 30 s doubles both."""
-    host = host_config(plant, "contact", folder, ESTIMATE_LOW)
-    truth = CONTACT[plant]
-    names = {"contact_spring_damper.stiffness_nm_per_rad": truth["stiffness_nm_per_rad"],
-             "contact_spring_damper.damping_nm_s_per_rad": truth["damping_nm_s_per_rad"]}
-    steady_cfg = sim_config(Case(plant, "steady contact", "stiffness", "contact"), folder)
+    """The patient's contact k and c estimated with the host's model ESTIMATE_LOW of the truth: a steady
+    session, and one where the contact's stiffness and damping both double from 30 s."""
+    host, steady_cfg, doubled_cfg, names = estimate_setup(plant, folder)
     steady = run_session(host, steady_cfg, 1, "steady contact")
-    doubled_cfg = sim_config(Case(plant, "contact doubles (estimate)", "stiffness", "contact", effects=[
-        {"name": "contact_spring_damper", "params": truth, "start_s": CHANGE_S}]), folder)
     doubled = run_session(host, doubled_cfg, 1, "contact doubles")
     out: dict[str, Any] = {"steady": [], "doubling": [], "host_scale": ESTIMATE_LOW}
     sess = steady.patient.get("session", {})
@@ -603,8 +640,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         for plant in plants:
             clean[plant] = clean_sessions(plant, n_clean, folder, log)
             rows += change_sessions(plant, clean[plant][0], folder, log, args.quick)
-            if plant in CONTACT:
-                est[plant] = estimate_sessions(plant, folder, log)
+            est[plant] = estimate_sessions(plant, folder, log)
     reaction: list[dict[str, Any]] = []
     if not args.no_reaction:
         try:
