@@ -27,6 +27,13 @@ def _with_effect(src: Path, dest: Path, name: str, params: str) -> Path:
 
 def _session(config: Path, root: Path, capsys, *, device: str = "sim", sim_plant: Path | None = None,
              duration: float = 10.0) -> Path:
+    """A recorded lockstep session. ``device="inprocess"`` runs the same device logic and plant in the
+    host process, one sample per command as ``sim --lockstep`` does over the pty, and records the same
+    samples (a 10 s Finger Extensor and a 30 s SMA session with a hidden effect: every CSV column equal
+    but the host's wall-clock ``host_time_s``)
+    without a device process to start and a pty round trip per sample; the sessions whose subject is
+    the recording, not the link, run there. The pty path with ``--sim-plant`` is the first session of
+    the Coulomb test, the firmware's the simavr test."""
     args = ["run", "--config", str(config), "--device", device, "--duration", str(duration), "--record", str(root),
             "--no-display", "--rig-id", "bench1"]
     if device in ("sim", "avr"):
@@ -73,8 +80,8 @@ def test_hidden_coulomb_friction_is_found_in_a_session_recording_and_the_augment
     assert after < 0.2 * before, (before, after)
 
     # a new session whose simulated rig runs the augmented model behaves like the rig did
-    again = read_csv(_session(FE, tmp_path / "again", capsys, sim_plant=augmented) / "run.csv")
-    nominal = read_csv(_session(FE, tmp_path / "nominal", capsys) / "run.csv")
+    again = read_csv(_session(FE, tmp_path / "again", capsys, device="inprocess", sim_plant=augmented) / "run.csv")
+    nominal = read_csv(_session(FE, tmp_path / "nominal", capsys, device="inprocess") / "run.csv")
     rig = read_csv(run / "run.csv")
     n = min(len(rig.t), len(again.t), len(nominal.t))
 
@@ -87,7 +94,7 @@ def test_hidden_coulomb_friction_is_found_in_a_session_recording_and_the_augment
 @pytest.mark.slow
 def test_hidden_backlash_is_found_in_a_session_recording(tmp_path, capsys):
     device = _with_effect(FE, tmp_path / "rig_plant.toml", "backlash", "width_rad = 0.03")
-    run = _session(FE, tmp_path / "runs", capsys, sim_plant=device)
+    run = _session(FE, tmp_path / "runs", capsys, device="inprocess", sim_plant=device)
     report = _discrepancy(FE, run, tmp_path / "report", capsys)
     assert [c["effect"] for c in report["chosen"]] == ["backlash"]
     assert report["chosen"][0]["params"]["width_rad"] == pytest.approx(0.03, rel=0.2)
@@ -112,8 +119,10 @@ def test_a_clean_session_recording_names_nothing_and_reads_from_csv_mcap_or_the_
 @pytest.mark.slow
 @pytest.mark.timeout(900)  # beside two busy processes: 300 s was reached in the replay
 def test_hidden_sma_hysteresis_is_found_in_a_session_recording(tmp_path, capsys):
+    # 30 s: the 4.8 s rest and two 12 s open-close cycles, the second in the held-out part (the fits
+    # use the first 18 s; a 60 s session's used 20 s)
     device = _with_effect(SMA, tmp_path / "rig_plant.toml", "sma_hysteresis", "width_c = 10.0")
-    run = _session(SMA, tmp_path / "runs", capsys, sim_plant=device, duration=60.0)
+    run = _session(SMA, tmp_path / "runs", capsys, device="inprocess", sim_plant=device, duration=30.0)
     report = _discrepancy(SMA, run, tmp_path / "report", capsys)
     assert "sma_hysteresis" in [c["effect"] for c in report["chosen"]]
     before = _replay_rmse(SMA, run, "theta_mcp_deg", capsys)
@@ -146,13 +155,13 @@ def test_the_model_loop_improves_what_the_rig_does_an_augmented_model_halves_the
     the nominal model's controller -> discrepancy names it -> a session with the augmented model's
     controller on the same rig tracks at least twice as well (its feedforward pays the dead zone)."""
     rig = _with_effect(SMA, tmp_path / "rig_plant.toml", "actuator_dead_zone", "width_duty = 0.08")
-    before = _session(SMA, tmp_path / "before", capsys, device="inprocess", sim_plant=rig, duration=40.0)
+    before = _session(SMA, tmp_path / "before", capsys, device="inprocess", sim_plant=rig, duration=30.0)
     report = _discrepancy(SMA, before, tmp_path / "report", capsys)
     assert "actuator_dead_zone" in [c["effect"] for c in report["chosen"]]
     augmented = tmp_path / "report" / "augmented.toml"
-    after = _session(augmented, tmp_path / "after", capsys, device="inprocess", sim_plant=rig, duration=40.0)
+    after = _session(augmented, tmp_path / "after", capsys, device="inprocess", sim_plant=rig, duration=30.0)
     b, a = (json.loads((run / "metadata.json").read_text()) for run in (before, after))
     assert b["controller"] == a["controller"] == "model_based"
-    assert len(b["session_cycles"]) == len(a["session_cycles"]) == 2  # 4.8 s rest + 3 x 12 s cycles > 40 s
+    assert len(b["session_cycles"]) == len(a["session_cycles"]) == 2  # 4.8 s rest + 2 x 12 s cycles < 30 s < 3 cycles
     assert a["safety_events"] == [] and b["safety_events"] == []
     assert a["session"]["rmse_deg"] <= 0.5 * b["session"]["rmse_deg"], (b["session"], a["session"])
