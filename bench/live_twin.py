@@ -43,7 +43,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,7 @@ from rehab_hil.plants import get_plant, load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
 from rehab_hil.testing import config_with_changes
+from rehab_hil.twin.monitor import ResidualMonitor
 from rehab_hil.twin.session import start_twin
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,6 +74,9 @@ TARGET_TRACK_S = 5.0
 TARGET_REACTION = 0.10  # p99 with the twin may be this much worse
 ESTIMATE_LOW = 0.8  # the host's contact model is this share of the rig's truth in the estimate sessions
 
+# the alternative detector on the same residuals: a 3-sigma (Shewhart) chart of each segment's RMS, with
+# the CUSUM's floor of 0.4 counts above the normal level (a noiseless channel has no spread)
+ALTERNATIVE = {"drift_sigma": 3.0, "min_excess_counts": 0.4, "threshold_counts": 1e-9}
 # the patient's contact on the finger plants (the rig's truth); the FE one as in the twin's own check
 CONTACT = {
     "finger_extensor": {"stiffness_nm_per_rad": 1.0, "damping_nm_s_per_rad": 0.025, "contact_angle_rad": 0.4},
@@ -125,6 +129,7 @@ class SessionResult:
     angle: np.ndarray  # the measured angle at those times [deg]
     counts_deg: float  # one encoder count [deg]
     estimates: list[tuple[float, dict[str, float]]]  # (segment end, {name: value})
+    alt_events: list[dict[str, Any]] = field(default_factory=list)  # the 3-sigma chart's (``ALTERNATIVE``)
 
 
 class _AngleTap:
@@ -166,6 +171,7 @@ def run_session(host_path: Path, sim_path: Path, seed: int, case: str, duration_
         twin.live._cap = max(twin.live._cap, round(2 * duration_s / period))
         tap = _AngleTap(binding.angle_output)
         twin.twin.listeners.append(tap)
+        alt = _tee_alternative(twin.twin)
         svc = LoopService(hw, assembly.firmware_configure(host, binding), controller,
                           assembly.build_estimator(host, binding), assembly.build_supervisor(host, binding), period,
                           meter=assembly.build_meter(host, controller, duration_s), twin=twin.live)
@@ -180,7 +186,23 @@ def run_session(host_path: Path, sim_path: Path, seed: int, case: str, duration_
         twin_dropped=res.twin_dropped + int(meta["twin"].get("dropped_records", 0)),
         model_events=meta["model_events"], patient=meta.get("patient", {}), twin=meta["twin"],
         t=np.asarray(tap.t), angle=np.asarray(tap.a), counts_deg=float(twin.twin.model.resolution[ch]),
-        estimates=[(t, {e.name: e.value for e in ests}) for t, ests in twin.twin.estimate_history])
+        estimates=[(t, {e.name: e.value for e in ests}) for t, ests in twin.twin.estimate_history],
+        alt_events=[{"t_s": e.t_s, "detected_s": e.detected_s, "channel": e.channel} for e in alt.events])
+
+
+def _tee_alternative(twin: Any) -> ResidualMonitor:
+    """The detector a user would otherwise pick, fed the same segment residuals as the twin's CUSUM:
+    a Shewhart chart (``ALTERNATIVE``: a segment's RMS beyond the learned normal level + 3 sigma, at
+    least the CUSUM's own floor, alarms at once). The twin's monitor is not changed."""
+    alt = ResidualMonitor(twin.channels, twin.model.resolution, replace(twin.settings.monitor(), **ALTERNATIVE))
+    own = twin.monitor.update
+
+    def update(t_start_s: float, t_end_s: float, rms: Any) -> list[Any]:
+        alt.update(t_start_s, t_end_s, rms)
+        return own(t_start_s, t_end_s, rms)
+
+    twin.monitor.update = update
+    return alt
 
 
 def host_config(plant: str, kind: str, folder: Path, scale: float = 1.0) -> Path:
@@ -316,7 +338,7 @@ def detection_target(rows: list[dict[str, Any]]) -> dict[str, Any]:
           "1 count RMS over 0.25 s against the clean session; 'after shows': the delay from then) ==")
     print(f"{'plant':16s} {'case':38s} {'RMS 30-60s':>10s} {'30-32s':>7s} {'flagged':>8s} {'delay s':>8s} "
           f"{'est. start':>10s} {'shows s':>8s} {'after shows':>11s} {'channel':>16s} {'from start':>10s} "
-          f"{'from shows':>10s}")
+          f"{'from shows':>10s} {'3-sigma chart delay s':>21s}")
     out = {}
     for r in rows:
         big = r["rms_counts"] >= MIN_COUNTS
@@ -335,7 +357,8 @@ def detection_target(rows: list[dict[str, Any]]) -> dict[str, Any]:
         print(f"{r['plant']:16s} {r['case']:38s} {r['rms_counts']:10.2f} {r['rms_early_counts']:7.2f} "
               f"{'yes' if flagged else 'no':>8s} {delay:>8s} {start:>10s} {seen:>8s} "
               f"{format(after, '.2f') if after is not None else '-':>11s} {r['channel']:>16s} "
-              f"{verdict(ok):>10s} {verdict(ok_shown):>10s}{trip}")
+              f"{verdict(ok):>10s} {verdict(ok_shown):>10s} "
+              f"{format(r['alt_delay_s'], '.2f') if r['alt_delay_s'] is not None else 'not flagged':>21s}{trip}")
     shared = [r for r in rows if r["clean_session_events_also_here"]]
     if shared:
         print(f"not counted as detections: events the clean session with the same seed has too, in {len(shared)} "
@@ -346,11 +369,14 @@ def detection_target(rows: list[dict[str, Any]]) -> dict[str, Any]:
         met = sum(bool(r["detection_ok"]) for r in big)
         met_shown = sum(bool(r["detection_after_shown_ok"]) for r in big)
         delays = [r["delay_s"] for r in big if r["delay_s"] is not None]
+        alt_ok = sum(1 for r in big if r["alt_delay_s"] is not None and r["visible_s"] is not None
+                     and r["alt_delay_s"] - r["visible_s"] <= TARGET_DELAY_S)
         out[plant] = {"judged": len(big), "met": met, "met_after_shown": met_shown,
-                      "max_delay_s": max(delays) if delays else None}
+                      "max_delay_s": max(delays) if delays else None, "alt_met_after_shown": alt_ok}
         print(f"{plant}: {met}/{len(big)} changes >= {MIN_COUNTS:g} counts flagged within {TARGET_DELAY_S:g} s of "
               f"their start, {met_shown}/{len(big)} within {TARGET_DELAY_S:g} s of showing in the angle"
-              + (f"; slowest {max(delays):.2f} s from the start" if delays else ""))
+              + (f"; slowest {max(delays):.2f} s from the start" if delays else "")
+              + f" (3-sigma chart: {alt_ok}/{len(big)} within {TARGET_DELAY_S:g} s of showing)")
     return out
 
 
@@ -358,20 +384,21 @@ def false_alarm_target(clean: dict[str, list[SessionResult]], change_rows: list[
     """No model event over the clean sessions (and none before 29 s in the change sessions)."""
     print("\n== false alarms: 0 over 30 min of clean sessions per plant ==")
     print(f"{'plant':16s} {'sessions':>8s} {'minutes':>8s} {'alarms':>7s} {'target':>7s} "
-          f"{'pre-change alarms in change sessions':>38s}  verdict")
+          f"{'pre-change alarms in change sessions':>38s} {'3-sigma chart alarms':>20s}  verdict")
     out = {}
     for plant, sessions in clean.items():
         alarms = sum(len(false_alarms(s)) for s in sessions)
         minutes = sum(s.samples for s in sessions) * 1e-3 / 60.0
         early = sum(r["early_alarms"] for r in change_rows if r["plant"] == plant)
         n_change = sum(1 for r in change_rows if r["plant"] == plant)
+        alt = sum(len(s.alt_events) for s in sessions)
         ok = alarms == 0 and minutes >= 30.0 - 1e-6
         verdict = "met" if ok else ("MISSED" if alarms else f"0 alarms, but only {minutes:.1f} of 30 min run")
         print(f"{plant:16s} {len(sessions):8d} {minutes:8.1f} {alarms:7d} {'0':>7s} "
-              f"{f'{early} in {n_change} sessions (0-29 s)':>38s}  {verdict}")
+              f"{f'{early} in {n_change} sessions (0-29 s)':>38s} {alt:20d}  {verdict}")
         out[plant] = {"sessions": len(sessions), "minutes": minutes, "alarms": alarms,
                       "alarm_times_s": [e["detected_s"] for s in sessions for e in s.model_events],
-                      "pre_change_alarms": early, "met": ok}
+                      "pre_change_alarms": early, "met": ok, "alt_alarms": alt}
     return out
 
 
@@ -478,12 +505,16 @@ def change_sessions(plant: str, clean_plain: SessionResult, folder: Path, log: C
         ref = refs[case.host]
         s = run_session(host, sim_config(case, folder), ref.seed, case.name)
         ev = first_event_after(s, clean=ref)
+        alt_seen = {_key(e) for e in ref.alt_events}
+        alt = [e for e in s.alt_events if e["detected_s"] >= EARLY_S and _key(e) not in alt_seen]
         ok, said = named(ev, case.quantity)
         row = {"plant": plant, "case": case.name, "quantity": case.quantity, "small": case.small,
                "host": case.host, "seed": s.seed, "rms_counts": angle_rms_counts(s, ref),
                "rms_early_counts": angle_rms_counts(s, ref, CHANGE_S, CHANGE_S + 2.0),
                "visible_s": visible_after(s, ref),
                "delay_s": ev["detected_s"] - CHANGE_S if ev else None, "start_s": ev["t_s"] if ev else None,
+               "alt_delay_s": min(e["detected_s"] for e in alt) - CHANGE_S if alt else None,
+               "alt_early_alarms": len([e for e in s.alt_events if e["detected_s"] < EARLY_S]),
                "channel": ev["channel"] if ev else "-", "named_ok": ok, "named": said,
                "cause": ev["cause"] if ev else None, "early_alarms": len(false_alarms(s, EARLY_S)),
                "clean_session_events_also_here": [(e["channel"], e["detected_s"]) for e in shared_events(s, ref)],
