@@ -22,13 +22,19 @@ def cfg():
     return load_config(SMA_CONFIG)
 
 
-def test_a_fit_sees_the_force_adc_floor_but_not_its_rounding(cfg, independent_sma):
+@pytest.fixture(scope="module")
+def clean_record(independent_sma):
+    """The clean session cut (seed 624) the two replay checks read; neither changes it (a record from
+    the independent simulator costs seconds)."""
+    return independent_sma.sma_independent_record({}, {}, 624, 20.0, 500.0)
+
+
+def test_a_fit_sees_the_force_adc_floor_but_not_its_rounding(cfg, clean_record):
     """The model's contact force goes below zero while the passive wire holds a bend; the Flexiforce's
     ADC shows 0 there. A fit compares the model through the same floor (else a model force of -0.3 N
     against a logged 0 is an error a sensor gain would 'fit'), without rounding to counts (a rounded
     output is flat between counts and gives the fit no slope)."""
-    rec = independent_sma.sma_independent_record({}, {}, 624, 20.0, 500.0)
-    replay = Replay.build(get_plant("sma_exoskeleton"), cfg, rec)
+    replay = Replay.build(get_plant("sma_exoskeleton"), cfg, clean_record)
     offset, per_n, _ = replay.adc_range["contact_force_n"]
     P = replay.nominal_params()
     raw = replay.simulate_grid(P, replay.n_steps)[:, replay.channels.index("contact_force_n")]
@@ -41,7 +47,7 @@ def test_a_fit_sees_the_force_adc_floor_but_not_its_rounding(cfg, independent_sm
     assert np.allclose(sensed, np.round(sensed))
 
 
-def test_a_channel_mostly_noise_weighs_less_in_the_fits(cfg, independent_sma):
+def test_a_channel_mostly_noise_weighs_less_in_the_fits(cfg, clean_record):
     """The encoder angle (0.09 deg counts over a 16 deg spread) and a force of a few ADC counts whose
     noise floor is a third of its scale: by spread alone the force's count scatter would weigh as
     much as the angle; its residual is divided by ten noise floors instead (``NOISY_SPREAD``), the
@@ -49,8 +55,7 @@ def test_a_channel_mostly_noise_weighs_less_in_the_fits(cfg, independent_sma):
     from rehab_hil.discrepancy.replay import NOISY_SPREAD
     from rehab_hil.discrepancy.verdict import noise_floor
 
-    rec = independent_sma.sma_independent_record({}, {}, 624, 20.0, 500.0)
-    replay = Replay.build(get_plant("sma_exoskeleton"), cfg, rec)
+    replay = Replay.build(get_plant("sma_exoskeleton"), cfg, clean_record)
     w = dict(zip(replay.channels, replay.fit_weight, strict=True))
     assert w["theta_mcp_deg"] == 1.0
     floor = noise_floor(replay.measured["contact_force_n"])
