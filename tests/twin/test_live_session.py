@@ -34,10 +34,11 @@ def _friction_at(tmp: Path, start_s: float | None) -> Path:
     return config_with_changes(CONFIGS / "finger_extensor.toml", tmp / "device.toml", effects=eff)
 
 
-def _run(tmp: Path, capsys, host: Path, device: Path, *extra: str) -> tuple[int, Path, str]:
+def _run(tmp: Path, capsys, host: Path, device: Path, *extra: str, duration_s: float = 11.0
+         ) -> tuple[int, Path, str]:
     root = tmp / "runs"
     code = main(["run", "--config", str(host), "--sim-plant", str(device), "--device", "sim", "--lockstep",
-                 "--duration", "11", "--record", str(root), "--no-display", "--twin", *extra])
+                 "--duration", f"{duration_s:g}", "--record", str(root), "--no-display", "--twin", *extra])
     out = capsys.readouterr()
     (run,) = root.iterdir()
     return code, run, out.out + out.err
@@ -62,6 +63,17 @@ def test_friction_appearing_mid_session_is_one_event_at_its_start_with_its_cause
     events = [m for topic, _, m in messages if topic == "/rig/event" and m["kind"] == "model_mismatch"]
     assert len(events) == 1 and "coulomb_friction" in events[0]["detail"]
     assert "model_mismatch iris_angle_deg" in out
+
+
+def test_a_mismatch_the_session_ends_on_is_diagnosed_on_what_there_is_and_says_so(tmp_path, capsys):
+    # the session stops 4 s after the change, before the 5 s window the diagnosis waits for (as a
+    # safety trip would stop it): the event still gets a diagnosis, on the data there is. On these 4 s a
+    # weaker motor, a hotter winding and the friction explain the angle alike, and the cause says so
+    code, run, out = _run(tmp_path, capsys, _host(tmp_path), _friction_at(tmp_path, CHANGE_S), duration_s=9.0)
+    assert code == 0, out
+    (ev,) = json.loads((run / "metadata.json").read_text())["model_events"]
+    assert "coulomb_friction" in ev["cause"], ev
+    assert ev["cause"].endswith("(on the 4.0 s the session had left)"), ev["cause"]
 
 
 @pytest.mark.slow

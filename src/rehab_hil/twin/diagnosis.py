@@ -97,6 +97,7 @@ ERROR_GRID = (-0.3, -0.15, -0.07, 0.1, 0.4, 1.0, 3.0)
 # parameter is named (the workflow's rule, ``verdict``: a supply 8 % low and a driver dead zone of
 # 0.06 are the same thing at one duty level)
 TIE_SHARE = 1.25
+ALIKE_MAX = 3  # candidates of other quantities that explain the window as well, named after the likeliest
 ALSO_SHARE = 0.9  # another candidate of the same family within this share of the best's reduction is named too
 
 # Parameters a session can see change that the plants do not declare for the offline workflow.
@@ -412,7 +413,12 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
     if likeliest is not None:
         also = [c.name for c in causes[1:] if c.family == likeliest.family and c.refined
                 and c.reduction >= ALSO_SHARE * likeliest.reduction]
-        text = likeliest.text + (f" (also explained by {', '.join(also)})" if also else "")
+        # other quantities that explain the window as well: a short window (a session that ended on the
+        # change) can leave a weaker motor, a hotter winding and a new friction exactly alike
+        alike = [c.name for c in causes[1:] if c.family != likeliest.family and c.significant and c.refined
+                 and 1.0 - c.reduction <= TIE_SHARE * (1.0 - likeliest.reduction)][:ALIKE_MAX]
+        text = likeliest.text + (f" (also explained by {', '.join(also)})" if also else "") \
+            + (f"; as well explained by {', '.join(alike)}" if alike else "")
     elif best is not None:
         text = (f"no single effect explains it (best: {best.name}, cuts the residual by "
                 f"{100.0 * max(best.reduction, 0.0):.0f} %)")

@@ -215,6 +215,17 @@ class Twin:
             if window is not None:
                 self.diagnose_fn(ev, *window)
 
+    def take_pending(self, min_s: float) -> list[tuple[MismatchEvent, tuple[Recording, np.ndarray, np.ndarray]]]:
+        """The mismatches still waiting for their full window (the session ended first), each with the
+        window it has, when that is at least ``min_s`` long; they are no longer waited for."""
+        out = []
+        for ev in self._to_diagnose:
+            window = self.window(ev.t_s, ev.t_s + self.settings.diagnose_window_s)
+            if window is not None and window[0].t[-1] - window[0].t[0] >= min_s:
+                out.append((ev, window))
+        self._to_diagnose = []
+        return out
+
     def window(self, start_s: float, end_s: float) -> tuple[Recording, np.ndarray, np.ndarray] | None:
         """The session from the last anchor at or before ``start_s`` to ``end_s`` on the model's
         signals, and the model's state at its start (None when the history no longer has it)."""

@@ -18,6 +18,7 @@ from rehab_hil.twin.settings import TwinSection
 
 __all__ = ["TwinRun", "start_twin"]
 
+MIN_WINDOW_S = 1.0  # a mismatch the session ended on is diagnosed on what there is, if at least this long [s]
 DIAGNOSIS_WAIT_S = 20.0  # at the session's end, how long a running diagnosis is waited for
 
 
@@ -47,12 +48,12 @@ class TwinRun:
         self._threads.append(th)
         th.start()
 
-    def _run_diagnosis(self, event: MismatchEvent, rec: Any, x0: Any, xd0: Any) -> None:
+    def _run_diagnosis(self, event: MismatchEvent, rec: Any, x0: Any, xd0: Any, note: str = "") -> None:
         from rehab_hil.twin.diagnosis import diagnose
 
         try:
             d = diagnose(get_plant(self.cfg.plant), self.cfg, rec, x0, xd0)
-            event.cause = d.text
+            event.cause = d.text + note
             event.candidates = [{"name": c.name, "family": c.family, "relative_change": c.relative_change,
                                  "reduction": c.reduction, "text": c.text} for c in d.causes[:3]]
         except Exception as e:  # a failed diagnosis leaves the event standing, said so
@@ -70,6 +71,9 @@ class TwinRun:
         end = time.monotonic() + DIAGNOSIS_WAIT_S
         for th in self._threads:
             th.join(max(0.0, end - time.monotonic()))
+        for ev, window in self.twin.take_pending(MIN_WINDOW_S):  # the session ended inside its window (a
+            rec = window[0]                                       # trip): what there is, said so
+            self._run_diagnosis(ev, *window, note=f" (on the {rec.t[-1] - rec.t[0]:.1f} s the session had left)")
         pending = [ev for ev in self.twin.monitor.events if not ev.cause]
         for ev in pending:  # found too close to the end for a window, or diagnosis off
             ev.cause = "" if not self.twin.settings.diagnose else "not diagnosed: the session ended first"
