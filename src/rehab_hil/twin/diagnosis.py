@@ -438,9 +438,9 @@ def _sentence_for(replay: Replay, term: Term, family: str, values: Mapping[str, 
     name = term.name
     if name.startswith("effects."):
         i = int(name.split(".")[1])
-        what = "as a whole" if name.endswith(".params") else name.split(".")[-1]
-        name = f"{replay.cfg.effects[i].name} {what} ({name})" if what == "as a whole" \
-            else f"{replay.cfg.effects[i].name}.{what} ({name})"
+        effect = replay.cfg.effects[i].name
+        name = (f"{effect} as a whole ({name})" if name.endswith(".params")
+                else f"{effect}.{name.split('.')[-1]} ({name})")
     return f"{head}: {name}, {_change_text(term, values, relative)}"
 
 
