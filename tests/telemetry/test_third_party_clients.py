@@ -189,6 +189,10 @@ def test_a_plain_zenoh_subscriber_written_from_the_docs_alone_decodes_the_publis
     try:
         assert proc.stdout.readline().strip() == "subscribed", proc.stderr.read()
         with TelemetryPublisher(client(), "plain1", batch=10) as pub:
+            # "subscribed" is said when the subscriber is declared in its own session; the router and
+            # this session learn of it a moment later (beside two busy loops the first batch of 10 went
+            # out before: the subscriber got samples 10..39)
+            assert wait(pub.has_subscribers), "the subscriber never reached the publisher"
             for r in records:
                 assert pub.offer(r)
             pub.wake()
