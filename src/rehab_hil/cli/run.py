@@ -186,11 +186,12 @@ def summary_table(r: RunResult) -> Table:
 
 def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
     """The live twin's lines: its normal residual, the model events and the patient's estimate."""
+    from rehab_hil.twin.live import normal_residual_text
+
     if not meta:
         return
     tw = meta["twin"]
-    normal = ", ".join(f"{c} {v:.3g}" if v is not None else f"{c} still learning" for c, v in
-                       tw.get("normal_residual", {}).items())
+    normal = normal_residual_text(tw.get("normal_residual", {}))
     t.add_row("twin: normal residual / CPU per sample", f"{normal} / {tw.get('cpu_per_sample_us', 0):.1f} us")
     if tw.get("error"):
         t.add_row("[red]twin stopped", tw["error"])

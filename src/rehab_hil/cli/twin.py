@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli import UserError, writable_folder
     from rehab_hil.plants.base import get_plant, load_config
     from rehab_hil.twin.diagnosis import diagnose
-    from rehab_hil.twin.live import Twin
+    from rehab_hil.twin.live import Twin, normal_residual_text
     from rehab_hil.twin.model import TwinSetupError
     from rehab_hil.twin.offline import replay_run
     from rehab_hil.twin.session import model_event
@@ -89,8 +89,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"model_mismatch {ev.text()}")
     if not twin.monitor.events:
         print(f"no model event over {twin.samples} samples (normal residual: "
-              + ", ".join(f"{c} {v:.3g}" if v is not None else f"{c} still learning"
-                          for c, v in twin.summary()["normal_residual"].items()) + ")")
+              + normal_residual_text(twin.summary()["normal_residual"]) + ")")
     patient = twin.patient()
     for name, v in patient.get("session", {}).items():
         print(f"patient {name}: {v['final']:.4g} +/- {v['final_ci95']:.2g} at the end (config {v['nominal']:.4g})")

@@ -211,7 +211,7 @@ class Twin:
             if now_s < ev.t_s + self.settings.diagnose_window_s:
                 continue
             self._to_diagnose.remove(ev)
-            window = self.window(ev.t_s, ev.t_s + self.settings.diagnose_window_s)
+            window = self._event_window(ev)
             if window is not None:
                 self.diagnose_fn(ev, *window)
 
@@ -220,11 +220,15 @@ class Twin:
         window it has, when that is at least ``min_s`` long; they are no longer waited for."""
         out = []
         for ev in self._to_diagnose:
-            window = self.window(ev.t_s, ev.t_s + self.settings.diagnose_window_s)
+            window = self._event_window(ev)
             if window is not None and window[0].t[-1] - window[0].t[0] >= min_s:
                 out.append((ev, window))
         self._to_diagnose = []
         return out
+
+    def _event_window(self, ev: MismatchEvent) -> tuple[Recording, np.ndarray, np.ndarray] | None:
+        """The diagnosis window of a mismatch: ``diagnose_window_s`` from its start, or what there is."""
+        return self.window(ev.t_s, ev.t_s + self.settings.diagnose_window_s)
 
     def window(self, start_s: float, end_s: float) -> tuple[Recording, np.ndarray, np.ndarray] | None:
         """The session from the last anchor at or before ``start_s`` to ``end_s`` on the model's
@@ -341,3 +345,8 @@ class LiveTwin:
         self._thread.join()
         if self.error is None:
             self.twin.finish()
+
+
+def normal_residual_text(normal: dict[str, float | None]) -> str:
+    """``summary()["normal_residual"]`` in one line: each channel's level, or that it is still learning."""
+    return ", ".join(f"{c} {v:.3g}" if v is not None else f"{c} still learning" for c, v in normal.items())
