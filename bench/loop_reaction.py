@@ -178,12 +178,18 @@ class Tap:
 
 
 # ---- the parent: devices, subscribers, the before/after runs ----------------------------------------
-def link_config(tmp: Path, config: Path, bridge: bool) -> Path:
-    """``config`` with ``[rig.link] usb_bridge`` switched as wanted (the device spawner reads it)."""
+def link_config(tmp: Path, config: Path, bridge: bool, base: str | None = None) -> Path:
+    """``config`` with ``[rig.link] usb_bridge`` switched as wanted (the device spawner reads it);
+    with ``base``, the config as it was at that commit (the older loop refuses keys added since,
+    e.g. ``[twin]``)."""
     text = config.read_text()
+    if base is not None and config.resolve().is_relative_to(ROOT):
+        rel = config.resolve().relative_to(ROOT).as_posix()
+        text = subprocess.run(["git", "-C", str(ROOT), "show", f"{base}:{rel}"], check=True, capture_output=True,
+                              text=True).stdout
     if "usb_bridge = false" not in text:
         raise SystemExit(f"{config}: no '[rig.link] usb_bridge = false' line to switch")
-    path = tmp / f"{config.stem}_{'bridge' if bridge else 'direct'}.toml"
+    path = tmp / f"{config.stem}_{'bridge' if bridge else 'direct'}{'_' + base if base else ''}.toml"
     path.write_text(text.replace("usb_bridge = false", f"usb_bridge = {'true' if bridge else 'false'}"))
     return path
 
@@ -359,7 +365,8 @@ def main() -> int:
         tmp = Path(tmp_s)
         trees = {"before": base_tree(tmp, args.base), "after": ROOT / "src", "bare": ROOT / "src"}
         variants = ("before", "after", "bare") if args.bare else ("before", "after")
-        configs = {link: link_config(tmp, args.config, link == "bridge") for link in links}
+        configs = {(v, link): link_config(tmp, args.config, link == "bridge", args.base if v == "before" else None)
+                   for v in variants for link in links}
         uptime_start = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
         print(f"uptime at start: {uptime_start}", flush=True)
         print(HEADER, flush=True)
@@ -367,7 +374,7 @@ def main() -> int:
             for link in links:
                 order = variants if i % 2 == 0 else variants[::-1]
                 for variant in order:
-                    r = one_run(variant, trees[variant], configs[link], link == "bridge", args)
+                    r = one_run(variant, trees[variant], configs[variant, link], link == "bridge", args)
                     r["repeat"] = i
                     runs.append(r)
                     print(row(r), flush=True)
