@@ -136,3 +136,30 @@ def test_a_model_whose_angle_does_not_answer_the_effort_is_refused_for_model_bas
                                  replace=("supply_voltage_v = 32.0", "supply_voltage_v = 0.5")))
     with pytest.raises(ControllerError, match=r"does not respond to pwm_duty.*no inverse on the range"):
         build_controller(weak, "model_based")
+
+
+def test_integrating_ahead_after_the_write_commands_what_integrating_on_the_next_sample_does(sma):
+    """The loop calls ``advance`` once a command is out, so the observer's integration over the
+    next period is not between the next sample and its command. With samples lost (a step of 3
+    periods) the rest of the interval is integrated on the call: the commands are those of a
+    runtime that integrates everything on the call, sample for sample, and so is its observer's state."""
+    from rehab_hil.service import assembly
+
+    ahead, on_call = (assembly.build_controller(sma) for _ in range(2))
+    assert ahead._x.size > 0  # an observer with continuous states: something to integrate
+    period = assembly.period_s(sma)
+    steps = [1] * 1500 + [3] + [1] * 500 + [2, 2] + [1] * 1000  # into the first bend (its ramp: 0-1.2 s)
+    k, diff, drift, efforts = 0, 0.0, 0.0, []
+    for n in steps:
+        k += n
+        t = k * period
+        state = State(t, np.radians(5.0 * np.sin(2.0 * t)), 0.0, {"contact_force_n": 2.0})
+        a, b = ahead(t, state), on_call(t, state)
+        drift = max(drift, float(np.max(np.abs(ahead._x - on_call._x))))
+        ahead.advance()
+        efforts.append(ahead.actuator.effort(a))
+        diff = max(diff, abs(ahead.actuator.effort(a) - on_call.actuator.effort(b)))
+    assert np.ptp(efforts) > 0.05  # the controller drove ...
+    assert np.max(np.abs(ahead._x - ahead._x0)) > 1.0  # ... and its observer moved: the comparison means something
+    assert diff < 1e-6
+    assert drift < 1e-6 * np.max(np.abs(ahead._x))

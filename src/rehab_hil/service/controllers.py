@@ -86,7 +86,9 @@ class ControllerRuntime:
     a ``Command`` out. dt is the device time since the last step (a loop behind a USB bridge
     controls once per burst of samples), so the PID integrates and differentiates over the time
     that passed. Continuous states (an observer) are advanced over that interval with the inputs
-    of the previous step, the effort that was applied, before the new sample is taken. No
+    of the previous step, the effort that was applied, before the new sample is taken; the loop
+    calls ``advance`` once the command is out, so the usual one period of that integration is
+    done while it waits for the next sample, not between the sample and the command. No
     allocation per step beyond the returned command."""
 
     def __init__(self, controller: Any) -> None:
@@ -124,14 +126,27 @@ class ControllerRuntime:
         self._x = self._x0.copy()
         self._xd = self._xd0.copy()
         self._t_last: float | None = None
+        self._ahead_s = 0.0  # of the interval after the last step, already integrated by ``advance``
+
+    def advance(self) -> None:
+        """After the command is out: integrate one period ahead with the effort just applied (the
+        interval to the next sample, when none is lost), so the next call only takes the sample."""
+        if self._t_last is None or self._ahead_s:
+            return
+        sig, w, stage, _ = self._ws
+        self._engine.integrate(self._t_last, self._x, self._xd, self._u_prev, self._params, self._period, 1, sig, w,
+                               stage)
+        self._ahead_s = self._period
 
     def __call__(self, t_s: float, state: State) -> Command:
         u, e = self._u, self._engine
         sig, w, stage, xdn = self._ws
         last = self._t_last
         dt = self._period if last is None or t_s <= last else t_s - last
-        if last is not None and t_s > last:  # the interval just past, with the effort that was applied
-            e.integrate(last, self._x, self._xd, self._u_prev, self._params, dt, 1, sig, w, stage)
+        if last is not None and t_s > last + self._ahead_s + 1e-12:  # the interval just past (what ``advance``
+            t0 = last + self._ahead_s  # left of it: samples lost or coalesced), with the effort applied
+            e.integrate(t0, self._x, self._xd, self._u_prev, self._params, t_s - t0, 1, sig, w, stage)
+        self._ahead_s = 0.0
         if self._i_angle >= 0:
             u[self._i_angle] = state.angle_deg
         if self._i_velocity >= 0:

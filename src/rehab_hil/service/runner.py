@@ -205,6 +205,7 @@ class LoopService:
         self.estimator, self.supervisor, self.period_s = estimator, supervisor, period_s
         self.recorder, self.telemetry = recorder, telemetry or NullSink()
         self.meter, self.twin = meter, twin  # the live twin: one more sink after the write (rehab_hil.twin)
+        self._advance = getattr(controller, "advance", None)  # the controller's work that can wait for the write
         actuator = getattr(controller, "actuator", None)
         self._effort_of = actuator.effort if actuator is not None else (lambda cmd: math.nan)
         # who takes the records after the write, and who is woken once they are all there
@@ -338,10 +339,13 @@ class LoopService:
 
     # ---- after the write -----------------------------------------------------------------------
     def _after_write(self, t_s: float, state: State, cmd: Command) -> None:
-        """The command is out: the reaction time, the records, the session meter, the live figures."""
+        """The command is out: the reaction time, the controller's integration ahead, the records, the
+        session meter, the live figures."""
         now = time.perf_counter()
         s = self.session
         s.reaction.add(now - self.hw.last_sample_time)
+        if self._advance is not None:
+            self._advance()
         if s.cycles < s.n_max:
             s.references[s.cycles], s.angles[s.cycles] = cmd.reference_deg, state.angle_deg
         s.cycles += 1
