@@ -10,6 +10,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -27,6 +28,7 @@ from rehab_hil.telemetry import (
     NetworkConfig,
     TelemetryConfigError,
     TelemetryPublisher,
+    lab,
     list_rigs,
     open_session,
     subscribe,
@@ -238,12 +240,25 @@ def test_bad_lab_input_gets_one_line_errors(router: str, tmp_path: Path, wait,
 
 
 def test_rehab_hil_run_publishes_as_a_client_of_the_lab_router(router: str, tmp_path: Path,
-                                                               capsys: pytest.CaptureFixture[str]) -> None:
+                                                               capsys: pytest.CaptureFixture[str],
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    # The rig starts once the recorder watches for rigs: started together, beside two busy loops the
+    # recorder's thread had not opened its session and declared its liveliness watch when the whole
+    # in-process run was over ("no live rig matches 'labrun' within 10.0 s (live rigs: none)").
+    watching = threading.Event()
+    declare = lab.RigWatch.__init__
+
+    def declared(self: lab.RigWatch, *args: Any, **kw: Any) -> None:
+        declare(self, *args, **kw)
+        watching.set()
+
+    monkeypatch.setattr(lab.RigWatch, "__init__", declared)
     codes: list[int] = []
     rec = threading.Thread(target=lambda: codes.append(main(
         ["record", "--from-zenoh", "labrun", "--out", str(tmp_path), "--connect", router])))
     rec.start()
     try:
+        assert watching.wait(30), "the recorder never watched for rigs"
         assert main(["run", "--config", str(CONFIG), "--device", "inprocess", "--duration", "2", "--no-display",
                      "--telemetry", "labrun", "--telemetry-connect", router]) == 0
     finally:
