@@ -4,8 +4,11 @@ metadata.json, the MCAP and on zenoh; a clean session gives none; the config may
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import zenoh
@@ -44,9 +47,39 @@ def _run(tmp: Path, capsys, host: Path, device: Path, *extra: str, duration_s: f
     return code, run, out.out + out.err
 
 
+@pytest.fixture(scope="module")
+def friction_session(tmp_path_factory):
+    """One 11 s session whose friction appears at CHANGE_S, published on zenoh (a subscriber on the
+    twin's key from before the start): the recording and what was published, read by the two tests
+    below (neither changes them; telemetry only publishes what the loop hands it)."""
+    tmp = tmp_path_factory.mktemp("friction_session")
+    session, port = open_hub()
+    got: list[tuple[str, dict]] = []
+
+    def take(sample: zenoh.Sample) -> None:
+        body = decode_json(bytes(sample.payload))
+        got.append((body["kind"], body))
+
+    sub = session.declare_subscriber("rehab/twintest/twin", take)
+    printed, errors = io.StringIO(), io.StringIO()
+    try:
+        root = tmp / "runs"
+        with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(errors):
+            code = main(["run", "--config", str(_host(tmp)), "--sim-plant", str(_friction_at(tmp, CHANGE_S)),
+                         "--device", "sim", "--lockstep", "--duration", "11", "--record", str(root),
+                         "--no-display", "--twin", "--telemetry", "twintest", "--telemetry-port", str(port)])
+        (run,) = root.iterdir()
+        final = wait_until(lambda: any(k == "model_mismatch" and b.get("final") for k, b in got))
+    finally:
+        sub.undeclare()
+        session.close()
+    return SimpleNamespace(code=code, run=run, out=printed.getvalue() + errors.getvalue(), got=got, final=final)
+
+
 @pytest.mark.slow
-def test_friction_appearing_mid_session_is_one_event_at_its_start_with_its_cause(tmp_path, capsys):
-    code, run, out = _run(tmp_path, capsys, _host(tmp_path), _friction_at(tmp_path, CHANGE_S))
+@pytest.mark.xdist_group("twin_friction_session")
+def test_friction_appearing_mid_session_is_one_event_at_its_start_with_its_cause(friction_session):
+    code, run, out = friction_session.code, friction_session.run, friction_session.out
     assert code == 0, out
     meta = json.loads((run / "metadata.json").read_text())
     (ev,) = meta["model_events"]
@@ -97,23 +130,11 @@ def test_stop_on_mismatch_trips_the_rig_into_its_safe_state(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_the_twin_publishes_predictions_and_the_event_on_zenoh(tmp_path, capsys):
-    session, port = open_hub()
-    got: list[tuple[str, dict]] = []
-
-    def take(sample: zenoh.Sample) -> None:
-        body = decode_json(bytes(sample.payload))
-        got.append((body["kind"], body))
-
-    sub = session.declare_subscriber("rehab/twintest/twin", take)
-    try:
-        code, _, out = _run(tmp_path, capsys, _host(tmp_path), _friction_at(tmp_path, CHANGE_S),
-                            "--telemetry", "twintest", "--telemetry-port", str(port))
-        assert code == 0, out
-        assert wait_until(lambda: any(k == "model_mismatch" and b.get("final") for k, b in got))
-    finally:
-        sub.undeclare()
-        session.close()
+@pytest.mark.xdist_group("twin_friction_session")
+def test_the_twin_publishes_predictions_and_the_event_on_zenoh(friction_session):
+    assert friction_session.code == 0, friction_session.out
+    assert friction_session.final
+    got = friction_session.got
     predictions = [b for k, b in got if k == "prediction"]
     assert len(predictions) >= 1000
     assert {"iris_angle_deg_predicted", "iris_angle_deg_residual"} <= set(predictions[0])
