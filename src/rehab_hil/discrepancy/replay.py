@@ -8,6 +8,7 @@ an edit of the parameter vector of one compiled system (``with_effects``), never
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +32,8 @@ CANDIDATE_PREFIX = "candidate"
 ADC_FULL_SCALE_COUNTS = 1023  # the Uno's 10-bit ADC (docs/protocol.md)
 MIN_DURATION_S = 2.0  # shorter records cannot be split into a fit part and a held-out part
 MIN_SAMPLES = 100
+SIM_CACHE = 64  # replays kept for a repeated request (``Replay.simulate_grid``) ...
+SIM_CACHE_BYTES = 32 << 20  # ... and at most this many bytes of them
 NOISY_SPREAD = 10.0  # a channel whose spread is under this many noise floors weighs less in the fits
 
 
@@ -195,15 +198,39 @@ class Replay:
 
     def simulate_grid(self, P: np.ndarray, n: int, mode: str | None = None,
                       x0: np.ndarray | None = None, xd0: np.ndarray | None = None) -> np.ndarray:
-        """Channel outputs on the model grid (steps x channels), open loop or by shooting."""
-        mode = mode or self.mode
-        x = (self.x0 if x0 is None else x0).copy()
-        xd = (self.xd0 if xd0 is None else xd0).copy()
-        if mode == "open" or self.anchor_gain is None or self.segment_steps <= 0:
-            return self.run(P, 0, n, x, xd)
-        from rehab_hil.discrepancy.shooting import shoot
+        """Channel outputs on the model grid (steps x channels), open loop or by shooting.
 
-        return shoot(self, P, n, x, xd)
+        The same run asked for again (same parameters, steps, mode, start state and anchoring) is
+        answered from a small cache of the last ``SIM_CACHE`` runs (``SIM_CACHE_BYTES`` at most), a copy
+        of the same array (``drop_cache`` empties it): the
+        workflow scores every candidate of a round from the same base model, and the optimiser's
+        first point is often the start it was handed."""
+        mode = mode or self.mode
+        x = np.array(self.x0 if x0 is None else x0, float)
+        xd = np.array(self.xd0 if xd0 is None else xd0, float)
+        shooting = not (mode == "open" or self.anchor_gain is None or self.segment_steps <= 0)
+        P = np.asarray(P, float)
+        key = (n, shooting, P.tobytes(), x.tobytes(), xd.tobytes(),
+               (self.segment_steps, np.asarray(self.anchor_gain, float).tobytes()) if shooting else None)
+        cache = self.__dict__.setdefault("_sim_cache", OrderedDict())
+        hit = cache.get(key)
+        if hit is not None:
+            cache.move_to_end(key)
+            return hit.copy()
+        if not shooting:
+            Y = self.run(P, 0, n, x, xd)
+        else:
+            from rehab_hil.discrepancy.shooting import shoot
+
+            Y = shoot(self, P, n, x, xd)
+        cache[key] = Y.copy()
+        while cache and (len(cache) > SIM_CACHE or sum(v.nbytes for v in cache.values()) > SIM_CACHE_BYTES):
+            cache.popitem(last=False)
+        return Y
+
+    def drop_cache(self) -> None:
+        """Forget the cached runs (a finished workflow's replay lives on in its result)."""
+        self.__dict__.pop("_sim_cache", None)
 
     def simulate(self, P: np.ndarray, n_meas: int | None = None, mode: str | None = None,
                  sensed: bool = True) -> dict[str, np.ndarray]:

@@ -226,6 +226,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     for rd in rounds:
         for c in rd.candidates:
             c.sim = None
+    replay.drop_cache()
     split_s = float(replay.t[n_train]) if n_train < N else float(replay.t[-1])
     hm = replay.t >= split_s
     rms = {c: float(np.sqrt(np.mean((current[c][hm] - replay.measured[c][hm]) ** 2))) for c in replay.channels}
