@@ -52,6 +52,12 @@ class DeviceTap:
         self.violations = 0  # samples with PWM on while a fault is latched
         self.worst_on_since_command_us = 0  # longest device time PWM stayed on after the last applied COMMAND
         self.pwm_off_after_command_us: list[int] = []  # per PWM-on -> off transition without a fresh command
+        # a transition the tap saw only across a gap in sample_index (the device's output lost before the
+        # tap: its pty full while a loaded machine starved the proxy): the PWM went off somewhere in
+        # between, so only (last seen on, first seen off) since the command is known, not the moment
+        self.pwm_off_unresolved_us: list[tuple[int, int]] = []
+        self._last_on_since = 0
+        self._last_index: int | None = None
         self.recent: deque[tuple[int, int, bool]] = deque(maxlen=20_000)  # (boot, device_time_us, pwm on)
         self.boots = 0
         self._echo: int | None = None
@@ -67,7 +73,7 @@ class DeviceTap:
             elif isinstance(msg, Hello):
                 self.hellos += 1
                 self.boots += 1
-                self._echo, self._was_on = None, False  # a reboot restarts device time
+                self._echo, self._was_on, self._last_index = None, False, None  # a reboot restarts device time
             elif isinstance(msg, FaultReport):
                 self.fault_reports.append(msg)
             elif isinstance(msg, Command):
@@ -100,8 +106,14 @@ class DeviceTap:
             if s.faults:
                 self.violations += 1
         elif self._was_on and since > 0:
-            self.pwm_off_after_command_us.append(since)
+            if self._last_index is not None and s.sample_index == self._last_index + 1:
+                self.pwm_off_after_command_us.append(since)
+            else:
+                self.pwm_off_unresolved_us.append((self._last_on_since, since))
+        if on:
+            self._last_on_since = since
         self._was_on = on
+        self._last_index = s.sample_index
 
 
 @dataclass
@@ -371,7 +383,7 @@ class LinkProxy:
     def _call(self, *request: Any) -> Any:
         with self._lock:
             self._conn.send(request)
-            if not self._conn.poll(10):
+            if not self._conn.poll(60):  # a cap: beside two busy loops the proxy process took over 10 s to answer
                 raise RuntimeError(f"link proxy did not answer {request[0]!r}")
             status, value = self._conn.recv()
         if status != "ok":

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from rehab_hil.hardware.interface import HardwareError
 from rehab_hil.interchange import read_csv
 from rehab_hil.protocol import Fault
 from rehab_hil.service import assembly
@@ -44,15 +45,28 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 
 FAULT_AT_S = 0.3  # session time of the injection
 DURATION_S = 1.0
+# A session whose fault must end it runs until it does (the trip ends it; 30 s caps a missing trip):
+# a knob travels to the device through a pipe off the loop thread, and beside two busy loops a
+# reboot knob arrived after a 1 s session had ended (the host saw no reboot: events []).
+TRIP_DURATION_S = 30.0
 SAMPLE_TIMEOUT_S = 0.05  # a cycle waits this long for its sample; the link-loss budget is set in run_session
-# The rig's watchdog is 50 ms (configs/finger_extensor.toml). On this loaded 2-core CI box (8
-# agents) the host loop itself was measured pausing 90-250 ms, which trips any watchdog that short:
-# sessions that must survive their fault run with 1 s (the watchdog is not what they test), and the
-# host stall (the issue's ~200 ms) is 1 s against a 300 ms watchdog. The device-time bound checked
-# below is the configured watchdog, whatever its value.
-WATCHDOG_TOLERANT_MS = 1000
-HOST_STALL_S = 1.0
-HOST_STALL_WATCHDOG_MS = 300
+# The rig's watchdog is 50 ms (configs/finger_extensor.toml). On a loaded 2-core box the chain
+# host -> proxy -> (USB-bridge model) -> device is starved for far longer than that: beside two busy
+# loops and other test runs (issue 25, load 10-17) host-side gaps without a sample of 1.00-1.04 s
+# tripped the former 1 s link budget before and after the fault, a 1 s device watchdog on both
+# backends, and a 300 ms one before a host stall or an unplug was injected; the worst gap in a case
+# that had no stall of its own was 1.46 s (CSV host_time_s, printed per case as worst_host_gap)
+# over 5 runs of this file at that load. STARVATION_BUDGET_S covers them with a margin: it is
+# the link-loss budget of every session and the device watchdog of every session (the watchdog is
+# not what most cases test; the device-time bound checked below is the configured watchdog,
+# whatever its value). A one-way stall outlasts it by 2 s. The host stall lasts until the device's
+# watchdog has cut the PWM in the device's own time (seen on the tap): the firmware in simavr runs
+# slower than real time under load (a 4 s stall was 2.28 s of its time), so no fixed stall is long
+# enough on every backend; the link budget of that case also covers the stall itself.
+STARVATION_BUDGET_S = 3.0
+WATCHDOG_TOLERANT_MS = int(STARVATION_BUDGET_S * 1000)
+STALL_S = STARVATION_BUDGET_S + 2.0
+DEVICE_TIME_WAIT_S = 60.0  # cap on waits for the device to reach a watchdog in its own time (slow under load)
 
 
 class Hooked:
@@ -113,6 +127,7 @@ class Scenario:
     inject: Callable[[Ctx], None]
     trip: str | None  # the supervisor's first reason, None: the session must run to its end
     watchdog_ms: int = WATCHDOG_TOLERANT_MS
+    link_budget_s: float = STARVATION_BUDGET_S  # host time without a sample before the host trips link_loss
     check: Callable[[RunResult, Ctx], None] = lambda res, ctx: None
     avr: bool = True  # the fault can be injected on the firmware in simavr too (no Python-device knob needed)
 
@@ -146,13 +161,23 @@ def _device_dropped(res: RunResult, ctx: Ctx) -> None:
     assert res.sample_gaps >= 1
 
 
+def _device_watchdog_seen(ctx: Ctx) -> bool:
+    last = ctx.proxy.device_tap.last
+    return last is not None and bool(last.faults & Fault.WATCHDOG)
+
+
+def _stall_host_until_the_device_watchdog(ctx: Ctx) -> None:
+    """The loop paused (in its thread) until the device, in its own time, has latched WATCHDOG."""
+    wait_for(lambda: _device_watchdog_seen(ctx), DEVICE_TIME_WAIT_S)
+
+
 def _watchdog_latched(res: RunResult, ctx: Ctx) -> None:
     assert "WATCHDOG" in res.events[0].detail
     assert any(r.faults & Fault.WATCHDOG for r in ctx.proxy.device_tap.fault_reports)
 
 
 def _pwm_off_on_device_after_unplug(res: RunResult, ctx: Ctx) -> None:
-    wait_for(lambda: ctx.proxy.device_tap.last is not None and ctx.proxy.device_tap.last.faults & Fault.WATCHDOG)
+    wait_for(lambda: _device_watchdog_seen(ctx), DEVICE_TIME_WAIT_S)
     last = ctx.proxy.device_tap.last
     assert last is not None and (last.duty0, last.duty1) == (0, 0)
 
@@ -178,19 +203,20 @@ SCENARIOS = [
     Scenario("device_corrupts_frames", lambda c: c.knob("corrupt 0.02"), None, check=_gaps_and_bad, avr=False),
     Scenario("device_garbage_and_truncation", lambda c: c.knob("garbage 500", "truncate"), None,
              check=_host_bad_frames, avr=False),
-    Scenario("stalled_device_link", lambda c: c.proxy.stall(c.proxy.down, 3.0), "link_loss"),
-    Scenario("stalled_device_knob", lambda c: c.knob("stall 3000"), "link_loss", avr=False),
-    Scenario("unplug", lambda c: c.proxy.unplug(), "link_loss", watchdog_ms=HOST_STALL_WATCHDOG_MS,
+    Scenario("stalled_device_link", lambda c: c.proxy.stall(c.proxy.down, STALL_S), "link_loss"),
+    Scenario("stalled_device_knob", lambda c: c.knob(f"stall {int(STALL_S * 1000)}"), "link_loss", avr=False),
+    Scenario("unplug", lambda c: c.proxy.unplug(), "link_loss",
              check=_pwm_off_on_device_after_unplug),
     Scenario("device_reboot", lambda c: c.knob("reboot"), "device_reboot", check=_rebooted),
-    Scenario("host_stall", lambda c: time.sleep(HOST_STALL_S), "device_fault", watchdog_ms=HOST_STALL_WATCHDOG_MS,
+    Scenario("host_stall", _stall_host_until_the_device_watchdog, "device_fault",
+             link_budget_s=DEVICE_TIME_WAIT_S + STARVATION_BUDGET_S,
              check=_watchdog_latched),
     # last: the device is respawned after it
     Scenario("device_exits", lambda c: c.knob("disconnect"), "link_loss", avr=False),
 ]
 
 
-def wait_for(pred: Callable[[], Any], timeout: float = 3.0) -> None:
+def wait_for(pred: Callable[[], Any], timeout: float = 3 * STARVATION_BUDGET_S) -> None:
     deadline = time.monotonic() + timeout
     while not pred():
         assert time.monotonic() < deadline, "condition not met in time"
@@ -218,10 +244,7 @@ CASES = [pytest.param("python", s, id=f"python-{s.name}") for s in SCENARIOS] + 
     for s in SCENARIOS if s.name in BRIDGED_AVR]
 
 
-# Real time through a pty proxy, by design (link faults are about timing and budgets). Beside two
-# busy processes a full make test still starved 2-3 of these cases in one run of two (a 1 s link
-# budget overrun by 20 ms): a failure that repeats on rerun is real.
-@pytest.mark.flaky(reruns=2)
+# Real time through a pty proxy, by design (link faults are about timing and budgets).
 @pytest.mark.parametrize(("backend", "scenario"), CASES)
 def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sample(
         backend: str, scenario: Scenario, link: tuple[Any, LinkProxy, Any], cfg: Any, binding: Any, tmp_path: Any,
@@ -246,6 +269,9 @@ def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sam
     assert tap.violations == 0
     assert tap.worst_on_since_command_us < conf.watchdog_ms * 1000 + 1000, tap.worst_on_since_command_us
     assert all(t <= conf.watchdog_ms * 1000 + 1000 for t in tap.pwm_off_after_command_us)
+    # an off transition seen across lost samples: the last sample seen on was within the bound (the
+    # worst_on check above), the moment of the switch-off itself was not seen
+    assert all(on <= conf.watchdog_ms * 1000 + 1000 for on, _ in tap.pwm_off_unresolved_us)
 
     # the recording: readable, every received sample exactly once, in order, CSV == MCAP
     csv = read_csv(rec.csv_path)
@@ -263,10 +289,62 @@ def test_each_fault_leaves_pwm_off_in_time_is_reported_and_loses_no_received_sam
         assert len(sent - set(idx)) <= holes <= res.sample_gaps
 
 
+def patient_configure(hw: Any) -> None:
+    """``hw.configure`` and ``hw.clear`` (the set-up's and ``LoopService.run``'s, whose 1 s went unanswered on the
+    firmware behind the bridge model beside two busy loops) waits up to STARVATION_BUDGET_S and asks
+    again if unanswered: the host does not retransmit, and a byte the firmware in simavr lost under
+    load (its 2-byte receive buffer, docs/safety.md) is no ACK ever. Both are idempotent."""
+    once = hw.configure
+
+    def configure(conf: Any, timeout: float = 1.0) -> None:
+        for attempt in range(3):
+            try:
+                once(conf, timeout=max(timeout, STARVATION_BUDGET_S))
+                return
+            except HardwareError:
+                if attempt == 2:
+                    raise
+
+    clear_once = hw.clear
+
+    def clear(timeout: float = 1.0) -> bool:
+        for attempt in range(3):
+            try:
+                return bool(clear_once(timeout=max(timeout, STARVATION_BUDGET_S)))
+            except HardwareError:
+                if attempt == 2:
+                    raise
+        return False
+
+    hw.configure, hw.clear = configure, clear
+
+
+def bring_into_range(ctx: Ctx, conf: Any) -> None:
+    """Drive the shared device's iris back into the middle of its range of motion if an earlier
+    case left it outside (the last command held for a stall or a watchdog of seconds can carry it
+    there): the session would otherwise trip range_of_motion at its first sample."""
+    span = conf.enc_max - conf.enc_min
+    lo, hi = conf.enc_min + span // 5, conf.enc_max - span // 5
+    ctx.hw.configure(dataclasses.replace(conf, enc_min=-(1 << 30), enc_max=1 << 30))
+    assert ctx.hw.clear(timeout=STARVATION_BUDGET_S), "faults left latched by an earlier test would not clear"
+    ctx.hw.discard_pending()
+    deadline = time.monotonic() + DEVICE_TIME_WAIT_S
+    while True:  # until a sample with the drive off (applied, not only sent: the link lags) is inside
+        s = ctx.hw.read_sample(timeout=max(0.0, deadline - time.monotonic()))
+        assert s is not None, "no sample while bringing the iris into range"
+        inside = lo <= s.encoder_count <= hi
+        if inside and s.duty0 == 0:
+            break
+        assert time.monotonic() < deadline, f"iris not back in range: {s.encoder_count} counts, [{lo}, {hi}]"
+        # positive motor voltage (direction bit 0) turns the encoder up (encoder_direction 1)
+        ctx.hw.write_command(0.0 if inside else 0.05, 0.0, 1 if s.encoder_count > hi else 0)
+
+
 def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenario,
                 caplog: pytest.LogCaptureFixture) -> tuple[RunResult, Recorder, Any]:
     conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), watchdog_ms=scenario.watchdog_ms)
     ctx.conf = conf
+    patient_configure(ctx.hw)
     controller = Hooked(gentle_pid(cfg), FAULT_AT_S, lambda: scenario.inject(ctx))
     controller.inner(0.0, State(0.0, 0.0, 0.0, {}))  # compile before the device streams
     if ctx.device.kind == "python":  # the shared device: knobs of earlier tests off
@@ -274,31 +352,37 @@ def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenar
             ctx.device.control(line)
     rec = Recorder(out_dir, binding, flush_s=0.05)
     supervisor = assembly.build_supervisor(cfg, binding)
-    # 1 s without a sample is a lost link here (the config's 100 ms is for an unloaded host): on this
-    # loaded box the loop itself pauses 100-250 ms, and the faults that must not stop a session would
-    supervisor.limits = dataclasses.replace(supervisor.limits, link_loss_periods=1000)
+    # the case's budget without a sample is a lost link here (the config's 50 ms is for an unloaded
+    # host; STARVATION_BUDGET_S above says why)
+    supervisor.limits = dataclasses.replace(supervisor.limits,
+                                            link_loss_periods=round(scenario.link_budget_s / assembly.period_s(cfg)))
     svc = LoopService(ctx.hw, conf, controller, assembly.build_estimator(cfg, binding),
                       supervisor, assembly.period_s(cfg), recorder=rec)
     caplog.set_level(logging.ERROR, logger="rehab_hil.supervisor")
     try:
         # the shared device: streaming off (no backlog while we set up), faults of earlier tests cleared
         wide = dataclasses.replace(conf, sample_rate_hz=0, enc_min=-(1 << 30), enc_max=1 << 30)
-        ctx.hw.configure(wide, timeout=3.0)
-        assert ctx.hw.clear(timeout=3.0), "faults left latched by an earlier test would not clear"
+        bring_into_range(ctx, conf)
+        ctx.hw.configure(wide)
+        assert ctx.hw.clear(timeout=STARVATION_BUDGET_S), "faults left latched by an earlier test would not clear"
         ctx.hw.discard_pending()
     except Exception as e:
         rec.close()
         raise AssertionError(f"{e}; {ctx.proxy.describe()}; device {ctx.device.control('status')}") from e
     try:
-        res = svc.run(DURATION_S, pacing="device", realtime=False, sample_timeout_s=SAMPLE_TIMEOUT_S)
+        res = svc.run(DURATION_S if scenario.trip is None else TRIP_DURATION_S, pacing="device", realtime=False,
+                      sample_timeout_s=SAMPLE_TIMEOUT_S)
     finally:
         rec.close()
         ctx.settle()
     tap = ctx.proxy.device_tap
     events = [(e.reason, e.detail, round(e.t_s, 3)) for e in res.events]
-    print(f"\n{scenario.name}: events={events} samples={res.samples} "
+    host_t = read_csv(rec.csv_path)["host_time_s"]
+    worst_gap_ms = float(np.max(np.diff(host_t))) * 1e3 if len(host_t) > 1 else float("nan")
+    print(f"\n{scenario.name}: events={events} samples={res.samples} worst_host_gap={worst_gap_ms:.1f} ms "
           f"gaps={res.sample_gaps} link_bad={res.link['bad_frames']} dev_rx_bad={res.link['device_rx_bad_frames']} "
           f"worst_pwm_on_after_cmd={tap.worst_on_since_command_us / 1000:.1f} ms "
-          f"pwm_off_after_cmd={[round(t / 1000, 1) for t in tap.pwm_off_after_command_us]} ms; {ctx.proxy.describe()}")
+          f"pwm_off_after_cmd={[round(t / 1000, 1) for t in tap.pwm_off_after_command_us]} ms "
+          f"(across lost samples, last on / first off: {tap.pwm_off_unresolved_us} us); {ctx.proxy.describe()}")
     assert controller.fired_at is not None, "the session ended before the fault was injected"
     return res, rec, conf
