@@ -309,6 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     violations = sum(t.violations for t in taps)
     worst_on_ms = max((t.worst_on_since_command_us for t in taps), default=0) / 1000.0
     off_after = [x for t in taps for x in t.pwm_off_after_command_us]
+    # switch-offs seen only across lost samples: (last seen on, first seen off) since the command
+    unresolved = [pair for t in taps for pair in getattr(t, "pwm_off_unresolved_us", [])]
     result = {
         "minutes": (time.monotonic() - t_start) / 60.0,
         "rate_hz": cfg.rig.sample_rate_hz,
@@ -327,6 +329,8 @@ def main(argv: list[str] | None = None) -> int:
         "link_losses": len(link_loss_off_ms),
         "worst_pwm_off_after_link_loss_ms": max(link_loss_off_ms, default=0.0),
         "pwm_off_by_trip_events": len(off_after),
+        "pwm_off_seen_across_lost_samples": len(unresolved),
+        "worst_last_seen_on_before_an_unseen_off_ms": max((a for a, _ in unresolved), default=0) / 1000.0,
         "relinks": totals["relinks"],
         "device_samples_seen": sum(t.n_samples for t in taps),
         "host_samples": totals["samples"],
