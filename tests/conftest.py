@@ -21,6 +21,23 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Refuse a pytest / pytest-xdist pair under which ``--dist loadgroup`` ignores ``xdist_group``:
+    xdist 3.8 tags a grouped test's node id ``@group`` in ``item._nodeid``, which pytest 9.2 no
+    longer reads, so the tests that share a device spread over both workers, without a word."""
+    if config.getoption("dist", "no") != "loadgroup":
+        return
+    from importlib.metadata import version
+
+    def release(name: str) -> tuple[int, ...]:
+        return tuple(int(x) for x in version(name).split(".")[:2] if x.isdigit())
+
+    if release("pytest") >= (9, 2) and release("pytest-xdist") <= (3, 8):
+        raise pytest.UsageError(f"pytest {version('pytest')} with pytest-xdist {version('pytest-xdist')}: "
+                                "--dist loadgroup would ignore every xdist_group (pyproject.toml pins pytest<9.2; "
+                                "make test reinstalls it)")
+
+
 @pytest.fixture
 def configs_dir() -> Path:
     return CONFIGS

@@ -183,6 +183,58 @@ def test_request_without_ack_times_out_with_hardware_error(peer: PtyPeer) -> Non
     hw.close()
 
 
+def test_a_request_whose_frame_was_lost_is_sent_again_and_its_ack_taken(peer: PtyPeer) -> None:
+    """A CONFIGURE lost on the way (a byte dropped in the 328P's 2-byte receive buffer) is never
+    acknowledged: the host sends it again with a new seq and takes that copy's ACK."""
+    hw = _connected(peer)
+    seen: list[int] = []
+
+    def device() -> None:
+        for _ in range(40):
+            for frame in peer.receive(0.1):
+                if isinstance(frame.msg, Configure):
+                    seen.append(frame.seq)
+                    if len(seen) == 2:  # the first copy is "lost": only the second is answered
+                        peer.send(Ack(Configure.TYPE, frame.seq, AckResult.OK))
+                        return
+
+    t = threading.Thread(target=device, daemon=True)
+    t.start()
+    hw.configure(Configure(1000, 0, 10000, 1000, 1023, -1, 1, 0), timeout=3.0)
+    t.join()
+    assert len(seen) == 2 and seen[0] != seen[1]
+    assert hw.stats.request_resends == 1
+    hw.close()
+
+
+def test_a_request_answered_late_returns_only_once_every_copy_is_answered(peer: PtyPeer) -> None:
+    """A slow device acknowledges both copies: the request returns after the second ACK, so no copy
+    still on its way can restart the stream after the caller went on."""
+    hw = _connected(peer)
+    sent_second_ack = threading.Event()
+
+    def device() -> None:
+        copies: list[int] = []
+        for _ in range(40):
+            for frame in peer.receive(0.1):
+                if isinstance(frame.msg, Clear):
+                    copies.append(frame.seq)
+            if len(copies) == 2:
+                peer.send(Ack(Clear.TYPE, copies[0], AckResult.OK))
+                time.sleep(0.3)
+                sent_second_ack.set()
+                peer.send(Ack(Clear.TYPE, copies[1], AckResult.OK))
+                return
+
+    t = threading.Thread(target=device, daemon=True)
+    t.start()
+    assert hw.clear(timeout=3.0) is True
+    assert sent_second_ack.is_set()
+    t.join()
+    assert hw.stats.request_resends == 1
+    hw.close()
+
+
 def test_unsolicited_hello_counts_as_a_reboot(peer: PtyPeer) -> None:
     hw = _connected(peer)
     peer.send(HELLO, seq=0)

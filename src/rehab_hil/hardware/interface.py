@@ -61,6 +61,7 @@ class LinkStats:
     samples: int = 0
     dropped_samples: int = 0  # gaps in sample_index
     reboots: int = 0  # device restarts: an unsolicited HELLO after the handshake, or sample_index going back
+    request_resends: int = 0  # requests (CONFIGURE, CLEAR, ...) sent again for want of an ACK
     latencies_s: deque[float] = field(default_factory=lambda: deque(maxlen=100_000))  # command -> echo
 
     def latency_percentiles(self, q: tuple[float, ...] = (50.0, 99.0)) -> dict[str, float]:
@@ -74,7 +75,7 @@ class LinkStats:
         return {
             "frames_rx": self.frames_rx, "frames_tx": self.frames_tx, "bad_frames": dict(self.bad_frames),
             "device_rx_bad_frames": self.device_rx_bad_frames, "samples": self.samples,
-            "dropped_samples": self.dropped_samples, "reboots": self.reboots,
+            "dropped_samples": self.dropped_samples, "reboots": self.reboots, "request_resends": self.request_resends,
             **{f"latency_{k}_s": v for k, v in self.latency_percentiles().items()},
         }
 

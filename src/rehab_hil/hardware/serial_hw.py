@@ -42,6 +42,12 @@ from rehab_hil.protocol import (
 __all__ = ["SerialHardware"]
 
 _READ_SIZE = 4096  # bytes per read: a burst of ~110 SAMPLEs
+# A request (CONFIGURE, CLEAR, ESTOP, SET_ENCODER) not acknowledged this long is sent again, with
+# a new seq: a byte lost in the 328P's 2-byte receive buffer (the firmware busy for two byte times;
+# tests/firmware/test_bootloader.py) loses the frame, and with it the ACK, for good. Every copy
+# sent is waited for (until the caller's timeout) before the request returns, so a late copy
+# cannot restart the device's stream after the caller went on. All four are idempotent.
+_RESEND_S = 0.5
 _POLLIN = select.POLLIN | select.POLLPRI
 
 
@@ -254,15 +260,30 @@ class SerialHardware(HardwareInterface):
                 raise HardwareError(f"link to {self.port} lost: {e}") from e
 
     def _request(self, msg: Message, timeout: float) -> int:
-        seq = self._send(msg)
-        key = (msg.TYPE, seq)
+        """Send ``msg`` and return its ACK's result: sent again every ``_RESEND_S`` while no copy is
+        acknowledged; once one is, the other copies' ACKs are waited for until ``timeout``."""
         deadline = time.perf_counter() + timeout
-        while key not in self._acks:
-            remaining = deadline - time.perf_counter()
-            if remaining <= 0:
-                raise HardwareError(f"no ACK for {type(msg).__name__} (seq {seq}) within {timeout:.2f} s")
-            self._pump(remaining)
-        return self._acks.pop(key)
+        seqs: list[int] = []
+        answered = 0
+        result: int | None = None
+        resend_at = 0.0
+        while True:
+            now = time.perf_counter()
+            for seq in seqs:
+                got = self._acks.pop((msg.TYPE, seq), None)
+                if got is not None:
+                    answered += 1
+                    result = got if result is None else result
+            if result is not None and (answered == len(seqs) or now >= deadline):
+                self.stats.request_resends += len(seqs) - 1
+                return result
+            if now >= deadline:
+                raise HardwareError(f"no ACK for {type(msg).__name__} (seq {', '.join(map(str, seqs))}) "
+                                    f"within {timeout:.2f} s")
+            if result is None and now >= resend_at:
+                seqs.append(self._send(msg))
+                resend_at = now + _RESEND_S
+            self._pump(min(deadline, resend_at if result is None else deadline) - now)
 
     def _pump(self, timeout: float) -> None:
         """Wait up to ``timeout`` s for bytes, then decode everything available."""
