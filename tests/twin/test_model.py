@@ -82,3 +82,27 @@ def test_a_model_too_slow_for_the_loop_is_refused_in_one_line() -> None:
     with pytest.raises(TwinSetupError) as e:
         Twin(cfg, binding, 0.001, TwinSection(min_realtime_factor=1e9))
     assert "cannot keep up with the loop" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_smooth_model_reads_the_encoder_angle_before_its_quantisation() -> None:
+    """The estimate's model (``smooth``) predicts the angle the encoder measures, not its whole counts:
+    a parameter change worth a fraction of a count moves it, where the counts stand still."""
+    cfg = load_config(CONFIGS / "finger_extensor.toml")
+    binding = get_plant(cfg.plant).device(cfg)
+    count_deg = 360.0 / binding.encoder_counts_per_rev
+    u = TwinModel(cfg, binding, 0.001).inputs_of(300, 0, 0, {})
+    U = np.repeat(u[None, :], 200, axis=0)
+    out = {}
+    for smooth in (False, True):
+        m = TwinModel(cfg, binding, 0.001, smooth=smooth)
+        runs = []
+        for scale in (1.0, 1.001):
+            P = m.P.copy()
+            P[m.system.diagram.param_index("iris.inertia_kg_m2")] *= scale
+            runs.append(m.run(U, m.system.x0.copy(), m.system.xd0.copy(), P)[:, 0])
+        out[smooth] = runs
+    counts = out[False][0] / count_deg
+    assert np.allclose(counts, np.round(counts)) and np.ptp(counts) > 10  # it moved, in whole counts
+    assert np.array_equal(out[False][0], out[False][1])  # a 0.1 % change shows in no count
+    assert 0.0 < np.max(np.abs(out[True][1] - out[True][0])) < count_deg  # ... but moves the smooth angle
+    assert np.max(np.abs(out[True][0] - out[False][0])) <= 0.5 * count_deg + 1e-9  # the same angle, unrounded

@@ -121,7 +121,7 @@ def _foxglove(args: argparse.Namespace, binding: Any, telemetry: Any) -> Any:
 
 
 def _twin(args: argparse.Namespace, cfg: Any, binding: Any, run_dir: Path | None, recorder: Any,
-          telemetry: Any, cycle_s: float | None) -> Any:
+          telemetry: Any, cycle_s: float | None, lockstep: bool) -> Any:
     """The live twin for ``--twin`` or ``[twin] enabled`` (rehab_hil.twin), refused in one line."""
     if not (args.twin or (cfg.twin is not None and cfg.twin.enabled)):
         return None
@@ -129,7 +129,7 @@ def _twin(args: argparse.Namespace, cfg: Any, binding: Any, run_dir: Path | None
     from rehab_hil.twin.session import start_twin
 
     try:
-        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, recorder, telemetry, cycle_s)
+        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, recorder, telemetry, cycle_s, lockstep)
     except TwinSetupError as e:
         raise UserError(f"{args.config}: [twin] {e}") from None
 
@@ -291,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
             stack.callback(telemetry.close)
         ref = controller.controller.reference
         twin = _twin(args, cfg, binding, run_dir if recorder is not None else None, recorder, telemetry,
-                     ref.period_s if ref.kind == "session" else None)
+                     ref.period_s if ref.kind == "session" else None, lockstep)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
                           assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
                           assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink,

@@ -7,11 +7,17 @@ Online, on a rig that measures an angle (and maybe a force), the same parameters
 model's torque balance: the twin's model with the estimated values is run over each re-anchored
 segment, and once more per parameter with that parameter nudged, which gives the sensitivity of
 every predicted sample to every parameter (finite differences through the whole plant: contact,
-passive joint, actuator and controller-applied effort alike). The segment's prediction error then
-updates the estimate by RLS with exponential forgetting (memory ``forgetting_s``), so a patient
-whose stiffness doubles is followed within a few memories. Parameters are estimated relative to
-their config value (1 = the config), which keeps the problem well scaled; the 95 % interval comes
-from the RLS covariance times the residual variance.
+passive joint, actuator and controller-applied effort alike). The model reads an encoder angle
+before its quantisation (``TwinModel(smooth=True)``): a 5 % nudge moves a prediction by less than
+a count, and whole counts have no slope. The segment's prediction error then updates the estimate
+by RLS with exponential forgetting (memory ``forgetting_s``), the update re-linearised while the
+estimate moves (an iterated extended Kalman filter's update), and the model's unmeasured states
+carried on as if it had run on the new estimate. A segment far outside anything seen before (an
+abrupt change: a patient's stiffness doubling) restarts the covariance, so the change is followed
+in a few segments instead of a few memories. Parameters are estimated relative to their config
+value (1 = the config), which keeps the problem well scaled; the 95 % interval comes from the RLS
+covariance times the residual variance. Per session, the same linearised equations are solved
+without forgetting (least squares over every segment since the start or the last restart).
 """
 
 from __future__ import annotations
@@ -31,6 +37,9 @@ NUDGE = 0.05  # finite-difference step: this share of the parameter's config val
 SUBSAMPLE = 5  # every this many samples of a segment enter the regression (neighbours are correlated)
 P0 = 1.0  # initial covariance of the relative parameters (a prior of +/-100 %)
 BOUNDS = (0.02, 20.0)  # the estimate stays within these multiples of the config value
+RESTART_SIGMAS = 10.0  # a segment whose prediction error RMS exceeds this many running residual sigmas restarts
+MAX_ITER = 5  # re-linearisations of one update at most ...
+ITER_TOL = 0.02  # ... while the estimate moves more than this (relative to the config value)
 EFFECT_PREFIX = "effect_"
 
 
@@ -46,8 +55,10 @@ class Estimate:
 
 def resolve_parameters(model: TwinModel, names: Sequence[str]) -> list[list[int]]:
     """The diagram parameter indices each name stands for: ``part.param`` exactly, or a configured
-    effect's ``effect.param``; every other non-candidate part's parameter of the same name and value
-    goes with it (the SMA's pad and contact-force parts share k and c). Unknown names are refused."""
+    effect's ``effect.param``. A plant parameter takes every other plant part's parameter of the same
+    name and value with it (the SMA's pad and contact-force parts share k and c); a configured
+    effect's stands alone (a contact damping of 0.02 is not the iris's viscous damping of 0.02).
+    Unknown names are refused."""
     d = model.system.diagram
     names_all = d.param_names
     out: list[list[int]] = []
@@ -60,8 +71,10 @@ def resolve_parameters(model: TwinModel, names: Sequence[str]) -> list[list[int]
                                  f"{', '.join(known[:12])}{' ...' if len(known) > 12 else ''}")
         i0 = d.param_index(found[0])
         v0 = model.P[i0]
-        idx = [i0] + [i for i, q in enumerate(names_all) if i != i0 and q.split(".", 1)[1] == param
-                      and not q.startswith(CANDIDATE_PREFIX) and model.P[i] == v0]
+        # a configured effect's parameter is its own; a plant's may be built into several parts
+        idx = [i0] if found[0].startswith(EFFECT_PREFIX) else [i0] + [
+            i for i, q in enumerate(names_all) if i != i0 and q.split(".", 1)[1] == param
+            and not q.startswith((CANDIDATE_PREFIX, EFFECT_PREFIX)) and model.P[i] == v0]
         if v0 == 0.0:
             raise TwinSetupError(f"estimate {name!r}: its config value is 0; the estimate is relative to it")
         out.append(idx)
@@ -91,7 +104,37 @@ class InteractionEstimator:
         self.sigma2 = 1.0  # running residual variance (normalised units)
         self.updates = 0
         self.P = model.P  # the estimator's model runs on the estimate
+        self._out_jac = model.output_jacobian(model.x, model.xd, model.inputs_of(0, 0, 0, {}))
         self._apply(self.P, self.theta)
+        self.restarts = -1
+        self.restart(0.0)
+
+    def restart(self, t_s: float) -> None:
+        """Forget what the estimate has learned (an abrupt change): the covariance back to its prior
+        and the session's least squares begun again from ``t_s``."""
+        n = self.theta.size
+        self.cov = np.eye(n) * P0
+        self._R, self._r, self._zz, self._rows = np.zeros((n, n)), np.zeros(n), 0.0, 0
+        self.session_start_s = t_s
+        self.restarts += 1
+
+    def session_estimates(self) -> list[Estimate]:
+        """The least-squares estimate over every segment since the session began (or since the last
+        abrupt change), with its 95 % interval; the running estimate where that has no information."""
+        n = self.theta.size
+        try:
+            th = np.linalg.solve(self._R, self._r)
+            cov = np.linalg.inv(self._R)
+        except np.linalg.LinAlgError:
+            return self.estimates()
+        sse = max(self._zz - 2.0 * th @ self._r + th @ self._R @ th, 0.0)
+        s2 = sse / max(self._rows - n, 1)
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0) * s2)
+        if not np.all(np.isfinite(th)) or self._rows <= n:
+            return self.estimates()
+        th = np.clip(th, *BOUNDS)
+        return [Estimate(nm, float(v0 * t), float(1.96 * v0 * d), float(v0))
+                for nm, v0, t, d in zip(self.names, self.nominal, th, sd, strict=True)]
 
     def _apply(self, P: np.ndarray, theta: np.ndarray) -> None:
         for ix, v0, th in zip(self.index, self.nominal, theta, strict=True):
@@ -99,45 +142,91 @@ class InteractionEstimator:
 
     def update(self, index: np.ndarray, U: np.ndarray, measured: np.ndarray) -> None:
         """One segment of samples (as ``TwinModel.advance`` takes them): predict it with the current
-        estimate from the estimator's own re-anchored state, and update the estimate."""
+        estimate from the estimator's own re-anchored state, and update the estimate (on a whole
+        segment with no sample lost)."""
         m = self.model
-        if not m.anchored:
+        whole = index.size == m.segment_samples and int(index[-1] - index[0]) == index.size - 1
+        if not m.anchored or not whole:
+            # a partial segment or one with samples lost: the inputs over a gap are not known, so its
+            # prediction error says nothing sure about the patient (the model still carries on)
             m.advance(index, U, measured)
             return
         x0, xd0 = m.x.copy(), m.xd.copy()
         steps, at = m.plan(index, U)
-        y_hat_all = m.advance(index, U, measured).predicted
+        y_all = m.advance(index, U, measured).predicted
         keep = np.arange(0, at.size, SUBSAMPLE)
-        if keep.size < 2 or not np.all(np.isfinite(measured[keep])):
+        if keep.size < 2 or not np.all(np.isfinite(measured[keep])) or not np.all(np.isfinite(y_all)):
             return
-        scale = m.resolution
-        y_hat = y_hat_all[keep]
-        e = ((measured[keep] - y_hat) / scale).ravel()
-        phi = np.empty((e.size, self.theta.size))
-        for j in range(self.theta.size):
-            th = self.theta.copy()
-            th[j] += NUDGE
-            Pj = self.P.copy()
-            self._apply(Pj, th)
-            phi[:, j] = ((self._run(Pj, x0, xd0, steps)[at[keep]] - y_hat) / scale).ravel() / NUDGE
-        if not np.all(np.isfinite(phi)) or not np.all(np.isfinite(e)):
-            return
-        lam, C = self.lam, self.cov
-        S = lam * np.eye(e.size) + phi @ C @ phi.T
-        try:
-            K = np.linalg.solve(S, phi @ C).T
-        except np.linalg.LinAlgError:
-            return
-        self.theta = np.clip(self.theta + K @ e, *BOUNDS)
+        at = at[keep]
+        z = measured[keep] / m.resolution
+        pinned = np.any(m.anchor_gain != 0.0, axis=0)  # channels whose states the anchoring sets
+        theta, y = self.theta.copy(), y_all[keep] / m.resolution
+        if self.updates and float(np.mean((z - y) ** 2)) > RESTART_SIGMAS**2 * self.sigma2:
+            self.restart(float(index[0] * m.period_s))
+        prior, C, lam = theta.copy(), self.cov, self.lam
+        x_end = m.x - m.anchor_gain @ m.last_correction  # the segment's end before its anchoring
+        # an iterated update (as the iterated extended Kalman filter's): re-linearised at each new
+        # estimate while it moves, so a large change (a stiffness doubling) is not read off a slope
+        # taken far from it
+        for it in range(MAX_ITER):
+            phi, dx = self._sensitivity(theta, x0, xd0, steps, at, y, x_end)
+            if not np.all(np.isfinite(phi)):
+                return
+            e = (z - y).ravel()
+            S = lam * np.eye(e.size) + phi @ C @ phi.T
+            try:
+                K = np.linalg.solve(S, phi @ C).T
+            except np.linalg.LinAlgError:
+                return
+            new = np.clip(prior + K @ (e + phi @ (theta - prior)), *BOUNDS)
+            lin_at = theta
+            moved = float(np.max(np.abs(new - theta)))
+            r = e - phi @ (new - theta)
+            theta = new
+            if moved < ITER_TOL or it == MAX_ITER - 1:
+                break
+            y, x_end = self._predict(theta, x0, xd0, steps, at)
+        # anchoring sets the states a channel is to its measurement: those no longer depend on the estimate
+        if np.any(pinned):
+            dx -= m.anchor_gain[:, pinned] @ (self._out_jac[pinned] @ dx)
+        if float(np.max(np.abs(theta - prior))) < ITER_TOL:
+            # the session's least squares on the same linearisation (no forgetting), from segments the
+            # running estimate has settled on: a slope taken far from the answer would pull it away
+            lin = e + phi @ lin_at
+            self._R += phi.T @ phi
+            self._r += phi.T @ lin
+            self._zz += float(lin @ lin)
+            self._rows += lin.size
+        m.x += dx @ (theta - prior)  # the estimator's model carries on as if it had run on the new estimate
+        self.theta = theta
         self.cov = (C - K @ phi @ C) / lam
         self.cov = 0.5 * (self.cov + self.cov.T)
-        r = e - phi @ (K @ e)
         self.sigma2 = lam * self.sigma2 + (1 - lam) * float(np.mean(r**2)) if self.updates else float(np.mean(r**2))
         self.updates += 1
         self._apply(self.P, self.theta)
 
-    def _run(self, P: np.ndarray, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        return self.model.run(steps, x0.copy(), xd0.copy(), P)
+    def _predict(self, theta: np.ndarray, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray, at: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The segment's samples (sensor units) and its end state with the parameters ``theta``."""
+        P = self.P.copy()
+        self._apply(P, theta)
+        x = x0.copy()
+        y = self.model.run(steps, x, xd0.copy(), P)[at] / self.model.resolution
+        return y, x
+
+    def _sensitivity(self, theta: np.ndarray, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray, at: np.ndarray,
+                     y: np.ndarray, x_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d samples / d theta (samples x parameters) and d end state / d theta at ``theta``, by
+        finite differences through the whole segment."""
+        phi = np.empty((y.size, theta.size))
+        dx = np.empty((x0.size, theta.size))
+        for j in range(theta.size):
+            th = theta.copy()
+            th[j] += NUDGE
+            yj, xj = self._predict(th, x0, xd0, steps, at)
+            phi[:, j] = (yj - y).ravel() / NUDGE
+            dx[:, j] = (xj - x_end) / NUDGE
+        return phi, dx
 
     def estimates(self) -> list[Estimate]:
         """The current values and their 95 % intervals (SI)."""

@@ -67,7 +67,7 @@ class Twin:
         names = self.settings.estimate or default_estimates(self.model)
         est_segment_s = self.settings.estimate_segment_s or self.settings.segment_s
         self.estimator = (InteractionEstimator(TwinModel(cfg, binding, period_s, est_segment_s,
-                                                         self.settings.channels or None),
+                                                         self.settings.channels or None, smooth=True),
                                                names, self.settings.forgetting_s) if names else None)
         self.estimate_history: list[tuple[float, list[Estimate]]] = []  # (segment end, estimates)
         runs = 1 + (2 + len(names) if self.estimator is not None else 0)
@@ -261,10 +261,10 @@ class Twin:
             self._csv_fd = -1
 
     def patient(self, cycle_s: float | None = None) -> dict[str, Any]:
-        """The interaction estimate per cycle (the value at each cycle's end, ``cycle_s`` apart) and
-        per session (the mean over the cycles after the first, which the estimate needs to settle,
-        with a 95 % interval from their spread; the last value and its RLS interval beside it)."""
-        if not self.estimate_history:
+        """The interaction estimate per cycle (the running estimate at each cycle's end, ``cycle_s``
+        apart) and per session (least squares over every segment since the session began, or since an
+        abrupt change the estimate restarted at; the last running value and its interval beside it)."""
+        if not self.estimate_history or self.estimator is None:
             return {}
         last_t, last = self.estimate_history[-1]
         T = cycle_s if cycle_s and cycle_s > 0 else max(last_t, self.period_s)
@@ -275,12 +275,10 @@ class Twin:
                 cycles.append({"index": k - 1, "t_end_s": round(t, 4), **{e.name: e.value for e in ests},
                                **{f"{e.name}_ci95": e.ci95 for e in ests}})
                 k += 1
-        session: dict[str, dict[str, float]] = {}
-        for e in last:
-            vals = np.array([c[e.name] for c in cycles[1:]]) if len(cycles) > 2 else np.array([e.value])
-            ci = 1.96 * float(np.std(vals, ddof=1)) / math.sqrt(vals.size) if vals.size > 1 else e.ci95
-            session[e.name] = {"value": float(np.mean(vals)), "ci95": ci, "final": e.value, "final_ci95": e.ci95,
-                               "nominal": e.nominal, "cycles_used": int(vals.size)}
+        since = self.estimator.session_start_s
+        session = {s.name: {"value": s.value, "ci95": s.ci95, "final": e.value, "final_ci95": e.ci95,
+                            "nominal": e.nominal, "since_s": since}
+                   for s, e in zip(self.estimator.session_estimates(), last, strict=True)}
         return {"session": session, "cycles": cycles, "cycle_s": T, "forgetting_s": self.settings.forgetting_s}
 
     def summary(self) -> dict[str, Any]:
@@ -296,10 +294,13 @@ class Twin:
 class LiveTwin:
     """``Twin`` on its own thread, fed as a loop sink (``offer``/``wake``) after the write."""
 
-    def __init__(self, twin: Twin, queue_size: int = 20_000) -> None:
+    def __init__(self, twin: Twin, queue_size: int = 20_000, wait_when_full: bool = False) -> None:
+        """``wait_when_full``: a full queue holds the loop up instead of dropping the record (a lockstep
+        session, which runs as fast as it can and whose results must not depend on the machine)."""
         self.twin = twin
         self._q: deque[Any] = deque()
         self._cap = queue_size
+        self.wait_when_full = wait_when_full
         self.dropped = 0
         self._kick = threading.Event()
         self._closing = False
@@ -309,8 +310,12 @@ class LiveTwin:
 
     def offer(self, record: Any) -> bool:
         if len(self._q) >= self._cap:
-            self.dropped += 1
-            return False
+            if not self.wait_when_full:
+                self.dropped += 1
+                return False
+            self._kick.set()
+            while len(self._q) >= self._cap and self._thread.is_alive():
+                time.sleep(0.0005)
         self._q.append(record)
         return True
 

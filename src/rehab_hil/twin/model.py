@@ -25,12 +25,14 @@ import numpy as np
 from rehab_hil.discrepancy.initial_state import matched_states
 from rehab_hil.discrepancy.replay import ADC_FULL_SCALE_COUNTS, Replay
 from rehab_hil.interchange import Recording
+from rehab_hil.models.sensors import QuadratureEncoder
 from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
 from rehab_hil.protocol import DUTY_FULL
 
 __all__ = ["Block", "TwinModel", "TwinSetupError"]
 
 ANCHOR_SAMPLES = 10  # the anchoring error is the mean over this many samples: sensor noise averages out
+RAD_TO_DEG = 180.0 / math.pi
 FD_STEP = 0.02  # finite-difference step on a state for the anchor gain (relative, and its floor): wider
 # than an encoder count, whose quantised output has no slope over a smaller step
 
@@ -57,7 +59,9 @@ class TwinModel:
     """The (augmented) plant model stepped on blocks of rig samples, re-anchored every ``segment_s``."""
 
     def __init__(self, cfg: Any, binding: DeviceBinding, period_s: float, segment_s: float = 0.5,
-                 channels: Sequence[str] | None = None) -> None:
+                 channels: Sequence[str] | None = None, smooth: bool = False) -> None:
+        """``smooth``: an encoder channel is read as the angle the encoder measures, not its whole
+        counts (an estimate's finite differences need a prediction that moves with a parameter)."""
         self.cfg, self.binding, self.period_s = cfg, binding, period_s
         self.spec: type[Plant] = get_plant(cfg.plant)
         measured = [binding.angle_output] if binding.encoder_signal else []
@@ -83,7 +87,10 @@ class TwinModel:
             raise TwinSetupError(f"model step {sys_.dt} s does not divide the sample period {period_s} s")
         self.segment_samples = max(1, round(segment_s / period_s))
         self.P = self.replay.nominal_params()[: self.replay.n_diagram_params].copy()
-        self._slots = sys_.out_slots(self.channels)
+        # channels read before their encoder's quantisation, in rad (-> deg in ``sensed``)
+        read = [(_encoder_input(sys_.diagram.parts, c) if smooth else None) or c for c in self.channels]
+        self._unquantised = [j for j, (r, c) in enumerate(zip(read, self.channels, strict=True)) if r != c]
+        self._slots = sys_.out_slots(read)
         self._ws = sys_.workspace()
         names = sys_.input_names
         self._duty = [(names.index(n), d.channel, d.scale, d.signed) for n, d in binding.duty_inputs.items()
@@ -120,6 +127,7 @@ class TwinModel:
         self._since_anchor = 0
         self._last_index = -1
         self._u_last = self._u_const.copy()
+        self.last_correction = np.zeros(len(self.channels))  # per channel, at the last anchor (sensor units)
 
     def _anchor_gain(self) -> np.ndarray:
         """States x channels: a measured error -> the state correction (the states each channel
@@ -184,6 +192,8 @@ class TwinModel:
 
     def sensed(self, Y: np.ndarray) -> np.ndarray:
         """Model outputs through the rig's ADC range (in place; see ``_adc``)."""
+        for j in self._unquantised:
+            Y[:, j] *= RAD_TO_DEG
         for j, offset, per_unit in self._adc:
             c = np.clip(offset + per_unit * Y[:, j], 0.0, ADC_FULL_SCALE_COUNTS)
             Y[:, j] = (c - offset) / per_unit
@@ -244,11 +254,23 @@ class TwinModel:
             if self._since_anchor >= self.segment_samples:
                 tail = slice(max(k, j - ANCHOR_SAMPLES), j)  # the error's mean over the segment's last samples
                 err = np.nanmean(measured[tail] - pred[tail], axis=0)
-                self.x += self.anchor_gain @ self.beyond_resolution(err)
+                self.last_correction = self.beyond_resolution(err)
+                self.x += self.anchor_gain @ self.last_correction
                 anchored[j - 1] = True
                 self._since_anchor = 0
             k = j
         return Block(index * self.period_s, measured.copy(), pred, anchored)
+
+
+def _encoder_input(parts: Sequence[Any], channel: str) -> str | None:
+    """The angle signal (rad) a quadrature encoder part turns into ``channel`` (deg), if one does,
+    through a single unit-gain connection."""
+    for p in parts:
+        if isinstance(p, QuadratureEncoder) and channel in p.signal_names:
+            terms = p.connections["angle_rad"]
+            if len(terms) == 1 and terms[0][1] == 1.0:
+                return terms[0][0]
+    return None
 
 
 def _bind(spec: type[Plant], cfg: Any, channels: list[str]) -> Replay:

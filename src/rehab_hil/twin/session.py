@@ -97,10 +97,13 @@ def model_event(ev: MismatchEvent) -> dict[str, Any]:
 
 
 def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str | Path | None = None,
-               recorder: Any = None, telemetry: Any = None, cycle_s: float | None = None) -> TwinRun:
+               recorder: Any = None, telemetry: Any = None, cycle_s: float | None = None,
+               lockstep: bool = False) -> TwinRun:
     """The twin for ``cfg`` (its ``[twin]`` table, or the defaults), writing ``twin.csv`` into ``run_dir``
     and feeding the recorder, zenoh and Foxglove that are on; ``cycle_s``: the session's open-close
-    period (per-cycle interaction estimates). Raises ``TwinSetupError`` (one line)."""
+    period (per-cycle interaction estimates); ``lockstep``: the loop waits for a twin that falls behind
+    instead of the twin dropping records, so a lockstep session's twin is as deterministic as the rest.
+    Raises ``TwinSetupError`` (one line)."""
     settings = cfg.twin or TwinSection()
     listeners: list[Any] = []
     if recorder is not None:
@@ -114,4 +117,4 @@ def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str |
         twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners)
     except ValueError as e:  # a TwinSetupError, or a model the twin cannot bind: one line either way
         raise TwinSetupError(str(e)) from None
-    return TwinRun(LiveTwin(twin), cfg, cycle_s)
+    return TwinRun(LiveTwin(twin, wait_when_full=lockstep), cfg, cycle_s)
