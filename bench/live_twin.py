@@ -424,14 +424,19 @@ def estimate_target(est: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """k and c within 10 % with steady contact; a stiffness doubling tracked within 5 s."""
     print(f"\n== interaction estimate: k and c within {100 * TARGET_ESTIMATE:.0f} % of the rig's truth "
           f"(host model {100 * ESTIMATE_LOW:.0f} % of it); a doubling tracked within {TARGET_TRACK_S:g} s ==")
-    print(f"{'plant':16s} {'parameter':38s} {'truth':>9s} {'session':>9s} {'err %':>7s} {'final':>9s} "
-          f"{'err %':>7s} {'target':>7s}  verdict")
+    print(f"{'plant':16s} {'parameter':38s} {'truth':>9s} {'session':>9s} {'err %':>7s} {'ci95 %':>7s} "
+          f"{'final':>9s} {'err %':>7s} {'target':>7s}  verdict")
     for plant, e in est.items():
         for p in e["steady"]:
             ok = abs(p["session_err"]) <= TARGET_ESTIMATE and abs(p["final_err"]) <= TARGET_ESTIMATE
             p["met"] = ok
+            ci = (p.get("ci95") or math.nan) / p["truth"]
+            # the session's own interval says whether the record could pin the parameter to the target
+            note = "" if ci <= TARGET_ESTIMATE else f" (the session's 95 % interval is +-{100 * ci:.0f} %: not " \
+                f"identifiable to {100 * TARGET_ESTIMATE:.0f} % from this session)"
             print(f"{plant:16s} {p['name']:38s} {p['truth']:9.4g} {p['session']:9.4g} {100 * p['session_err']:7.1f} "
-                  f"{p['final']:9.4g} {100 * p['final_err']:7.1f} {'<= 10':>7s}  {'met' if ok else 'MISSED'}")
+                  f"{100 * ci:7.1f} {p['final']:9.4g} {100 * p['final_err']:7.1f} {'<= 10':>7s}  "
+                  f"{'met' if ok else 'MISSED'}{note}")
     print(f"\n{'plant':16s} {'parameter':38s} {'before':>9s} {'truth':>9s} {'after':>9s} {'new truth':>9s} "
           f"{'tracked s':>9s} {'target':>7s}  verdict")
     for plant, e in est.items():

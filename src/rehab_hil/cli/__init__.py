@@ -13,6 +13,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+# One BLAS thread per process, unless the user says otherwise: the matrices here are small, and a
+# BLAS pool's idle workers spin on the second core beside the real-time loop (a 100 x 100 solve took
+# 4 ms in the twin's thread with the default pool on 2 busy cores). Set before numpy is first loaded.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 __all__ = ["SUBCOMMANDS", "UserError", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int

@@ -16,8 +16,8 @@ carried on as if it had run on the new estimate. A segment far outside anything 
 abrupt change: a patient's stiffness doubling) restarts the covariance, so the change is followed
 in a few segments instead of a few memories. Parameters are estimated relative to their config
 value (1 = the config), which keeps the problem well scaled; the 95 % interval comes from the RLS
-covariance times the residual variance. Per session, the same linearised equations are solved
-without forgetting (least squares over every segment since the start or the last restart).
+covariance times the residual variance. Per session, the segments since the start (or the last
+restart) are fitted again together, without forgetting: Gauss-Newton from the running estimate.
 """
 
 from __future__ import annotations
@@ -38,8 +38,13 @@ SUBSAMPLE = 5  # every this many samples of a segment enter the regression (neig
 P0 = 1.0  # initial covariance of the relative parameters (a prior of +/-100 %)
 BOUNDS = (0.02, 20.0)  # the estimate stays within these multiples of the config value
 RESTART_SIGMAS = 10.0  # a segment whose prediction error RMS exceeds this many running residual sigmas restarts
+ITERATE_SIGMAS = 3.0  # a segment whose prediction error RMS exceeds this many sigmas gets an iterated update
 MAX_ITER = 5  # re-linearisations of one update at most ...
 ITER_TOL = 0.02  # ... while the estimate moves more than this (relative to the config value)
+SESSION_SEGMENTS = 1200  # the session estimate fits at most this many segments, spread over the session (5 min of
+# 0.25 s segments; a longer session keeps every 2nd, 4th ... of them): the fit at its end stays within seconds
+SESSION_ITER = 4  # Gauss-Newton steps of the session estimate at most ...
+SESSION_TOL = 1e-3  # ... while it moves more than this (relative)
 EFFECT_PREFIX = "effect_"
 
 
@@ -114,27 +119,48 @@ class InteractionEstimator:
         and the session's least squares begun again from ``t_s``."""
         n = self.theta.size
         self.cov = np.eye(n) * P0
-        self._R, self._r, self._zz, self._rows = np.zeros((n, n)), np.zeros(n), 0.0, 0
+        self._segments: list[tuple[np.ndarray, ...]] = []  # every ``_stride``-th whole segment since t_s
+        self._stride, self._seen = 1, 0
+        self._dx_start = np.zeros((self.model.x.size, n))  # d (next segment's start state) / d estimate
         self.session_start_s = t_s
         self.restarts += 1
 
     def session_estimates(self) -> list[Estimate]:
-        """The least-squares estimate over every segment since the session began (or since the last
-        abrupt change), with its 95 % interval; the running estimate where that has no information."""
+        """The session's estimate: nonlinear least squares (Gauss-Newton from the running estimate) over
+        the whole segments since the session began or the estimate last restarted (at most
+        ``SESSION_SEGMENTS``, spread over that time), each from the start state the estimator's model
+        had, with its 95 % interval; the running estimate where there is not enough to fit."""
+        segs = self._segments
         n = self.theta.size
-        try:
-            th = np.linalg.solve(self._R, self._r)
-            cov = np.linalg.inv(self._R)
-        except np.linalg.LinAlgError:
+        if len(segs) < 2:
             return self.estimates()
-        sse = max(self._zz - 2.0 * th @ self._r + th @ self._R @ th, 0.0)
-        s2 = sse / max(self._rows - n, 1)
-        sd = np.sqrt(np.maximum(np.diag(cov), 0.0) * s2)
-        if not np.all(np.isfinite(th)) or self._rows <= n:
-            return self.estimates()
-        th = np.clip(th, *BOUNDS)
+        theta = self.theta.copy()
+        for _ in range(SESSION_ITER):
+            R, r, sse, rows = np.zeros((n, n)), np.zeros(n), 0.0, 0
+            for x0, xd0, steps, at, z, then, dx0 in segs:
+                x = x0 + dx0 @ (theta - then)
+                y, x_end = self._predict(theta, x, xd0, steps, at)
+                phi, _ = self._sensitivity(theta, x, xd0, steps, at, y, x_end)
+                e = (z - y).ravel()
+                R += phi.T @ phi
+                r += phi.T @ e
+                sse += float(e @ e)
+                rows += e.size
+            try:
+                step = np.linalg.solve(R, r)
+                cov = np.linalg.inv(R)
+            except np.linalg.LinAlgError:
+                return self.estimates()
+            if not np.all(np.isfinite(step)):
+                return self.estimates()
+            new = np.clip(theta + step, *BOUNDS)
+            moved = float(np.max(np.abs(new - theta)))
+            theta = new
+            if moved < SESSION_TOL:
+                break
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0) * sse / max(rows - n, 1))
         return [Estimate(nm, float(v0 * t), float(1.96 * v0 * d), float(v0))
-                for nm, v0, t, d in zip(self.names, self.nominal, th, sd, strict=True)]
+                for nm, v0, t, d in zip(self.names, self.nominal, theta, sd, strict=True)]
 
     def _apply(self, P: np.ndarray, theta: np.ndarray) -> None:
         for ix, v0, th in zip(self.index, self.nominal, theta, strict=True):
@@ -150,6 +176,7 @@ class InteractionEstimator:
             # a partial segment or one with samples lost: the inputs over a gap are not known, so its
             # prediction error says nothing sure about the patient (the model still carries on)
             m.advance(index, U, measured)
+            self._dx_start = np.zeros_like(self._dx_start)
             return
         x0, xd0 = m.x.copy(), m.xd.copy()
         steps, at = m.plan(index, U)
@@ -165,42 +192,45 @@ class InteractionEstimator:
             self.restart(float(index[0] * m.period_s))
         prior, C, lam = theta.copy(), self.cov, self.lam
         x_end = m.x - m.anchor_gain @ m.last_correction  # the segment's end before its anchoring
-        # an iterated update (as the iterated extended Kalman filter's): re-linearised at each new
-        # estimate while it moves, so a large change (a stiffness doubling) is not read off a slope
-        # taken far from it
-        for it in range(MAX_ITER):
+        # an iterated update (as the iterated extended Kalman filter's) where the segment is far from the
+        # estimate's prediction: re-linearised at each new estimate while it moves, so a large change (a
+        # stiffness doubling) is not read off a slope taken far from it; near it, one step
+        far = not self.updates or float(np.mean((z - y) ** 2)) > ITERATE_SIGMAS**2 * self.sigma2
+        for it in range(MAX_ITER if far else 1):
             phi, dx = self._sensitivity(theta, x0, xd0, steps, at, y, x_end)
             if not np.all(np.isfinite(phi)):
                 return
             e = (z - y).ravel()
-            S = lam * np.eye(e.size) + phi @ C @ phi.T
+            # RLS with forgetting in information form: cov = (lam cov^-1 + phi' phi)^-1, gain = cov phi'
+            # (the same as C phi' (lam I + phi C phi')^-1, with a parameters x parameters inverse)
             try:
-                K = np.linalg.solve(S, phi @ C).T
+                cov = np.linalg.inv(lam * np.linalg.inv(C) + phi.T @ phi)
             except np.linalg.LinAlgError:
                 return
+            K = cov @ phi.T
             new = np.clip(prior + K @ (e + phi @ (theta - prior)), *BOUNDS)
-            lin_at = theta
             moved = float(np.max(np.abs(new - theta)))
             r = e - phi @ (new - theta)
             theta = new
-            if moved < ITER_TOL or it == MAX_ITER - 1:
+            if moved < ITER_TOL or not far or it == MAX_ITER - 1:
                 break
             y, x_end = self._predict(theta, x0, xd0, steps, at)
         # anchoring sets the states a channel is to its measurement: those no longer depend on the estimate
         if np.any(pinned):
             dx -= m.anchor_gain[:, pinned] @ (self._out_jac[pinned] @ dx)
-        if float(np.max(np.abs(theta - prior))) < ITER_TOL:
-            # the session's least squares on the same linearisation (no forgetting), from segments the
-            # running estimate has settled on: a slope taken far from the answer would pull it away
-            lin = e + phi @ lin_at
-            self._R += phi.T @ phi
-            self._r += phi.T @ lin
-            self._zz += float(lin @ lin)
-            self._rows += lin.size
+        # the start state depends on the estimate too (an unmeasured pad deformation follows the contact's
+        # stiffness): kept with its sensitivity, so the session's fit starts each segment where the
+        # estimate it tries would have put it
+        self._seen += 1
+        if self._seen % self._stride == 0:
+            self._segments.append((x0, xd0, steps, at, z, prior, self._dx_start))
+            if len(self._segments) > SESSION_SEGMENTS:  # a long session: every other one, spread over all of it
+                del self._segments[::2]
+                self._stride *= 2
+        self._dx_start = dx
         m.x += dx @ (theta - prior)  # the estimator's model carries on as if it had run on the new estimate
         self.theta = theta
-        self.cov = (C - K @ phi @ C) / lam
-        self.cov = 0.5 * (self.cov + self.cov.T)
+        self.cov = 0.5 * (cov + cov.T)
         self.sigma2 = lam * self.sigma2 + (1 - lam) * float(np.mean(r**2)) if self.updates else float(np.mean(r**2))
         self.updates += 1
         self._apply(self.P, self.theta)

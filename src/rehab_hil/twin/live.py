@@ -158,6 +158,8 @@ class Twin:
             self._sq_n = 0
             self._seg_start = t_end
             self.segments += 1
+        if events and self.estimator is not None:  # the rig changed: the estimate learns afresh from the change
+            self.estimator.restart(min(ev.t_s for ev in events))
         self.busy_s += time.thread_time() - t0
         self._write(block)
         for ev in events:
