@@ -98,3 +98,29 @@ def test_a_configured_contact_is_estimated_alone_whatever_values_the_plant_share
     model = TwinModel(cfg, get_plant(cfg.plant).device(cfg), 0.001)
     (ix,) = resolve_parameters(model, [f"contact_spring_damper.{C}"])
     assert [model.system.diagram.param_names[i] for i in ix] == [f"effect_contact_spring_damper.{C}"]
+
+
+def test_a_long_session_keeps_a_bounded_spread_of_segments_for_its_session_fit(monkeypatch) -> None:
+    """Past ``SESSION_SEGMENTS`` the session fit keeps every other segment, then every fourth ...: its
+    memory and its time at the session's end stay bounded, and it still spans the whole session."""
+    from rehab_hil.twin import interaction
+
+    monkeypatch.setattr(interaction, "SESSION_SEGMENTS", 4)
+    host = config_with_changes(CONFIGS / "finger_extensor.toml", Path(tempfile.mkdtemp()) / "host.toml",
+                               effects=[_contact(0.8, 0.02)])
+    cfg = load_config(host)
+    binding = get_plant(cfg.plant).device(cfg)
+    est = interaction.InteractionEstimator(TwinModel(cfg, binding, 0.001, 0.05, smooth=True),
+                                           interaction.default_estimates(TwinModel(cfg, binding, 0.001)), 2.0)
+    m = est.model
+    u = m.inputs_of(200, 0, 0, {})
+    n = m.segment_samples
+    for k in range(21):  # the model's own output as the measurement: the estimate has nothing to change
+        index = np.arange(k * n, (k + 1) * n)
+        U = np.repeat(u[None, :], n, axis=0)
+        y = m.run(U, m.x.copy(), m.xd.copy())
+        est.update(index, U, y)
+    starts = [seg[0][0] for seg in est._segments]  # the angle each kept segment started from
+    assert len(est._segments) <= 4 and est._stride == 8
+    assert starts == sorted(starts) and len(set(starts)) == len(starts)
+    assert all(abs(e.value / e.nominal - 1) < 0.01 for e in est.session_estimates())
