@@ -203,6 +203,8 @@ def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
         t.add_row("model events", "none")
     for name, est in meta.get("patient", {}).get("session", {}).items():
         since = f"; fitted from {est['since_s']:.2f} s, after a change" if est.get("since_s") else ""
+        if est["ci95"] > 0.5 * abs(est["value"]):
+            since += "; not determined by this session"
         t.add_row(f"patient {name.split('.')[-1]}", f"{est['value']:.4g} +/- {est['ci95']:.2g} "
                   f"(config {est['nominal']:.4g}; at the end {est['final']:.4g}{since})")
 

@@ -119,6 +119,7 @@ class InteractionEstimator:
         and the session's least squares begun again from ``t_s``."""
         n = self.theta.size
         self.cov = np.eye(n) * P0
+        self._prior = self.theta.copy()  # where the estimate (re)started
         self._segments: list[tuple[np.ndarray, ...]] = []  # every ``_stride``-th whole segment since t_s
         self._stride, self._seen = 1, 0
         self._dx_start = np.zeros((self.model.x.size, n))  # d (next segment's start state) / d estimate
@@ -126,10 +127,11 @@ class InteractionEstimator:
         self.restarts += 1
 
     def session_estimates(self) -> list[Estimate]:
-        """The session's estimate: nonlinear least squares (Gauss-Newton from the running estimate) over
-        the whole segments since the session began or the estimate last restarted (at most
-        ``SESSION_SEGMENTS``, spread over that time), each from the start state the estimator's model
-        had, with its 95 % interval; the running estimate where there is not enough to fit."""
+        """The session's estimate: regularised nonlinear least squares (Gauss-Newton from the running
+        estimate, with the running estimate's own prior) over the whole segments since the session
+        began or the estimate last restarted (at most ``SESSION_SEGMENTS``, spread over that time),
+        each from the start state the estimator's model had, with its 95 % interval; the running
+        estimate where there is not enough to fit."""
         segs = self._segments
         n = self.theta.size
         if len(segs) < 2:
@@ -146,6 +148,10 @@ class InteractionEstimator:
                 r += phi.T @ e
                 sse += float(e @ e)
                 rows += e.size
+            # the running estimate's prior (the config, or the value it restarted from, +-sqrt(P0)) weighs
+            # in as it does there: a session that says little about a parameter leaves it near the prior
+            R += np.eye(n) / P0
+            r += (self._prior - theta) / P0
             try:
                 step = np.linalg.solve(R, r)
                 cov = np.linalg.inv(R)
