@@ -17,6 +17,10 @@ from rehab_hil.rig_recording import load_recording, read_recording
 ROOT = Path(__file__).resolve().parents[1]
 FE, SMA = ROOT / "configs" / "finger_extensor.toml", ROOT / "configs" / "sma_exoskeleton.toml"
 
+# one xdist worker runs the module, so the recorded session is made once (under make test's two
+# workers each made its own: 0.9 s of set-up each)
+pytestmark = pytest.mark.xdist_group("rig_recording_fe_run")
+
 
 @pytest.fixture(scope="module")
 def fe_run(tmp_path_factory) -> Path:

@@ -13,6 +13,11 @@ from rehab_hil.testing import CONFIGS, config_with_changes
 FE = CONFIGS / "finger_extensor.toml"
 
 
+# the tests that read the recorded session run on one xdist worker, so it is recorded once (under make
+# test's two workers each recorded its own: 2.5 and 1.7 s of set-up)
+FRICTION_RUN = pytest.mark.xdist_group("twin_cli_friction_run")
+
+
 @pytest.fixture(scope="module")
 def friction_run(tmp_path_factory):
     """A recorded 11 s Finger Extensor session (no twin) whose friction appears at 5 s."""
@@ -27,6 +32,7 @@ def friction_run(tmp_path_factory):
     return run, host
 
 
+@FRICTION_RUN
 def test_the_twin_on_a_recording_finds_the_change_and_names_it(friction_run, tmp_path, capsys):
     run, _ = friction_run
     capsys.readouterr()
@@ -38,6 +44,7 @@ def test_the_twin_on_a_recording_finds_the_change_and_names_it(friction_run, tmp
     assert (tmp_path / "twin.csv").read_text().count("\n") > 10_000
 
 
+@FRICTION_RUN
 def test_a_model_that_has_the_friction_sees_no_change_before_it_appears(friction_run, tmp_path, capsys):
     """Judged with the friction in the model from the start: before 5 s the model is wrong, after
     it right; the twin learns its normal level on the wrong part and sees the residual fall, not rise."""

@@ -8,6 +8,10 @@ import pytest
 from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.replay import Replay
 
+# the tests that read ``away`` run on one xdist worker, so it is built once (under make test's two
+# workers each built its own: 1.9 and 2.1 s of set-up)
+AWAY = pytest.mark.xdist_group("initial_state_away")
+
 
 @pytest.fixture(scope="module")
 def away(fe, independent):
@@ -20,6 +24,7 @@ def away(fe, independent):
     raise AssertionError("no start above 15 deg in 20 seeds")
 
 
+@AWAY
 def test_measured_outputs_set_their_states_and_the_rest_is_estimated(away):
     P = away.nominal_params()
     init = estimate_initial_state(away, P, away.t.size // 2)
@@ -31,6 +36,7 @@ def test_measured_outputs_set_their_states_and_the_rest_is_estimated(away):
     assert "iris.angle_rad" in text and "estimated" in text
 
 
+@AWAY
 def test_starting_from_the_data_removes_the_offset_of_the_rest_start(away):
     P = away.nominal_params()
     n = away.t.size
@@ -41,6 +47,7 @@ def test_starting_from_the_data_removes_the_offset_of_the_rest_start(away):
     assert start < 0.5 * rest, (start, rest)
 
 
+@AWAY
 def test_the_motor_forgets_its_unmeasured_start_within_milliseconds(away):
     # the Finger Extensor's estimated states are its speed and nothing else (angle and current are
     # measured): a push of the speed dies within the mechanical time constant, so the fits skip

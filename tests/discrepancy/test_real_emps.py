@@ -21,6 +21,11 @@ DATA = ROOT / "tests" / "data" / "emps"
 FC_N, OFFSET_N = 20.3935, -3.1648  # the benchmark's reference model (EMPS description sec 3.4)
 
 
+# the tests that read the module's workflow run on one xdist worker, so it runs once (under make test's
+# two workers each ran its own: 2.9 and 2.8 s of set-up)
+NOMINAL = pytest.mark.xdist_group("real_emps_nominal")
+
+
 @pytest.fixture(scope="module")
 def nominal() -> tuple[object, Result]:
     cfg = load_config(ROOT / "configs" / "emps_nominal.toml")
@@ -28,6 +33,7 @@ def nominal() -> tuple[object, Result]:
     return cfg, find_missing_effects(cfg, rec, DATA / "estimation_6s_500hz.csv", options=Options(max_effects=3))
 
 
+@NOMINAL
 def test_the_nominal_axis_is_missing_coulomb_friction_and_an_offset(nominal) -> None:
     _, res = nominal
     assert set(res.named) == {"coulomb_friction", "constant_load"}
@@ -36,6 +42,7 @@ def test_the_nominal_axis_is_missing_coulomb_friction_and_an_offset(nominal) -> 
     assert fits["constant_load"] < 0.0  # the offset's sign; its size needs the whole record (bench/real_data.py)
 
 
+@NOMINAL
 def test_the_effort_carries_the_discrepancy_and_shrinks_most(nominal) -> None:
     _, res = nominal
     before, after = res.metrics("nominal"), res.metrics("augmented")
@@ -46,6 +53,7 @@ def test_the_effort_carries_the_discrepancy_and_shrinks_most(nominal) -> None:
         before["position_m"]["rmse"] / res.scale["position_m"])  # the stiff loop hides it in the position
 
 
+@NOMINAL
 def test_the_report_says_the_loop_was_replayed_from_the_reference(nominal) -> None:
     _, res = nominal
     rep = report_dict(res, Path("configs/emps_nominal.toml"), DATA / "estimation_6s_500hz.csv", {})
@@ -53,6 +61,7 @@ def test_the_report_says_the_loop_was_replayed_from_the_reference(nominal) -> No
     assert "position_reference_m" in rep["replay"]["loop"] and rep["replay"]["mode"] == "open"
 
 
+@NOMINAL
 def test_on_the_validation_run_with_force_pulses_the_effort_error_shrinks_by_more_than_60_percent(nominal) -> None:
     cfg, res = nominal
     val = validate(res, cfg, read_csv(DATA / "validation_6s_500hz.csv"), DATA / "validation_6s_500hz.csv")
@@ -75,6 +84,7 @@ def test_without_the_recorded_controller_the_recorded_effort_drives_the_model() 
     assert "drive_input_v" in open_loop.system.input_names and "drive_input_v" not in closed.system.input_names
 
 
+@NOMINAL
 def test_the_drive_gain_is_reported_inseparable_with_every_name_and_held_never_given_alone(nominal) -> None:
     _, res = nominal
     j = res.joint
