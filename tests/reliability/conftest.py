@@ -40,13 +40,24 @@ def binding(cfg: Any) -> Any:
     return get_plant(cfg.plant).device(cfg)
 
 
+# The Python device's emulated bootloader behind the bridge model: silent this long after every open
+# (each case opens the port: a fresh proxy), shorter than optiboot's ~1 s as in tests/devices/test_usb_bridge.py.
+# The cases inject their faults into a running session; the silence's length is not what they test
+# (tests/devices/test_usb_bridge.py does). The firmware in simavr runs the real optiboot either way.
+BRIDGE_BOOT_MS = 300.0
+
+
 @pytest.fixture(scope="module")
-def device_pool() -> Iterator[Callable[[str], Any]]:
+def device_pool(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[str], Any]]:
     """``get(kind)`` -> a running real-time device, shared by a module's tests (a start costs
     seconds); respawned when a test ended it. All are closed at module teardown."""
     from rehab_hil.devices import spawn_device
 
     running: dict[str, Any] = {}
+    text = CONFIG.read_text()
+    assert "bootloader_ms = 1000.0" in text
+    bridged = tmp_path_factory.mktemp("bridge") / CONFIG.name
+    bridged.write_text(text.replace("bootloader_ms = 1000.0", f"bootloader_ms = {BRIDGE_BOOT_MS}"))
 
     def get(kind: str) -> Any:
         """``kind``: "python" or "avr", "+bridge" puts the Uno's USB bridge model (devices/usb_bridge.py)
@@ -56,7 +67,8 @@ def device_pool() -> Iterator[Callable[[str], Any]]:
             if dev is not None:
                 dev.close()
             base, _, bridge = kind.partition("+")
-            running[kind] = dev = spawn_device(base, CONFIG, clock="realtime", usb_bridge=bridge == "bridge")
+            config = bridged if kind == "python+bridge" else CONFIG
+            running[kind] = dev = spawn_device(base, config, clock="realtime", usb_bridge=bridge == "bridge")
         return dev
 
     try:
@@ -80,7 +92,7 @@ def link(device_pool: Callable[[str], Any], request: pytest.FixtureRequest) -> I
     proxy = LinkProxy(dev.port, seed=zlib.crc32(request.node.name.encode()))
     hw = SerialHardware(proxy.port)
     try:
-        hw.connect(timeout=15.0)  # behind the bridge: the bootloader's 1 s first
+        hw.connect(timeout=15.0)  # behind the bridge: the bootloader's silence first
         yield dev, proxy, hw
     finally:
         hw.close()
