@@ -438,15 +438,18 @@ def estimate_target(est: dict[str, dict[str, Any]]) -> dict[str, Any]:
                   f"{100 * ci:7.1f} {p['final']:9.4g} {100 * p['final_err']:7.1f} {'<= 10':>7s}  "
                   f"{'met' if ok else 'MISSED'}{note}")
     print(f"\n{'plant':16s} {'parameter':38s} {'before':>9s} {'truth':>9s} {'after':>9s} {'new truth':>9s} "
-          f"{'tracked s':>9s} {'target':>7s}  verdict")
+          f"{'tracked s':>9s} {'target':>7s}  verdict   (the doubling moves the angle by ...; flagged at ...)")
     for plant, e in est.items():
         for p in e["doubling"]:
             ok = p["tracked_s"] is not None and p["tracked_s"] <= TARGET_TRACK_S
             p["met"] = ok
             tr = f"{p['tracked_s']:.2f}" if p["tracked_s"] is not None else "never"
+            flagged = f"{p['flagged_s']:.2f} s" if p.get("flagged_s") is not None else "never"
             trip = e["safety_events"]["doubling"]
             print(f"{plant:16s} {p['name']:38s} {p['before']:9.4g} {p['truth']:9.4g} {p['final']:9.4g} "
                   f"{p['new_truth']:9.4g} {tr:>9s} {'<= 5':>7s}  {'met' if ok else 'MISSED'}"
+                  f"   ({p.get('angle_rms_counts', math.nan):.2f} counts RMS 30-60 s, flagged "
+                  f"{flagged})"
                   + (f" (rig tripped: {trip[0]})" if trip else ""))
     return est
 
@@ -605,6 +608,9 @@ def estimate_sessions(plant: str, folder: Path, log: Callable[[str], None]) -> d
         out["doubling"].append({"name": name, "truth": v, "before": float(np.mean(before)) if before else math.nan,
                                 "new_truth": 2 * v, "final": doubled.estimates[-1][1][name],
                                 "tracked_s": _track(doubled.estimates, name, 2 * v, CHANGE_S),
+                                "angle_rms_counts": angle_rms_counts(doubled, steady),
+                                "flagged_s": next((e["detected_s"] for e in doubled.model_events
+                                                   if e["detected_s"] >= CHANGE_S), None),
                                 "history": [(round(t, 3), vals[name]) for t, vals in doubled.estimates[::4]]})
     out["events"] = {"steady": steady.model_events, "doubling": doubled.model_events}
     out["safety_events"] = {"steady": steady.safety_events, "doubling": doubled.safety_events}
