@@ -29,8 +29,8 @@ def _session(config: Path, root: Path, capsys, *, device: str = "sim", sim_plant
              duration: float = 10.0) -> Path:
     """A recorded lockstep session. ``device="inprocess"`` runs the same device logic and plant in the
     host process, one sample per command as ``sim --lockstep`` does over the pty, and records the same
-    samples (a 10 s Finger Extensor and a 30 s SMA session with a hidden effect: every CSV column equal
-    but the host's wall-clock ``host_time_s``)
+    samples (a 10 s Finger Extensor and a 30 s SMA session with a hidden effect, the clean 6 s Finger
+    Extensor session: every CSV column equal but the host's wall-clock ``host_time_s``)
     without a device process to start and a pty round trip per sample; the sessions whose subject is
     the recording, not the link, run there. The pty path with ``--sim-plant`` is the first session of
     the Coulomb test, the firmware's the simavr test."""
@@ -105,7 +105,7 @@ def test_hidden_backlash_is_found_in_a_session_recording(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_clean_session_recording_names_nothing_and_reads_from_csv_mcap_or_the_directory(tmp_path, capsys):
-    run = _session(FE, tmp_path / "runs", capsys, duration=6.0)
+    run = _session(FE, tmp_path / "runs", capsys, device="inprocess", duration=6.0)
     report = _discrepancy(FE, run, tmp_path / "report", capsys)
     assert report["chosen"] == []
     csv, mcap = read_csv(run / "run.csv"), None
