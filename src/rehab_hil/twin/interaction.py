@@ -177,7 +177,8 @@ class InteractionEstimator:
         estimate from the estimator's own re-anchored state, and update the estimate (on a whole
         segment with no sample lost)."""
         m = self.model
-        whole = index.size == m.segment_samples and int(index[-1] - index[0]) == index.size - 1
+        whole = (index.size == m.segment_samples and int(index[-1] - index[0]) == index.size - 1
+                 and m.at_anchor)
         if not m.anchored or not whole:
             # a partial segment or one with samples lost: the inputs over a gap are not known, so its
             # prediction error says nothing sure about the patient (the model still carries on)

@@ -172,6 +172,11 @@ class TwinModel:
         return n * s.dt / max(time.perf_counter() - t0, 1e-9)
 
     # -- the inputs of a sample ----------------------------------------------------------------
+    @property
+    def at_anchor(self) -> bool:
+        """The model stands at an anchor point: the next ``segment_samples`` samples are one segment."""
+        return self._since_anchor == 0
+
     def inputs_of(self, duty0: int, duty1: int, direction: int, analog: dict[str, float]) -> np.ndarray:
         """The model's external inputs while a sample's duties were applied."""
         u = self._u_const.copy()
