@@ -66,3 +66,23 @@ def test_finger_extensor_session_within_1_deg_and_the_seed_002_step(fe):
     res = closed_loop(step, 3.0)
     m = metrics.step_metrics(res.t, res["iris_angle_deg"], 0.0, fe.rig.session.step_deg)
     assert m["overshoot"] <= 2.86 and m["rise_time_s"] <= 0.3, m
+
+
+def test_a_plan_is_learned_again_for_a_new_model_not_for_new_twin_settings(fe, tmp_path, monkeypatch):
+    """The learned feedforward is cached on the model it came from: editing the twin's settings reuses
+    it (every plan was relearned once when a twin default changed), a changed plant does not."""
+    from rehab_hil.controllers import model_based
+
+    build_controller(fe, "model_based", check=False)  # learned (or already cached) for the shipped config
+    twin = load_config(with_text(CONFIGS / "finger_extensor.toml", tmp_path / "twin.toml",
+                                 "\n[twin]\nforgetting_s = 7.0\nsegment_s = 0.5\n"))
+    heavier = load_config(with_text(CONFIGS / "finger_extensor.toml", tmp_path / "mass.toml",
+                                    replace=("mass_kg = 0.30", "mass_kg = 0.33")))
+
+    def relearn(*a, **k):
+        raise AssertionError("plan learned again")
+
+    monkeypatch.setattr(model_based, "_learn", relearn)
+    build_controller(twin, "model_based", check=False)
+    with pytest.raises(AssertionError, match="plan learned again"):
+        build_controller(heavier, "model_based", check=False)

@@ -36,6 +36,9 @@ __all__ = ["ModelBased", "ModelBasedSettings"]
 
 _PERIODS = 2  # a periodic table learns on two cycles from rest: the second is the steady state
 PLAN_VERSION = 2  # part of the cache key: bump when the learning or the chain changes what a plan is
+# config tables a plan does not depend on, left out of its cache key (editing the twin's settings or an
+# import mapping relearned every plan; a host model never applies [[changes]], the simulated rig's schedule)
+NOT_IN_PLAN = ("twin", "import_", "recorded_controller", "changes")
 
 
 class ModelBasedSettings(Section):
@@ -113,8 +116,8 @@ class ModelBased(ControllerSpec):
             return Controller(cls.name, ctx, reference, parts, plan=plan, constants=_read_constants(ctx, observer),
                               sums=(demand,), notes=notes)
 
-        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(), settings.model_dump(), reference,
-                          reference.first_open_s, periods)
+        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=set(NOT_IN_PLAN)),
+                          settings.model_dump(), reference, reference.first_open_s, periods)
         learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, temp,
                                                       observer))
         ceiling_c = limit_c
