@@ -249,7 +249,10 @@ class _Relay:
                         self.internal_replies -= 1
                         if self.resetting:
                             self.resetting -= 1
-                            _read(self.dev)  # what the device sent before the reset
+                            # what the device sent before the reset: every byte written before this reply,
+                            # also those still in the pty's flip buffer (a read here missed them under load,
+                            # and a stale power-up HELLO reached the host before optiboot had run)
+                            termios.tcflush(self.dev, termios.TCIFLUSH)
                             self.up.clear()
                     else:
                         sys.stdout.buffer.write(line + b"\n")
