@@ -188,12 +188,29 @@ static size_t cobs_decode(const uint8_t *enc, size_t n, uint8_t *dec, size_t cap
     return out;
 }
 
-/* One whole host frame: a valid packet is owed an answer; the firmware drops an invalid one. */
+/* Payload length the firmware accepts for each host frame type (firmware/rehab_fw/protocol.h,
+ * LEN_*; handle_packet counts any other length as a bad frame and answers nothing). */
+static int host_payload_ok(uint8_t type, size_t len) {
+    switch (type) {
+        case 0x01: case 0x05: case 0x06: return len == 0;   /* HELLO_REQ, ESTOP, CLEAR */
+        case 0x02: return len == 24;                        /* CONFIGURE */
+        case T_COMMAND: return len == 6;
+        case 0x04: case 0x07: return len == 4;              /* HEARTBEAT, SET_ENCODER */
+        default: return 0;                                  /* unknown to the firmware */
+    }
+}
+
+/* One whole host frame: a packet the firmware accepts is owed an answer; one it drops (bad CRC,
+ * version, type or payload length) is owed nothing. Were a dropped frame owed a SAMPLE, time would
+ * run to one more SAMPLE than the host's COMMANDs asked for whenever the harness read it apart
+ * from the COMMAND after it (as it does when the machine is busy), and every later SAMPLE would
+ * reach the host one COMMAND late. */
 static void on_host_frame(const uint8_t *enc, size_t n) {
     uint8_t dec[80];
     size_t out = cobs_decode(enc, n, dec, sizeof dec);
     if (out < 6 || dec[0] != 1) return;
     if (crc16(dec, out - 2) != (uint16_t)(dec[out - 2] | (dec[out - 1] << 8))) return;
+    if (!host_payload_ok(dec[1], out - 6)) return;
     switch (dec[1]) {
         case 0x01: owed[OWE_HELLO]++; break;                             /* HELLO_REQ */
         case 0x02: case 0x05: case 0x06: case 0x07: owed[OWE_ACK]++; break;  /* CONFIGURE ESTOP CLEAR SET_ENCODER */
@@ -201,7 +218,7 @@ static void on_host_frame(const uint8_t *enc, size_t n) {
             owed[OWE_SAMPLE] = 1;
             break;
         case 0x04: owed[OWE_HEARTBEAT]++; break;                         /* HEARTBEAT */
-        default: break;                                                  /* the firmware drops it */
+        default: break;
     }
 }
 static void on_host_bytes(const uint8_t *d, size_t n) {
