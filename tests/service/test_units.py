@@ -183,6 +183,21 @@ def test_recording_read_while_running_holds_everything_up_to_the_last_flush(bind
     assert [m["sample_index"] for t, _, m in read_mcap(rec.mcap_path) if t == "/rig/sample"] == list(range(200))
 
 
+def test_a_drained_recorder_counts_every_row_offered_before_it_and_the_csv_holds_them(binding, tmp_path):
+    """The run's metadata reports ``rows`` after ``drain``: every record queued when the loop stopped
+    is written and counted, however far behind the writer was (it has not been woken here at all)."""
+    rec = Recorder(tmp_path, binding, flush_s=60.0)
+    est = Estimator(binding)
+    for i in range(3000):
+        s = _sample(i)
+        rec.offer(Record(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
+                         Command((0.01, 0.0), 0, True), i, 23.0))
+    rec.drain()
+    rows = rec.rows
+    rec.close(summary={"rows": rows})
+    assert rows == 3000 == read_csv(rec.csv_path).t.size
+
+
 def test_telemetry_sinks_never_block_and_count_drops():
     assert isinstance(NullSink(), TelemetrySink)
     gate = []

@@ -340,6 +340,7 @@ def run(args: argparse.Namespace) -> int:
             if twin.twin.csv_path is not None:
                 result[0].files.append(str(twin.twin.csv_path))
         if recorder is not None:
+            recorder.drain()  # rows still queued when the loop stopped (Ctrl-C on a busy machine) are counted
             end = {**result_metadata(result[0], recorder.rows), **twin_meta}
             recorder.close(summary=end)
             write_metadata(run_dir, {**meta, **end})

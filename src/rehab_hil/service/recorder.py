@@ -190,15 +190,20 @@ class Recorder:
             return
         self._q.append(("message", (topic, schema, body)))
 
+    def drain(self) -> None:
+        """Write everything queued so far and stop the writer: ``rows`` is final from here on (what
+        the run's metadata reports), the files still open for ``close``'s summary."""
+        self._closing = True
+        self._kick.set()
+        self._thread.join()
+
     def close(self, summary: dict[str, Any] | None = None) -> None:
         """Drain the queue, add ``summary`` as an MCAP metadata record (``rehab_hil.summary``: the
         run's figures and safety events), write the MCAP summary and close both files; idempotent."""
         if self._closed:
             return
         self._closed = True
-        self._closing = True
-        self._kick.set()
-        self._thread.join()
+        self.drain()
         if summary:
             self._mcap.add_metadata("rehab_hil.summary", _metadata_strings(summary))
         self._mcap.finish()
