@@ -9,6 +9,7 @@ import subprocess
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 import pytest
 from cobs import cobs
@@ -36,14 +37,24 @@ def busy_cores(n: int = 2) -> Iterator[None]:
             p.wait()
 
 
-def _session(kind: str) -> list[tuple[int, ...]]:
-    """A fresh device, 250 samples at 1 kHz under a duty staircase, the rig's 50 ms watchdog on."""
+@contextmanager
+def _lockstep_device(kind: str, watchdog_ms: int) -> Iterator[tuple[Any, SerialHardware]]:
+    """A fresh lockstep device, connected and streaming at 1 kHz, wide open."""
     dev = spawn_device(kind, CONFIG, clock="lockstep")
     hw = SerialHardware(dev.port, write_timeout_s=5.0)
     try:
         hw.connect(timeout=20.0)
-        hw.configure(Configure(1000, 50, 10000, 60_000, 1023, -WIDE, WIDE, 0), timeout=20.0)
+        hw.configure(Configure(1000, watchdog_ms, 10000, 60_000, 1023, -WIDE, WIDE, 0), timeout=20.0)
         hw.discard_pending()
+        yield dev, hw
+    finally:
+        hw.close()
+        dev.close()
+
+
+def _session(kind: str) -> list[tuple[int, ...]]:
+    """A fresh device, 250 samples at 1 kHz under a duty staircase, the rig's 50 ms watchdog on."""
+    with _lockstep_device(kind, 50) as (dev, hw):
         out = []
         for i in range(250):
             seq = hw.send_command(Command(500 * ((i // 25) % 8), 0, (i // 125) % 2, 1))
@@ -54,9 +65,6 @@ def _session(kind: str) -> list[tuple[int, ...]]:
             out.append((s.device_time_us, s.sample_index, s.encoder_count, s.adc0, s.adc1, s.duty0, s.direction,
                         s.status, s.faults, s.cmd_seq_echo == seq))
         return out
-    finally:
-        hw.close()
-        dev.close()
 
 
 @pytest.mark.parametrize("kind", ["sim", "avr"])
@@ -86,12 +94,7 @@ def test_a_frame_the_device_drops_advances_no_time_and_each_sample_still_answers
     comes for them, so every later SAMPLE still answers the COMMAND just sent."""
     if kind == "avr" and (reason := avr_skip_reason()):
         pytest.skip(reason)
-    dev = spawn_device(kind, CONFIG, clock="lockstep")
-    hw = SerialHardware(dev.port, write_timeout_s=5.0)
-    try:
-        hw.connect(timeout=20.0)
-        hw.configure(Configure(1000, 200, 10000, 60_000, 1023, -WIDE, WIDE, 0), timeout=20.0)
-        hw.discard_pending()
+    with _lockstep_device(kind, 200) as (dev, hw):
 
         def step(duty: int) -> tuple[int, int, int]:
             seq = hw.send_command(Command(duty, 0, 0, 1))
@@ -113,6 +116,3 @@ def test_a_frame_the_device_drops_advances_no_time_and_each_sample_still_answers
         assert all(echo == seq for seq, echo, _ in steps[-10:]), steps
         times = [t for _, _, t in steps]
         assert all(b - a == 1000 for a, b in itertools.pairwise(times))  # one 1 ms period per COMMAND
-    finally:
-        hw.close()
-        dev.close()
