@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -148,8 +149,16 @@ def test_recording_holds_every_sample_sent_with_gaps_and_corrupt_frames_counted(
 
 
 def test_session_tracks_open_close_cycles(cfg, binding, hw):
+    t0 = time.perf_counter()
     res = service(cfg, binding, hw, "session").run(4.0, **LOCKSTEP)
+    elapsed = time.perf_counter() - t0
     assert res.events == []
     assert res.tracking["mae"] < 3.0 and res.tracking["max_abs_error"] < 10.0
+    # its speed is device time over the host time the cycles took, which the whole call outlasts
+    tm = res.timing
+    assert tm["device_s"] == pytest.approx((res.samples + res.sample_gaps) / cfg.rig.sample_rate_hz)
+    assert 3.9 <= tm["device_s"] <= 4.1
+    assert 0.0 < tm["wall_s"] < elapsed
+    assert tm["speed_x"] == pytest.approx(tm["device_s"] / tm["wall_s"])
 
 

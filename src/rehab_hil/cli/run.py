@@ -167,6 +167,9 @@ def summary_table(r: RunResult) -> Table:
               " / ".join(f"{tm.get(f'lateness_{q}_us', float('nan')):.1f}" for q in ("p50", "p99", "p99_9", "max"))
               + " us")
     t.add_row("missed cycles", f"{tm.get('missed_cycles', 0):.0f} ({tm.get('missed_pct', 0):.3f} %)")
+    if tm.get("wall_s"):
+        t.add_row("device time / host time", f"{tm['device_s']:.2f} / {tm['wall_s']:.2f} s "
+                  f"({tm['speed_x']:.2f}x real time)")
     ln = r.link
     t.add_row("link frames rx / tx", f"{ln['frames_rx']} / {ln['frames_tx']}")
     t.add_row("link bad frames host / device", f"{sum(ln['bad_frames'].values())} {dict(ln['bad_frames'])} / "

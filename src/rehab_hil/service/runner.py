@@ -107,6 +107,7 @@ class Session:
         self.command_seq = -1  # its COMMAND seq
         self.pending: list[tuple[Any, ...]] = []  # records of the samples taken, handed over after the write
         self.reaction = TimingStats(n_max)  # sample arrival -> command written
+        self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
         self.references = np.full(n_max, np.nan)
         self.angles = np.full(n_max, np.nan)
 
@@ -250,7 +251,11 @@ class LoopService:
             self.hw.discard_pending()  # samples queued before the ACK belong to the old stream, not this session
             self._write(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
             pace.start()
-            self._cycles(pace)
+            t0 = time.perf_counter()
+            try:
+                self._cycles(pace)
+            finally:
+                s.wall_s = time.perf_counter() - t0
         finally:
             if realtime:
                 realtime_teardown()
@@ -440,7 +445,8 @@ class LoopService:
         ok = np.isfinite(refs) & np.isfinite(angles)
         return RunResult(
             pacing=pace.name, realtime=rt, duration_s=duration_s, cycles=s.cycles, samples=s.samples,
-            sample_gaps=s.sample_gaps, reboots=s.reboots, timing=pace.timing(), reaction=s.reaction.summary(),
+            sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **_speed(s)},
+            reaction=s.reaction.summary(),
             tracking=metrics.tracking_metrics(refs[ok], angles[ok]) if ok.any() else {},
             link=self.hw.stats.as_dict(), events=list(sup.events),
             recorder_dropped=self.recorder.dropped if self.recorder else 0,
@@ -451,3 +457,10 @@ class LoopService:
             session=self.meter.summary() if self.meter else {},
             session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
         )
+
+
+def _speed(s: Session) -> dict[str, float]:
+    """Device time the samples covered against the host time the cycles took: 1x in real time, the
+    speed-up of a lockstep run (issue 25: at least 5x over a pty)."""
+    device_s = (s.samples + s.sample_gaps) * s.period_s
+    return {"wall_s": s.wall_s, "device_s": device_s, "speed_x": device_s / s.wall_s if s.wall_s > 0 else 0.0}
