@@ -3,10 +3,11 @@
 #pragma once
 #include <stdint.h>
 #include <stddef.h>
+#include "protocol_ids.h"  // the types and payload lengths, shared with the simavr harness
 
 namespace proto {
 
-const uint8_t VERSION = 1;
+const uint8_t VERSION = PROTO_VERSION;
 const uint8_t MAX_PACKET = 64;             // decoded bytes, header + payload + crc
 const uint8_t HEADER = 4;                  // version, type, seq
 const uint8_t OVERHEAD = HEADER + 2;       // + crc
@@ -15,16 +16,13 @@ const uint8_t MAX_PAYLOAD = MAX_PACKET - OVERHEAD;
 const uint8_t MAX_ENCODED = MAX_PACKET + 1;
 
 enum Type : uint8_t {
-  HELLO_REQ = 0x01, CONFIGURE = 0x02, COMMAND = 0x03, HEARTBEAT_REQ = 0x04, ESTOP = 0x05, CLEAR = 0x06, SET_ENCODER = 0x07,
-  HELLO = 0x81, SAMPLE = 0x82, FAULT = 0x83, HEARTBEAT = 0x84, ACK = 0x85,
+  HELLO_REQ = PROTO_T_HELLO_REQ, CONFIGURE = PROTO_T_CONFIGURE, COMMAND = PROTO_T_COMMAND,
+  HEARTBEAT_REQ = PROTO_T_HEARTBEAT_REQ, ESTOP = PROTO_T_ESTOP, CLEAR = PROTO_T_CLEAR, SET_ENCODER = PROTO_T_SET_ENCODER,
+  HELLO = PROTO_T_HELLO, SAMPLE = PROTO_T_SAMPLE, FAULT = PROTO_T_FAULT, HEARTBEAT = PROTO_T_HEARTBEAT, ACK = PROTO_T_ACK,
 };
 
-const uint8_t LEN_CONFIGURE = 24;
-const uint8_t LEN_SET_ENCODER = 4;
-const uint8_t LEN_COMMAND = 6;
-const uint8_t LEN_HEARTBEAT = 4;
-const uint8_t LEN_HELLO = 14;
-const uint8_t LEN_SAMPLE = 29;
+const uint8_t LEN_HELLO = PROTO_LEN_HELLO;
+const uint8_t LEN_SAMPLE = PROTO_LEN_SAMPLE;
 
 uint16_t crc16(const uint8_t *data, size_t len);
 

@@ -186,7 +186,7 @@ static void send(uint8_t type, const uint8_t *payload, uint8_t len) {
 }
 
 static void send_ack(uint8_t type, uint16_t seq, uint8_t result) {
-  uint8_t p[4] = {type, (uint8_t)seq, (uint8_t)(seq >> 8), result};
+  uint8_t p[PROTO_LEN_ACK] = {type, (uint8_t)seq, (uint8_t)(seq >> 8), result};
   send(proto::ACK, p, sizeof p);
 }
 
@@ -285,51 +285,48 @@ static void handle_packet(const uint8_t *pkt, uint8_t n) {
   uint16_t seq = proto::get_u16(pkt + 2);
   const uint8_t *p = pkt + proto::HEADER;
   uint8_t len = n - proto::OVERHEAD;
+  if (proto_host_payload_len(type) != (int)len) {  // unknown type or wrong payload length
+    rx.count_bad();
+    return;
+  }
   switch (type) {
     case proto::HELLO_REQ:
-      if (len != 0) break;
       send_hello();
       return;
     case proto::CONFIGURE:
-      if (len != proto::LEN_CONFIGURE) break;
       handle_configure(seq, p);
       return;
     case proto::COMMAND:
-      if (len != proto::LEN_COMMAND) break;
       handle_command(seq, p);
       return;
     case proto::HEARTBEAT_REQ: {
-      if (len != proto::LEN_HEARTBEAT) break;
-      uint8_t q[4];
+      uint8_t q[PROTO_LEN_HEARTBEAT];
       proto::put_u32(q, millis());
-      send(proto::HEARTBEAT, q, 4);
+      send(proto::HEARTBEAT, q, sizeof q);
       return;
     }
     case proto::ESTOP:
-      if (len != 0) break;
       ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { latch(F_ESTOP_COMMAND); }
       send_ack(proto::ESTOP, seq, 0);
       return;
     case proto::CLEAR:
-      if (len != 0) break;
       handle_clear(seq);
       return;
     case proto::SET_ENCODER:
-      if (len != proto::LEN_SET_ENCODER) break;
       io::encoder_set((int32_t)proto::get_u32(p));  // the range check sees it from the next tick
       send_ack(proto::SET_ENCODER, seq, 0);
       return;
     default:
       break;
   }
-  rx.count_bad();  // unknown type or wrong payload length
+  rx.count_bad();  // a host type the switch does not handle
 }
 
 static void send_fault(uint16_t fresh, uint16_t all) {
-  uint8_t p[4];
+  uint8_t p[PROTO_LEN_FAULT];
   proto::put_u16(p, fresh);
   proto::put_u16(p + 2, all);
-  send(proto::FAULT, p, 4);
+  send(proto::FAULT, p, sizeof p);
 }
 
 static void send_sample() {

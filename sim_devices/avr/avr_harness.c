@@ -48,6 +48,8 @@
 #include <sim_hex.h>
 #include <sim_irq.h>
 
+#include "protocol_ids.h" /* frame types and payload lengths: the firmware's own (firmware/rehab_fw) */
+
 #define F_CPU 16000000UL
 #define CYC_PER_US (F_CPU / 1000000UL)
 #define SLICE_US 200         /* simulated time run between two I/O polls (50 us cost ~35 % more CPU) */
@@ -122,15 +124,8 @@ static void logger(avr_t *a, const int level, const char *fmt, va_list ap) {
     if (verbose && level <= LOG_WARNING) vfprintf(stderr, fmt, ap);
 }
 
-/* Frame types (docs/protocol.md) that answer a host frame: a HELLO (HELLO_REQ), a SAMPLE (a COMMAND
- * while streaming), a HEARTBEAT (HEARTBEAT) and an ACK (CONFIGURE, CLEAR, SET_ENCODER, ESTOP). */
-#define T_HELLO 0x81
-#define T_SAMPLE 0x82
-#define T_HEARTBEAT 0x84
-#define T_ACK 0x85
-
-#define T_COMMAND 0x03
-
+/* A HELLO answers a HELLO_REQ, a SAMPLE a COMMAND while streaming, a HEARTBEAT a HEARTBEAT_REQ and an
+ * ACK a CONFIGURE, CLEAR, SET_ENCODER or ESTOP. */
 
 static size_t cobs_decode(const uint8_t *enc, size_t n, uint8_t *dec, size_t cap);
 
@@ -150,17 +145,17 @@ static void on_frame_sent(const uint8_t *enc, size_t n) {
     size_t len = cobs_decode(enc, n, dec, sizeof dec);
     if (len < 6) return;
     switch (dec[1]) {
-        case T_SAMPLE:
+        case PROTO_T_SAMPLE:
             if (len < 8) return;
             last_sample_time_us = (uint32_t)(dec[4] | (dec[5] << 8) | (dec[6] << 16) | ((uint32_t)dec[7] << 24));
             owed[OWE_SAMPLE] = 0;
             break;
-        case T_HELLO:
+        case PROTO_T_HELLO:
             if (boot_hello) { boot_hello = 0; memset(owed, 0, sizeof owed); }
             else if (owed[OWE_HELLO]) owed[OWE_HELLO]--;
             break;
-        case T_ACK: if (owed[OWE_ACK]) owed[OWE_ACK]--; break;
-        case T_HEARTBEAT: if (owed[OWE_HEARTBEAT]) owed[OWE_HEARTBEAT]--; break;
+        case PROTO_T_ACK: if (owed[OWE_ACK]) owed[OWE_ACK]--; break;
+        case PROTO_T_HEARTBEAT: if (owed[OWE_HEARTBEAT]) owed[OWE_HEARTBEAT]--; break;
         default: return;
     }
     if (nothing_owed()) gate_closed = 1;
@@ -188,16 +183,10 @@ static size_t cobs_decode(const uint8_t *enc, size_t n, uint8_t *dec, size_t cap
     return out;
 }
 
-/* Payload length the firmware accepts for each host frame type (firmware/rehab_fw/protocol.h,
- * LEN_*; handle_packet counts any other length as a bad frame and answers nothing). */
+/* The firmware's own check (protocol_ids.h): a frame it counts as bad is answered by nothing. */
 static int host_payload_ok(uint8_t type, size_t len) {
-    switch (type) {
-        case 0x01: case 0x05: case 0x06: return len == 0;   /* HELLO_REQ, ESTOP, CLEAR */
-        case 0x02: return len == 24;                        /* CONFIGURE */
-        case T_COMMAND: return len == 6;
-        case 0x04: case 0x07: return len == 4;              /* HEARTBEAT, SET_ENCODER */
-        default: return 0;                                  /* unknown to the firmware */
-    }
+    int want = proto_host_payload_len(type);
+    return want >= 0 && (size_t)want == len;
 }
 
 /* One whole host frame: a packet the firmware accepts is owed an answer; one it drops (bad CRC,
@@ -208,16 +197,14 @@ static int host_payload_ok(uint8_t type, size_t len) {
 static void on_host_frame(const uint8_t *enc, size_t n) {
     uint8_t dec[80];
     size_t out = cobs_decode(enc, n, dec, sizeof dec);
-    if (out < 6 || dec[0] != 1) return;
+    if (out < 6 || dec[0] != PROTO_VERSION) return;
     if (crc16(dec, out - 2) != (uint16_t)(dec[out - 2] | (dec[out - 1] << 8))) return;
     if (!host_payload_ok(dec[1], out - 6)) return;
     switch (dec[1]) {
-        case 0x01: owed[OWE_HELLO]++; break;                             /* HELLO_REQ */
-        case 0x02: case 0x05: case 0x06: case 0x07: owed[OWE_ACK]++; break;  /* CONFIGURE ESTOP CLEAR SET_ENCODER */
-        case T_COMMAND:
-            owed[OWE_SAMPLE] = 1;
-            break;
-        case 0x04: owed[OWE_HEARTBEAT]++; break;                         /* HEARTBEAT */
+        case PROTO_T_HELLO_REQ: owed[OWE_HELLO]++; break;
+        case PROTO_T_CONFIGURE: case PROTO_T_ESTOP: case PROTO_T_CLEAR: case PROTO_T_SET_ENCODER: owed[OWE_ACK]++; break;
+        case PROTO_T_COMMAND: owed[OWE_SAMPLE] = 1; break;
+        case PROTO_T_HEARTBEAT_REQ: owed[OWE_HEARTBEAT]++; break;
         default: break;
     }
 }
