@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import operator
 import os
 import struct
 import threading
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import orjson
 from mcap.exceptions import McapError
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
@@ -93,8 +95,9 @@ def _metadata_strings(meta: dict[str, Any]) -> dict[str, str]:
     return {str(k): v if isinstance(v, str) else json.dumps(v, default=str) for k, v in meta.items()}
 
 
-def _clean(v: float) -> float | None:
-    return v if math.isfinite(v) else None
+def _json(body: dict[str, Any]) -> bytes:
+    """One message's JSON (orjson: a non-finite float becomes null, numpy scalars are numbers)."""
+    return orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
 
 
 class Recorder:
@@ -108,6 +111,9 @@ class Recorder:
         self.mcap_path = self.out_dir / f"{name}.mcap"
         self.binding = binding
         self.columns = csv_columns(binding)
+        keys = ["time_s", *self.columns]
+        self._csv_values = operator.itemgetter(*keys)  # a row dict -> its CSV values in column order
+        self._csv_line = ",".join(["%.10g"] * len(keys)) + "\n"
         self.flush_s = flush_s
         self.dropped = 0
         self.rows = 0
@@ -245,20 +251,18 @@ class Recorder:
             if ch is None:
                 ch = self._extra[topic] = self._channel(topic, schema, list(body))
             now = self._log_time(time.perf_counter())
-            self._mcap.add_message(ch, log_time=now, publish_time=now, sequence=0,
-                                   data=json.dumps({k: _clean(v) if isinstance(v, float) else v
-                                                    for k, v in body.items()}).encode())
+            self._mcap.add_message(ch, log_time=now, publish_time=now, sequence=0, data=_json(body))
             self.messages += 1
         elif item[0] == "cycle":
             now = self._log_time(time.perf_counter())
             self._mcap.add_message(self._ch_cycle, log_time=now, publish_time=now, sequence=int(item[1]["index"]),
-                                   data=json.dumps({k: _clean(float(v)) for k, v in item[1].items()}).encode())
+                                   data=_json({k: float(v) for k, v in item[1].items()}))
             self.messages += 1
         else:
             t, kind, detail = item[1]
             now = self._log_time(time.perf_counter())
             self._mcap.add_message(self._ch_event, log_time=now, publish_time=now, sequence=0,
-                                   data=json.dumps({"time_s": t, "kind": kind, "detail": detail}).encode())
+                                   data=_json({"time_s": t, "kind": kind, "detail": detail}))
             self.messages += 1
 
     def _write_record(self, item: Record) -> None:
@@ -270,21 +274,19 @@ class Recorder:
             return
         self._last_time_s = item.time_s
         row = self._row(item)
-        msg = {**row, **generic_fields(item)}
         self._mcap.add_message(self._ch_sample, log_time=lt, publish_time=lt,
                                sequence=item.sample.sample_index & 0xFFFFFFFF,
-                               data=json.dumps({k: _clean(v) for k, v in msg.items()}).encode())
+                               data=_json({**row, **generic_fields(item)}))
         self.messages += 1
-        self._pending.append(",".join(f"{row[k]:.10g}" for k in ["time_s", *self.columns]) + "\n")
+        self._pending.append(self._csv_line % self._csv_values(row))
         self.rows += 1
 
     def _write_command(self, item: Record, lt: int) -> None:
         c = item.command
         cmd = {"host_time_s": item.host_time_s, "duty0_ratio": c.duty[0], "duty1_ratio": c.duty[1],
                "direction_bits": c.direction, "enable_bool": int(c.enable), "seq": item.command_seq,
-               "reference_deg": _clean(c.reference_deg)}
-        self._mcap.add_message(self._ch_cmd, log_time=lt, publish_time=lt, sequence=item.command_seq,
-                               data=json.dumps(cmd).encode())
+               "reference_deg": c.reference_deg}
+        self._mcap.add_message(self._ch_cmd, log_time=lt, publish_time=lt, sequence=item.command_seq, data=_json(cmd))
         self.messages += 1
 
     def _row(self, r: Record) -> dict[str, float]:
