@@ -236,18 +236,24 @@ class _Engine:
         if now < d.stall_until:
             d.injected["stalled_bytes"] += len(data)
             return
-        if not (d.garbage or d.truncate or d._cutting or d.drop_p or d.flip_p):  # fast path: no byte faults
+        room = OUT_CAP - len(self._out[downward]) - len(data)
+        # fast path: no byte faults; and a chunk the overrun will lose whole (a reader starved by a busy
+        # machine) takes none of the faults still to come with it, so they reach the reader later
+        if room < 0 or not (d.garbage or d.truncate or d._cutting or d.drop_p or d.flip_p):
             out = bytearray(data)
         else:
-            out = self._damage(data, d)
+            out = self._damage(data, d, room)
         if d.delay_s > 0:
             self._held.append((now + d.delay_s, downward, bytes(out)))
         else:
             self._deliver(bytes(out), downward)
 
-    def _damage(self, data: bytes, d: Direction) -> bytearray:
+    def _damage(self, data: bytes, d: Direction, room: int) -> bytearray:
+        """``data`` with this direction's byte faults. A garbage burst goes in only where the queue
+        has ``room`` for it whole: one the overrun would swallow waits for a later chunk, so the
+        fault reaches the reader, as a test of it needs."""
         out = bytearray()
-        if d.garbage:
+        if d.garbage and d.garbage <= room:
             out += bytes(self.rng.randrange(256) for _ in range(d.garbage))
             d.injected["garbage_bytes"] += d.garbage
             d.garbage = 0
