@@ -64,7 +64,8 @@ def device_pool() -> Iterator[Callable[..., Any]]:
             if key in running:
                 running.pop(key)[1].close()
             dev = spawn_device(kind, CONFIG, clock=clock)
-            hw = SerialHardware(dev.port, write_timeout_s=2.0)  # a loaded CI machine can pause a device
+            # a loaded CI machine can pause a device; in virtual time a resend would cost device time
+            hw = SerialHardware(dev.port, write_timeout_s=2.0, **({"resend_s": None} if clock == "lockstep" else {}))
             running[key] = (dev, hw)
             hw.connect(timeout=10.0)
         return running[key]

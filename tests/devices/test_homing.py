@@ -54,7 +54,7 @@ def device(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[Any
     cfg = load_config(path)
     binding = get_plant(cfg.plant).device(cfg)
     dev = spawn_device(request.param, path, clock="lockstep")
-    hw = SerialHardware(dev.port, write_timeout_s=2.0)
+    hw = SerialHardware(dev.port, write_timeout_s=2.0, resend_s=None)
     try:
         hw.connect(timeout=10.0)
         yield dev, hw, cfg, binding

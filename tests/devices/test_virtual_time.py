@@ -41,7 +41,7 @@ def busy_cores(n: int = 2) -> Iterator[None]:
 def _lockstep_device(kind: str, watchdog_ms: int) -> Iterator[tuple[Any, SerialHardware]]:
     """A fresh lockstep device, connected and streaming at 1 kHz, wide open."""
     dev = spawn_device(kind, CONFIG, clock="lockstep")
-    hw = SerialHardware(dev.port, write_timeout_s=5.0)
+    hw = SerialHardware(dev.port, write_timeout_s=5.0, resend_s=None)  # a CONFIGURE sent again costs device time
     try:
         hw.connect(timeout=20.0)
         hw.configure(Configure(1000, watchdog_ms, 10000, 60_000, 1023, -WIDE, WIDE, 0), timeout=20.0)
@@ -60,8 +60,6 @@ def _session(kind: str) -> list[tuple[int, ...]]:
             seq = hw.send_command(Command(500 * ((i // 25) % 8), 0, (i // 125) % 2, 1))
             s = hw.read_sample(20.0)
             assert s is not None, dev.control("status")
-            # the echo as the command it names: the host's seq numbers shift by one when a CONFIGURE left
-            # unanswered for 0.5 s under load is sent again (hardware/serial_hw.py), the device is the same
             out.append((s.device_time_us, s.sample_index, s.encoder_count, s.adc0, s.adc1, s.duty0, s.direction,
                         s.status, s.faults, s.cmd_seq_echo == seq))
         return out

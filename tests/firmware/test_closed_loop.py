@@ -26,7 +26,7 @@ def test_encoder_count_follows_the_plant() -> None:
 
     samples: list[Sample] = []
     with spawn_avr_device(CONFIG, clock="lockstep") as dev:  # virtual time: one COMMAND a sample
-        hw = Hardware(dev.port)
+        hw = Hardware(dev.port, resend_s=None)  # virtual time: a resend would cost device time
         try:
             hw.connect(timeout=10.0)
             hw.configure(config(watchdog_ms=300))

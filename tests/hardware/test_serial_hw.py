@@ -207,6 +207,52 @@ def test_a_request_whose_frame_was_lost_is_sent_again_and_its_ack_taken(peer: Pt
     hw.close()
 
 
+def test_connecting_to_a_device_in_virtual_time_asks_for_its_hello_once_however_late_it_comes(
+        peer: PtyPeer) -> None:
+    """A simulated AVR slow to start on a loaded machine: a second HELLO_REQ would enter its UART as
+    one more frame and move every later one in device time (a lockstep session then differed from
+    the idle machine's: the first COMMAND missed its tick)."""
+    asked: list[int] = []
+
+    def device() -> None:
+        t_end = time.perf_counter() + 0.8
+        while time.perf_counter() < t_end:
+            asked.extend(f.seq for f in peer.receive(0.1) if isinstance(f.msg, HelloReq))
+        peer.send(HELLO)
+
+    t = threading.Thread(target=device, daemon=True)
+    t.start()
+    with SerialHardware(peer.path, resend_s=None) as hw:
+        assert hw.connect(timeout=3.0) == HELLO
+    t.join()
+    assert len(asked) == 1  # the default asks every 0.25 s: three or four times by then
+
+
+def test_a_request_to_a_device_in_virtual_time_is_sent_once_however_late_its_ack(peer: PtyPeer) -> None:
+    """``resend_s=None`` (a lockstep device: its pty loses nothing, and a copy sent again would enter
+    its UART as one more frame, costing device time): a CONFIGURE answered after 1.3 s, while a
+    loaded machine starved the device, went out once."""
+    hw = SerialHardware(peer.path, resend_s=None)
+    t = _answer(peer)
+    hw.connect(timeout=2.0)
+    t.join()
+    seen: list[int] = []
+
+    def device() -> None:
+        t_end = time.perf_counter() + 1.3
+        while time.perf_counter() < t_end:
+            seen.extend(f.seq for f in peer.receive(0.1) if isinstance(f.msg, Configure))
+        peer.send(Ack(Configure.TYPE, seen[0], AckResult.OK))
+
+    t = threading.Thread(target=device, daemon=True)
+    t.start()
+    hw.configure(Configure(1000, 0, 10000, 1000, 1023, -1, 1, 0), timeout=3.0)
+    t.join()
+    assert len(seen) == 1  # the default (0.5 s) would have sent two more copies
+    assert hw.stats.request_resends == 0
+    hw.close()
+
+
 def test_a_request_answered_late_returns_only_once_every_copy_is_answered(peer: PtyPeer) -> None:
     """A slow device acknowledges both copies: the request returns after the second ACK, so no copy
     still on its way can restart the stream after the caller went on."""

@@ -41,7 +41,8 @@ def device() -> Iterator:
 
 @pytest.fixture
 def hw(device) -> Iterator[SerialHardware]:
-    h = SerialHardware(device.port, write_timeout_s=2.0)  # a starved device process on a busy machine
+    # a starved device process on a busy machine; in virtual time a request sent again would cost device time
+    h = SerialHardware(device.port, write_timeout_s=2.0, resend_s=None)
     h.connect()
     try:
         yield h
@@ -80,7 +81,7 @@ def fresh_hw(shared_device, cfg, binding) -> Iterator[SerialHardware]:
     """The shared device rebooted (fresh firmware state, no latched faults), its plant homed to
     ``HOME_DEG``, and a new host connection to it."""
     shared_device.control("reboot")
-    h = SerialHardware(shared_device.port, write_timeout_s=2.0)
+    h = SerialHardware(shared_device.port, write_timeout_s=2.0, resend_s=None)  # lockstep: no resends
     h.connect()
     try:
         home(h, cfg, binding)

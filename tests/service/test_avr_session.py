@@ -20,7 +20,7 @@ def test_the_model_based_step_on_the_firmware_in_simavr_reaches_the_target_and_e
     # Virtual time (the harness's -k): the firmware's watchdog and the host's link budget are the
     # config's own, and the result does not depend on how loaded the machine is.
     with avr_device.spawn_avr_device(CONFIG, clock="lockstep") as dev:
-        hw = SerialHardware(dev.port)
+        hw = SerialHardware(dev.port, resend_s=None)  # virtual time: a resend would cost device time
         hw.connect(timeout=10.0)
         try:
             svc = LoopService(hw, assembly.firmware_configure(cfg, binding),

@@ -56,7 +56,8 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
                 port = stack.enter_context(_spawn(device, config_path, lockstep, spawn_args)).port
             elif lockstep:
                 raise HardwareError(f"lockstep is a mode of the simulated devices, not of {device}")
-            hw = SerialHardware(port, baud or _config(config_path).rig.baud, write_timeout_s=write_timeout_s)
+            never = {"resend_s": None} if lockstep else {}  # virtual time: a resend would cost device time
+            hw = SerialHardware(port, baud or _config(config_path).rig.baud, write_timeout_s=write_timeout_s, **never)
         stack.callback(hw.close)
         hw.connect(timeout=connect_timeout_s)
         yield hw

@@ -62,9 +62,15 @@ def _cpr_hint(info: Hello | None, config: Configure) -> str:
 class SerialHardware(HardwareInterface):
     """A device speaking protocol v1 on a serial path; see ``HardwareInterface`` for the lifecycle."""
 
-    def __init__(self, port: str, baud: int = 1_000_000, write_timeout_s: float = 0.2) -> None:
+    def __init__(self, port: str, baud: int = 1_000_000, write_timeout_s: float = 0.2,
+                 resend_s: float | None = _RESEND_S) -> None:
+        """``resend_s``: a request not acknowledged this long is sent again (HELLO_REQ: every 0.25 s);
+        None: never (a device in virtual time: its pty loses nothing, and a copy sent again enters
+        the UART as one more host frame that costs device time, so what the device does would depend
+        on how busy the host was: a second HELLO_REQ moved the first COMMAND past a tick)."""
         super().__init__()
         self.port, self.baud, self.write_timeout_s = port, baud, write_timeout_s
+        self.resend_s = math.inf if resend_s is None else resend_s
         self._ser: serial.Serial | None = None
         self._fd = -1  # the port's file descriptor while open
         self._poll = select.poll()
@@ -80,7 +86,8 @@ class SerialHardware(HardwareInterface):
     # ---- lifecycle ----------------------------------------------------------------------------
 
     def connect(self, timeout: float = 3.0) -> Hello:
-        """Open the port, discard stale input, send HELLO_REQ (repeated) until a HELLO arrives."""
+        """Open the port, discard stale input, send HELLO_REQ (every 0.25 s; once if ``resend_s`` is None)
+        until a HELLO arrives."""
         if self.state is LifecycleState.FINALIZED:
             self._require_connected("connect")
         if self._ser is None:
@@ -95,7 +102,7 @@ class SerialHardware(HardwareInterface):
         deadline = time.perf_counter() + timeout
         while time.perf_counter() < deadline:
             self._send(HelloReq())
-            resend = min(deadline, time.perf_counter() + 0.25)
+            resend = min(deadline, time.perf_counter() + (0.25 if math.isfinite(self.resend_s) else math.inf))
             while time.perf_counter() < resend:
                 self._pump(resend - time.perf_counter())
                 if self._hellos:
@@ -260,7 +267,7 @@ class SerialHardware(HardwareInterface):
                 raise HardwareError(f"link to {self.port} lost: {e}") from e
 
     def _request(self, msg: Message, timeout: float) -> int:
-        """Send ``msg`` and return its ACK's result: sent again every ``_RESEND_S`` while no copy is
+        """Send ``msg`` and return its ACK's result: sent again every ``resend_s`` while no copy is
         acknowledged; once one is, the other copies' ACKs are waited for until ``timeout``."""
         deadline = time.perf_counter() + timeout
         seqs: list[int] = []
@@ -282,7 +289,7 @@ class SerialHardware(HardwareInterface):
                                     f"within {timeout:.2f} s")
             if result is None and now >= resend_at:
                 seqs.append(self._send(msg))
-                resend_at = now + _RESEND_S
+                resend_at = now + self.resend_s
             self._pump(min(deadline, resend_at if result is None else deadline) - now)
 
     def _pump(self, timeout: float) -> None:

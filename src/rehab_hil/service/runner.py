@@ -247,7 +247,8 @@ class LoopService:
         self._host_clock = not lockstep
         rt = realtime_setup() if realtime else None  # before CONFIGURE: a full GC pass outlasts the watchdog
         try:
-            self.hw.configure(self.configure_msg)
+            # virtual time: the device answers when the machine lets it, so the ACK may take as long as a sample
+            self.hw.configure(self.configure_msg, timeout=max(1.0, sample_timeout_s or 0.0) if lockstep else 1.0)
             self.hw.discard_pending()  # samples queued before the ACK belong to the old stream, not this session
             self._write(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
             pace.start()
