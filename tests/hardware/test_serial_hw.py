@@ -281,6 +281,33 @@ def test_a_request_answered_late_returns_only_once_every_copy_is_answered(peer: 
     hw.close()
 
 
+def test_a_request_whose_first_ack_was_lost_returns_on_the_last_copys_ack(peer: PtyPeer) -> None:
+    """The first copy's ACK corrupted on the way, the second copy's ACK arrives: the link keeps
+    order, so nothing is still on its way and the request returns at once instead of waiting out
+    its timeout for an ACK that will never come (a firmware test saw 5 s of samples pile up)."""
+    hw = _connected(peer)
+    answered = threading.Event()
+
+    def device() -> None:
+        copies: list[int] = []
+        for _ in range(40):
+            copies.extend(f.seq for f in peer.receive(0.1) if isinstance(f.msg, Configure))
+            if len(copies) == 2:
+                peer.send(Ack(Configure.TYPE, copies[1], AckResult.OK))
+                answered.set()
+                return
+
+    t = threading.Thread(target=device, daemon=True)
+    t.start()
+    started = time.perf_counter()
+    hw.configure(Configure(1000, 0, 10000, 1000, 1023, -1, 1, 0), timeout=30.0)
+    waited = time.perf_counter() - started
+    t.join()
+    assert answered.is_set() and hw.stats.request_resends == 1
+    assert waited < 15.0  # the old rule waited the whole 30 s for the first copy's ACK
+    hw.close()
+
+
 def test_unsolicited_hello_counts_as_a_reboot(peer: PtyPeer) -> None:
     hw = _connected(peer)
     peer.send(HELLO, seq=0)

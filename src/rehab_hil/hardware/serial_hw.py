@@ -267,21 +267,23 @@ class SerialHardware(HardwareInterface):
                 raise HardwareError(f"link to {self.port} lost: {e}") from e
 
     def _request(self, msg: Message, timeout: float) -> int:
-        """Send ``msg`` and return its ACK's result: sent again every ``resend_s`` while no copy is
-        acknowledged; once one is, the other copies' ACKs are waited for until ``timeout``."""
+        """Send ``msg`` and return its first ACK's result: sent again every ``resend_s`` while no
+        copy is acknowledged. The link keeps order, so the last copy's ACK says every copy has been
+        applied or lost; until it comes (or ``timeout``), a copy may still be on its way to restart
+        what the caller goes on to do."""
         deadline = time.perf_counter() + timeout
         seqs: list[int] = []
-        answered = 0
         result: int | None = None
+        last_answered = False
         resend_at = 0.0
         while True:
             now = time.perf_counter()
             for seq in seqs:
                 got = self._acks.pop((msg.TYPE, seq), None)
                 if got is not None:
-                    answered += 1
                     result = got if result is None else result
-            if result is not None and (answered == len(seqs) or now >= deadline):
+                    last_answered = last_answered or seq == seqs[-1]
+            if result is not None and (last_answered or now >= deadline):
                 self.stats.request_resends += len(seqs) - 1
                 return result
             if now >= deadline:
