@@ -9,7 +9,9 @@ the way.
 It also *taps* the device's output before any fault is injected (``DeviceTap``): every SAMPLE the
 device sent, in device time, whether the host got it or not. That is how the tests see the
 device's PWM while the link is down, and how they check the safety invariant: the PWM is never on
-more than ``watchdog_ms`` of device time after the last COMMAND the device applied.
+more than ``watchdog_ms`` of device time after the last COMMAND the device applied. (A loaded
+machine that starves the proxy can still lose the device's output before the tap: its pty, or the
+USB-bridge model's, fills and drops bytes. The tap says where: gaps in sample_index, bad frames.)
 """
 
 from __future__ import annotations
@@ -64,9 +66,21 @@ class DeviceTap:
         self._t_echo = 0
         self._was_on = False
         self.last: Sample | None = None
+        # The firmware reports a new trip in a FAULT frame just before the first SAMPLE that shows it.
+        # Trips a SAMPLE showed with no such report: (bits, whether the device's output since the
+        # previous SAMPLE reached the tap whole). Only a loss before the tap may hide a report.
+        self.unreported_trips: list[tuple[int, bool]] = []
+        self._latched = 0  # fault bits in the previous SAMPLE
+        self._reported = 0  # bits in FAULT frames since the previous SAMPLE
+        self._damaged = False  # a bad frame since the previous SAMPLE
 
     def feed(self, data: bytes) -> None:
-        for frame in self.decoder.feed(data):
+        bad = self.decoder.bad_total
+        frames = self.decoder.feed(data)
+        # the decoder does not say where in the chunk a bad frame was: every SAMPLE in a damaged
+        # chunk counts as after the damage (a report is excused more often, never demanded wrongly)
+        self._damaged |= self.decoder.bad_total != bad
+        for frame in frames:
             msg = frame.msg
             if isinstance(msg, Sample):
                 self._sample(msg)
@@ -74,8 +88,10 @@ class DeviceTap:
                 self.hellos += 1
                 self.boots += 1
                 self._echo, self._was_on, self._last_index = None, False, None  # a reboot restarts device time
+                self._latched = 0
             elif isinstance(msg, FaultReport):
                 self.fault_reports.append(msg)
+                self._reported |= msg.faults
             elif isinstance(msg, Command):
                 self.commands += 1
 
@@ -93,6 +109,11 @@ class DeviceTap:
     def _sample(self, s: Sample) -> None:
         self.n_samples += 1
         self.last = s
+        unreported = s.faults & ~self._latched & ~self._reported
+        if unreported:
+            whole = not self._damaged and self._last_index is not None and s.sample_index == self._last_index + 1
+            self.unreported_trips.append((unreported, whole))
+        self._latched, self._reported, self._damaged = s.faults, 0, False
         if self.keep:
             self.samples.append(s)
         if self._echo is None or s.cmd_seq_echo != self._echo:

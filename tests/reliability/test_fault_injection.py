@@ -173,7 +173,12 @@ def _stall_host_until_the_device_watchdog(ctx: Ctx) -> None:
 
 def _watchdog_latched(res: RunResult, ctx: Ctx) -> None:
     assert "WATCHDOG" in res.events[0].detail
-    assert any(r.faults & Fault.WATCHDOG for r in ctx.proxy.device_tap.fault_reports)
+    tap = ctx.proxy.device_tap
+    # reported in a FAULT frame, unless the device's output was lost right there before the tap
+    # (series 7, run 5: a starved proxy, 7 damaged frames from the device, the report among them)
+    reported = any(r.faults & Fault.WATCHDOG for r in tap.fault_reports)
+    hidden = [whole for bits, whole in tap.unreported_trips if bits & Fault.WATCHDOG]
+    assert reported or (hidden and not any(hidden)), (tap.fault_reports, tap.unreported_trips)
 
 
 def _pwm_off_on_device_after_unplug(res: RunResult, ctx: Ctx) -> None:

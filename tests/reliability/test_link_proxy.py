@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 import tty
 
-from .link_proxy import OUT_CAP, _Engine
+from rehab_hil.protocol import Fault, FaultReport, Sample, encode_frame
+
+from .link_proxy import OUT_CAP, DeviceTap, _Engine
 
 
 def _read_all(fd: int) -> bytes:
@@ -70,3 +72,40 @@ def test_frames_to_truncate_are_not_spent_on_a_chunk_the_overrun_loses() -> None
         for fd in (engine.dev, dev_master, dev_slave):
             os.close(fd)
 
+
+
+def _sample(index: int, faults: int = 0) -> bytes:
+    return encode_frame(Sample(1000 * index, index, 0, 0, 0, 0, 0, 0, 1, faults, 0, 0), index)
+
+
+def _watchdog_report() -> bytes:
+    return encode_frame(FaultReport(Fault.WATCHDOG, Fault.WATCHDOG), 0)
+
+
+def test_a_trip_reported_before_its_first_sample_is_not_an_unreported_one() -> None:
+    tap = DeviceTap()
+    tap.feed(_sample(1) + _watchdog_report() + _sample(2, Fault.WATCHDOG) + _sample(3, Fault.WATCHDOG))
+    assert tap.unreported_trips == []
+    assert [r.faults for r in tap.fault_reports] == [Fault.WATCHDOG]
+
+
+def test_a_trip_whose_report_never_came_over_a_whole_stream_is_flagged_as_such() -> None:
+    tap = DeviceTap()
+    tap.feed(_sample(1))
+    tap.feed(_sample(2, Fault.WATCHDOG))  # nothing lost between: the device did not report it
+    assert tap.unreported_trips == [(Fault.WATCHDOG, True)]
+
+
+def test_a_report_lost_before_the_tap_is_told_apart_from_one_never_sent() -> None:
+    report = _watchdog_report()
+    damaged = DeviceTap()  # bytes from the middle of the FAULT frame lost (a full pty): one bad frame
+    damaged.feed(_sample(1) + report[:3])
+    damaged.feed(report[-2:] + _sample(2, Fault.WATCHDOG))
+    assert damaged.decoder.bad_total == 1
+    assert damaged.unreported_trips == [(Fault.WATCHDOG, False)]
+    dropped = DeviceTap()  # whole frames lost: the report and a SAMPLE with it
+    dropped.feed(_sample(1) + _sample(3, Fault.WATCHDOG))
+    assert dropped.unreported_trips == [(Fault.WATCHDOG, False)]
+    cleared = DeviceTap()  # a latch cleared and tripped again is a new trip, owed a new report
+    cleared.feed(_sample(1) + report + _sample(2, Fault.WATCHDOG) + _sample(3) + _sample(4, Fault.WATCHDOG))
+    assert cleared.unreported_trips == [(Fault.WATCHDOG, True)]
