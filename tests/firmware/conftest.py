@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.protocol import DUTY_FULL, Configure, Message
+from rehab_hil.protocol import DUTY_FULL, Configure, FrameDecoder, Hello, Message
 
 ROOT = Path(__file__).resolve().parents[2]
 HARNESS = ROOT / "sim_devices" / "build" / "avr_harness"
@@ -97,6 +97,23 @@ class Harness:
         for f in (self.proc.stdout, self.proc.stderr):
             if f is not None:
                 f.close()
+
+
+def unsolicited_hello(hw: SerialHardware, timeout_s: float = 5.0) -> tuple[Hello, int]:
+    """The next HELLO on the raw link (a boot's: the host did not ask for it), and its seq. The raw
+    reads take bytes from the middle of ``hw``'s stream, so its decoder starts afresh after them
+    (left holding part of a frame, it merged it with the next ACK and lost that ACK)."""
+    dec, ser = FrameDecoder(), hw._require()
+    deadline = time.monotonic() + timeout_s
+    try:
+        while time.monotonic() < deadline:
+            for f in dec.feed(ser.read(4096)):
+                if isinstance(f.msg, Hello):
+                    return f.msg, f.seq
+            time.sleep(0.002)
+        raise AssertionError("no HELLO")
+    finally:
+        hw.flush_input()
 
 
 def _missing() -> str | None:

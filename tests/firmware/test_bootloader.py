@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.protocol import Command, Fault, FrameDecoder, Hello, ResetCause
+from rehab_hil.protocol import Command, Fault, ResetCause
 
-from .conftest import ELF, ROOT, Hardware, Harness, config
+from .conftest import ELF, ROOT, Hardware, Harness, config, unsolicited_hello
 from .test_build import _make
 
 pytestmark = [pytest.mark.firmware, pytest.mark.timeout(120)]
@@ -46,18 +46,6 @@ def peek(h: Harness, addr: int) -> int:
     f = h.line().split()
     assert f[0] == "M", f
     return int(f[2])
-
-
-def unsolicited_hello(hw: Hardware, timeout_s: float = 5.0) -> tuple[Hello, int]:
-    """The next HELLO on the raw link (a boot's), and its seq."""
-    dec, ser = FrameDecoder(), hw._require()
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        for f in dec.feed(ser.read(4096)):
-            if isinstance(f.msg, Hello):
-                return f.msg, f.seq
-        time.sleep(0.002)
-    raise AssertionError("no HELLO")
 
 
 def test_the_bootloader_image_fits_the_boot_section_and_the_sketch_starts_from_it(booted: Harness) -> None:

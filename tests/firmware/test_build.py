@@ -6,15 +6,14 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from rehab_hil.protocol import Fault, FrameDecoder, Hello, ResetCause
+from rehab_hil.protocol import Fault, ResetCause
 
-from .conftest import ROOT, Hardware, Harness, _missing, config
+from .conftest import ROOT, Hardware, Harness, _missing, config, unsolicited_hello
 
 pytestmark = [pytest.mark.firmware, pytest.mark.slow, pytest.mark.timeout(120)]
 
@@ -72,18 +71,9 @@ def test_hardware_watchdog_resets_a_hung_firmware(hang_harness: Harness) -> None
         # Test build only: the e-stop pin low while its input is disabled makes loop() spin forever.
         # (after the reboot the device is unconfigured, so the pin no longer hangs it)
         hang_harness.send("D 4 0")
-        dec, hellos = FrameDecoder(), []
-        ser = hw._require()  # the link's raw bytes: the reboot HELLO is unsolicited
-        deadline = time.monotonic() + 5.0
-        while not hellos and time.monotonic() < deadline:
-            hellos += [f for f in dec.feed(ser.read(4096)) if isinstance(f.msg, Hello)]
+        boot, seq = unsolicited_hello(hw)
         hang_harness.send("D 4 1")
-        # the raw reads took bytes from the middle of the link's stream: start its decoder afresh
-        # (left with a partial frame, it merged it with the next ACK and lost that ACK)
-        hw.flush_input()
-        assert hellos, "no HELLO after the hang"
-        boot = hellos[0]
-        assert boot.seq == 0 and boot.msg.reset_cause & ResetCause.HW_WATCHDOG
+        assert seq == 0 and boot.reset_cause & ResetCause.HW_WATCHDOG
         assert hang_harness.state()["resets"] == 1
         hw.configure(config(sample_rate_hz=100))
         s = hw.read_sample(2.0)
