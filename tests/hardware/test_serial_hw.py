@@ -253,8 +253,8 @@ def test_a_request_to_a_device_in_virtual_time_is_sent_once_however_late_its_ack
     hw.close()
 
 
-def test_a_request_answered_late_returns_only_once_every_copy_is_answered(peer: PtyPeer) -> None:
-    """A slow device acknowledges both copies: the request returns after the second ACK, so no copy
+def test_a_request_answered_late_returns_only_once_its_last_copy_is_answered(peer: PtyPeer) -> None:
+    """A slow device acknowledges both copies: the request returns after the last copy's ACK, so no copy
     still on its way can restart the stream after the caller went on."""
     hw = _connected(peer)
     sent_second_ack = threading.Event()

@@ -44,10 +44,12 @@ __all__ = ["SerialHardware"]
 _READ_SIZE = 4096  # bytes per read: a burst of ~110 SAMPLEs
 # A request (CONFIGURE, CLEAR, ESTOP, SET_ENCODER) not acknowledged this long is sent again, with
 # a new seq: a byte lost in the 328P's 2-byte receive buffer (the firmware busy for two byte times;
-# tests/firmware/test_bootloader.py) loses the frame, and with it the ACK, for good. Every copy
-# sent is waited for (until the caller's timeout) before the request returns, so a late copy
-# cannot restart the device's stream after the caller went on. All four are idempotent.
+# tests/firmware/test_bootloader.py) loses the frame, and with it the ACK, for good. The last copy's
+# ACK is waited for (until the caller's timeout) before the request returns: the link keeps order,
+# so by then every earlier copy was applied or lost, and no late copy can restart the device's
+# stream after the caller went on. All four are idempotent.
 _RESEND_S = 0.5
+_HELLO_RESEND_S = 0.25  # HELLO_REQ is asked again sooner: nothing else can start before it
 _POLLIN = select.POLLIN | select.POLLPRI
 
 
@@ -102,7 +104,8 @@ class SerialHardware(HardwareInterface):
         deadline = time.perf_counter() + timeout
         while time.perf_counter() < deadline:
             self._send(HelloReq())
-            resend = min(deadline, time.perf_counter() + (0.25 if math.isfinite(self.resend_s) else math.inf))
+            again_s = _HELLO_RESEND_S if math.isfinite(self.resend_s) else math.inf
+            resend = min(deadline, time.perf_counter() + again_s)
             while time.perf_counter() < resend:
                 self._pump(resend - time.perf_counter())
                 if self._hellos:
