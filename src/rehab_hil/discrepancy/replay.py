@@ -70,7 +70,8 @@ class Replay:
     external input (1 nominally): a fit parameter may scale an input the record does not measure
     (a supply voltage taken from the config). ``x0``/``xd0`` is the state at the record's start
     (``initial_state``); ``mode`` is ``"open"`` (simulation error: one run over the record) or
-    ``"shooting"`` (segments of ``segment_steps`` re-anchored to the measured state, ``shooting``)."""
+    ``"shooting"`` (segments of ``segment_steps`` re-anchored to the measured state, ``shoot``; when
+    to use which is ``shooting.choose_mode``)."""
 
     spec: type[Plant]
     cfg: Any
@@ -191,6 +192,29 @@ class Replay:
                                  self._slots(), *s.workspace())
         return Y
 
+    def use_segments(self, segment_s: float) -> None:
+        """Shoot in segments of ``segment_s`` (rounded to whole model steps, at least one)."""
+        self.segment_steps = max(1, round(segment_s / self.system.dt))
+
+    def shoot(self, P: np.ndarray, n: int, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
+        """Channel outputs on the model grid (steps x channels) by multiple shooting: segments of
+        ``segment_steps``, the state re-anchored through ``anchor_gain`` at each segment's start."""
+        K = self.anchor_gain
+        assert K is not None
+        L = self.segment_steps
+        Y = np.empty((n, len(self.channels)))
+        a = 0
+        while a < n:
+            b = min(a + L, n)
+            Y[a:b] = self.run(P, a, b - a, x, xd)
+            if b < n:
+                err = (self.measured_grid[:, b - 1] - Y[b - 1]) / self.scale
+                dx = K @ np.nan_to_num(err)
+                if np.all(np.isfinite(x)):
+                    x += dx
+            a = b
+        return Y
+
     def _slots(self) -> np.ndarray:
         if not hasattr(self, "_out_slots"):
             self._out_slots = self.system.out_slots(self.channels)
@@ -217,12 +241,7 @@ class Replay:
         if hit is not None:
             cache.move_to_end(key)
             return hit.copy()
-        if not shooting:
-            Y = self.run(P, 0, n, x, xd)
-        else:
-            from rehab_hil.discrepancy.shooting import shoot
-
-            Y = shoot(self, P, n, x, xd)
+        Y = self.shoot(P, n, x, xd) if shooting else self.run(P, 0, n, x, xd)
         cache[key] = Y.copy()
         while cache and (len(cache) > SIM_CACHE or sum(v.nbytes for v in cache.values()) > SIM_CACHE_BYTES):
             cache.popitem(last=False)

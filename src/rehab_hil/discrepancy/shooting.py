@@ -1,12 +1,12 @@
-"""Multiple shooting (prediction error) beside open-loop simulation error, and when to use which.
+"""When to replay by multiple shooting (prediction error) rather than open loop (simulation error).
 
 Open loop, the model runs once over the whole record from its initial state: right for a plant
 that forgets its start (a heated wire cools to ambient, a spring returns the finger). A plant that
 integrates (the Finger Extensor's weak spring, stick-slip that can hold it anywhere) replayed on
 the inputs of a closed-loop record drifts: the controller corrected the real plant, nothing
 corrects the model, and a tiny mismatch becomes a large slow offset that hides every effect.
-Shooting cuts the record into segments of ``SEGMENT_S``; at each boundary the states the
-measurements match (``initial_state``: the angle, a measured current or temperature) are
+Shooting (``Replay.shoot``) cuts the record into segments of ``SEGMENT_S``; at each boundary the
+states the measurements match (``initial_state``: the angle, a measured current or temperature) are
 re-anchored to the measured values, the others carried over, and the parameters are fitted on the
 residual of all segments jointly. The workflow uses shooting when the nominal model's open-loop
 residual on some channel is more than ``DRIFT_RATIO`` times its shooting residual and shooting
@@ -17,43 +17,21 @@ its start (the SMA wire) shooting only adds anchoring noise and open loop stays.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-if TYPE_CHECKING:
-    from rehab_hil.discrepancy.replay import Replay
+from rehab_hil.discrepancy.replay import Replay
 
-__all__ = ["DRIFT_RATIO", "SEGMENT_S", "choose_mode", "shoot"]
+__all__ = ["DRIFT_RATIO", "SEGMENT_S", "choose_mode"]
 
 SEGMENT_S = 1.0  # long enough to show friction, delay and backlash within a segment, short against drift
 DRIFT_RATIO = 1.1  # a channel's open-loop residual this many times its shooting residual: drift shows
-
-
-def shoot(replay: Replay, P: np.ndarray, n: int, x: np.ndarray, xd: np.ndarray) -> np.ndarray:
-    """Channel outputs on the model grid (steps x channels): segments re-anchored at each start."""
-    K = replay.anchor_gain
-    assert K is not None
-    L = replay.segment_steps
-    Y = np.empty((n, len(replay.channels)))
-    a = 0
-    while a < n:
-        b = min(a + L, n)
-        Y[a:b] = replay.run(P, a, b - a, x, xd)
-        if b < n:
-            err = (replay.measured_grid[:, b - 1] - Y[b - 1]) / replay.scale
-            dx = K @ np.nan_to_num(err)
-            if np.all(np.isfinite(x)):
-                x += dx
-        a = b
-    return Y
 
 
 def choose_mode(replay: Replay, P: np.ndarray, n_train: int) -> tuple[str, float, float]:
     """("open" or "shooting", open-loop RMS, shooting RMS) of the scaled residual on the fit part;
     shooting when some channel's open-loop RMS exceeds ``DRIFT_RATIO`` times its shooting RMS and no
     channel's shooting RMS exceeds ``DRIFT_RATIO`` times its open-loop RMS (anchoring noise)."""
-    replay.segment_steps = max(1, round(SEGMENT_S / replay.system.dt))
+    replay.use_segments(SEGMENT_S)
     sl = slice(0, n_train)
     r_open = replay.residual(replay.simulate(P, n_train, mode="open"), sl)
     if replay.anchor_gain is None or not np.any(replay.anchor_gain):
