@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from rehab_hil.hardware import HardwareError, SerialHardware, configure_from_config, duty_units
+from rehab_hil.hardware import Arrival, HardwareError, SerialHardware, configure_from_config, duty_units
 from rehab_hil.plants import load_config
 from rehab_hil.protocol import (
     Ack,
@@ -121,6 +121,40 @@ def test_samples_arrive_in_order_and_gaps_count_as_dropped(peer: PtyPeer) -> Non
     assert hw.stats.dropped_samples == 2 and hw.stats.samples == 4
     assert hw.read_sample(0.05) is None
     hw.close()
+
+
+def test_a_read_brings_each_samples_arrival_time_and_the_gap_before_it(peer: PtyPeer) -> None:
+    """``read`` returns (host time, sample, gap) in one value: the arrival is taken when the bytes
+    came off the link (before the read), and the samples dropped before one come with it."""
+    hw = _connected(peer)
+    sent = time.perf_counter()
+    peer.send(*(_sample(i) for i in (10, 11, 14)))
+    time.sleep(0.05)  # the frames wait in the OS buffer: the arrival is when they are read, before the return
+    arrivals = [hw.read(1.0) for _ in range(3)]
+    returned = time.perf_counter()
+    assert all(isinstance(a, Arrival) for a in arrivals)
+    assert [(a.sample.sample_index, a.gap) for a in arrivals] == [(10, 0), (11, 0), (14, 2)]
+    assert all(sent < a.host_time_s <= returned for a in arrivals)
+    t, sample, gap = arrivals[2]  # a plain tuple to unpack
+    assert (t, sample, gap) == (arrivals[2].host_time_s, arrivals[2].sample, 2)
+    assert hw.stats.dropped_samples == 2 and hw.read(0.05) is None
+    hw.close()
+
+
+def test_read_sample_keeps_the_arrival_and_gap_in_attributes_for_its_callers(peer: PtyPeer) -> None:
+    hw = _connected(peer)
+    peer.send(_sample(3), _sample(7))
+    first = hw.read(1.0)
+    assert first is not None and (first.sample.sample_index, first.gap) == (3, 0)
+    assert (hw.last_sample_time, hw.last_sample_gap) == (0.0, 0)  # read writes no attribute
+    s = hw.read_sample(1.0)
+    assert s is not None and s.sample_index == 7
+    assert hw.last_sample_gap == 3 and first.host_time_s <= hw.last_sample_time <= time.perf_counter()
+    hw.close()
+    with pytest.raises(HardwareError, match=r"read_sample: the hardware is finalized"):
+        hw.read_sample(0.0)
+    with pytest.raises(HardwareError, match=r"read: the hardware is finalized"):
+        hw.read(0.0)
 
 
 def test_a_read_that_does_not_wait_returns_none_on_a_quiet_link_and_the_sample_once_it_is_there(

@@ -1,7 +1,7 @@
 """The host's view of a rig, in the spirit of ros2_control's hardware components.
 
 Lifecycle (``LifecycleState``): UNCONFIGURED --``connect()`` (open the link, HELLO)--> INACTIVE
---``configure()`` (rate, watchdog, limits: ACK)--> ACTIVE (each cycle ``read_sample()`` /
+--``configure()`` (rate, watchdog, limits: ACK)--> ACTIVE (each cycle ``read()`` /
 ``write_command()``; ``estop()`` / ``clear()`` on faults) --``close()``--> FINALIZED. A call made
 in the wrong state raises ``HardwareError`` naming the state and the missing step.
 Implementations: ``SerialHardware`` (any serial path, incl. the ptys of the simulated devices) and
@@ -16,13 +16,13 @@ from abc import ABC, abstractmethod
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from rehab_hil.protocol import DUTY_FULL, Ack, Configure, FaultReport, Hello, Sample
 
-__all__ = ["HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "angle_limits_counts",
+__all__ = ["Arrival", "HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "angle_limits_counts",
            "configure_from_config", "duty_units"]
 
 
@@ -41,6 +41,20 @@ class LifecycleState(enum.Enum):
     @property
     def connected(self) -> bool:
         return self in (LifecycleState.INACTIVE, LifecycleState.ACTIVE)
+
+
+class Arrival(NamedTuple):
+    """A SAMPLE as the loop takes it (``HardwareInterface.read``): when it arrived and how many
+    samples went missing just before it, with the sample, so no second look at the link is needed."""
+
+    host_time_s: float  # perf_counter when its bytes were read from the link
+    sample: Sample
+    gap: int  # samples missing from sample_index just before this one (0 after a device restart)
+
+
+# tuple.__new__ builds an Arrival without the Python-level __new__ namedtuple generates (as its
+# _make does): half the cost, once per sample on the receive path
+_new_arrival = tuple.__new__
 
 
 _NEXT_STEP = {
@@ -131,8 +145,8 @@ class HardwareInterface(ABC):
     info: Hello | None  # the device's HELLO (capabilities), once connected
     stats: LinkStats
     state: LifecycleState
-    last_sample_time: float  # perf_counter when the last sample returned by read_sample arrived
-    last_sample_gap: int  # samples missing from sample_index just before that sample (0 after a restart)
+    last_sample_time: float  # ``read_sample`` only: the arrival time of the sample it returned last
+    last_sample_gap: int  # ``read_sample`` only: that sample's gap (``Arrival.gap``)
     last_reboot: str  # how the last device restart counted in ``stats.reboots`` showed itself
 
     def __init__(self) -> None:
@@ -142,7 +156,7 @@ class HardwareInterface(ABC):
         self.last_sample_time = 0.0
         self.last_sample_gap = 0
         self.last_reboot = ""
-        self._samples: deque[tuple[float, Sample, int]] = deque()  # (arrival time, SAMPLE, gap) not yet read
+        self._samples: deque[Arrival] = deque()  # received and not yet read, oldest first
         self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
         self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result
         self._last_index: int | None = None  # sample_index of the last SAMPLE (gap accounting)
@@ -164,20 +178,13 @@ class HardwareInterface(ABC):
             else:
                 st.dropped_samples += gap
         self._last_index = index
-        self._samples.append((now, msg, gap))
+        self._samples.append(_new_arrival(Arrival, (now, msg, gap)))
 
     def _rebooted(self, how: str) -> None:
         """Count a device restart (an unsolicited HELLO, or sample_index going back); the stream starts over."""
         self.stats.reboots += 1
         self.last_reboot = how
         self._last_index = None
-
-    def _next_sample(self) -> Sample:
-        """Pop the oldest queued sample, setting ``last_sample_time`` and ``last_sample_gap``."""
-        t, sample, gap = self._samples.popleft()
-        self.last_sample_time = t
-        self.last_sample_gap = gap
-        return sample
 
     def _received_reply(self, msg: object) -> bool:
         """Book an ACK or a FAULT report; False for any other message."""
@@ -200,12 +207,26 @@ class HardwareInterface(ABC):
         is then unchanged). INACTIVE or ACTIVE -> ACTIVE."""
 
     @abstractmethod
+    def read(self, timeout: float | None = None) -> Arrival | None:
+        """The next SAMPLE in arrival order with its arrival time and gap, or None after ``timeout``
+        seconds (None: wait forever; 0: take what the link holds now). Connected states only.
+
+        The loop's hot path, once per sample: implementations return the queued ``Arrival`` itself
+        and write no attribute."""
+
     def read_sample(self, timeout: float | None = None) -> Sample | None:
-        """The next SAMPLE in arrival order, or None after ``timeout`` seconds (None: wait forever).
-        Sets ``last_sample_time`` (its arrival) and ``last_sample_gap``."""
+        """``read`` for callers that want the sample alone (homing, doctor, tests): sets
+        ``last_sample_time`` and ``last_sample_gap`` from its ``Arrival``."""
+        if not self.state.connected:
+            self._require_connected("read_sample")
+        arrival = self.read(timeout)
+        if arrival is None:
+            return None
+        self.last_sample_time, sample, self.last_sample_gap = arrival
+        return sample
 
     def pending_samples(self) -> int:
-        """Samples received and not yet returned by ``read_sample`` (without touching the link)."""
+        """Samples received and not yet returned by ``read`` (without touching the link)."""
         return len(self._samples)
 
     def discard_pending(self) -> int:

@@ -4,7 +4,7 @@ pyserial finds, opens and configures the port (baud, raw mode, non-blocking) and
 bytes themselves go through the port's file descriptor: one ``poll`` and one ``os.read`` to take
 what arrived, one ``os.write`` per frame (pyserial's read and write wrap each in a ``select`` and a
 ``Timeout`` object, and ``in_waiting`` is an ioctl). Synchronous and single-threaded on the read
-side (the loop calls ``read_sample`` each cycle); writes are serialised by a lock so a supervisor
+side (the loop calls ``read`` each cycle); writes are serialised by a lock so a supervisor
 thread may call ``estop``. Frames other than SAMPLE (ACK, FAULT, HELLO, HEARTBEAT) are consumed
 as they arrive and kept as state.
 """
@@ -20,7 +20,7 @@ from collections import deque
 
 import serial
 
-from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState, duty_units
+from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
     Clear,
     Command,
@@ -40,6 +40,8 @@ from rehab_hil.protocol import (
 )
 
 __all__ = ["SerialHardware"]
+
+_ACTIVE = LifecycleState.ACTIVE  # read tests against a module global: ~15 ns; the enum class attribute ~100 ns
 
 _READ_SIZE = 4096  # bytes per read: a burst of ~110 SAMPLEs
 # A request (CONFIGURE, CLEAR, ESTOP, SET_ENCODER) not acknowledged this long is sent again, with
@@ -125,22 +127,25 @@ class SerialHardware(HardwareInterface):
         self._last_index = None  # the stream restarts: no gap accounting across it
         self.state = LifecycleState.ACTIVE
 
-    def read_sample(self, timeout: float | None = None) -> Sample | None:
-        if not self.state.connected:
-            self._require_connected("read_sample")
-        if not self._samples:
+    def read(self, timeout: float | None = None) -> Arrival | None:
+        """A queued sample at once (one state test and a popleft: the loop's path); else the link is
+        read until one arrives or ``timeout`` passes (0: what the OS holds now)."""
+        if self.state is not _ACTIVE and not self.state.connected:
+            self._require_connected("read")
+        samples = self._samples
+        if not samples:
             if timeout is not None and timeout <= 0:
                 self._pump(0.0)
             else:
                 deadline = None if timeout is None else time.perf_counter() + timeout
-                while not self._samples:
+                while not samples:
                     remaining = 0.5 if deadline is None else deadline - time.perf_counter()
                     if remaining <= 0:
                         break
                     self._pump(remaining)
-            if not self._samples:
+            if not samples:
                 return None
-        return self._next_sample()
+        return samples.popleft()
 
     def flush_input(self) -> None:
         """Forget everything received and not yet read: the OS buffer, a partial frame, queued
