@@ -10,10 +10,10 @@ and ESTOP before the exit.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
+import sys
 import threading
-import time
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -21,18 +21,12 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from rehab_hil.calibration import calibration_summary
 from rehab_hil.cli import UserError, writable_folder
-from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.hardware import RIG_KINDS, HardwareError
 from rehab_hil.service import assembly
-from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.run_dir import METADATA_FILE, new_run_dir, result_metadata, session_metadata, write_metadata
-from rehab_hil.service.runner import LoopService, Progress, RunResult
-
-# virtual time: a sample that takes this long in wall time is missing (a starved machine pauses a
-# lockstep device without losing anything; link loss there is link_loss_periods such waits in a row)
-LOCKSTEP_SAMPLE_TIMEOUT_S = 5.0
+from rehab_hil.service.errors import SessionError
+from rehab_hil.service.runner import Progress, RunResult
+from rehab_hil.service.session import FoxgloveOptions, RigSession, TelemetryOptions, open_session
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -79,59 +73,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "first on a terminal), 'hard-stop' drives slowly to the closed stop ([encoder] hard_stop_deg, "
                         "homing_duty; a motor behind an H-bridge), 'none' keeps the device's count")
     return p
-
-
-def _telemetry(args: argparse.Namespace, cfg: Any, binding: Any, hw: HardwareInterface) -> Any:
-    """The zenoh publisher for ``--telemetry RIG`` (rehab_hil.telemetry.rig)."""
-    from rehab_hil.telemetry import RigIdError, TelemetryConfigError
-    from rehab_hil.telemetry.rig import RigTelemetry, rig_info
-
-    info = rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), hw.info)
-    try:
-        return RigTelemetry(args.telemetry, info, _telemetry_network(args), queue_size=20_000)
-    except (RigIdError, TelemetryConfigError, ValueError) as e:
-        raise UserError(f"--telemetry: {e}") from None
-
-
-def _telemetry_network(args: argparse.Namespace) -> Any:
-    """Loopback hub on --telemetry-port, or a client of the lab router(s) given by --telemetry-connect."""
-    import os
-
-    from rehab_hil.telemetry import NetworkConfig, TelemetryConfigError
-    from rehab_hil.telemetry.cliargs import PASSWORD_ENV
-
-    if not args.telemetry_connect:
-        return NetworkConfig(port=args.telemetry_port)
-    password = os.environ.get(PASSWORD_ENV) if args.telemetry_user else None
-    if args.telemetry_user and password is None:
-        raise TelemetryConfigError(f"--telemetry-user needs the {PASSWORD_ENV} environment variable")
-    return NetworkConfig(mode="lab", router=tuple(args.telemetry_connect), user=args.telemetry_user, password=password)
-
-
-def _foxglove(args: argparse.Namespace, binding: Any, telemetry: Any) -> Any:
-    """The Foxglove live view for ``--foxglove [PORT]``, tee'd with ``telemetry`` (rehab_hil.telemetry.foxglove)."""
-    from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, LiveView
-
-    try:
-        live = FoxgloveLive(args.foxglove_host, args.foxglove)
-    except FoxgloveError as e:
-        raise UserError(f"--foxglove: {e}") from None
-    print(f"Foxglove live view: {live.url} (layout: docs/foxglove_layout.json)")
-    return LiveView(live, live.add_rig(binding), telemetry)
-
-
-def _twin(args: argparse.Namespace, cfg: Any, binding: Any, run_dir: Path | None, recorder: Any,
-          telemetry: Any, cycle_s: float | None, lockstep: bool) -> Any:
-    """The live twin for ``--twin`` or ``[twin] enabled`` (rehab_hil.twin), refused in one line."""
-    if not (args.twin or (cfg.twin is not None and cfg.twin.enabled)):
-        return None
-    from rehab_hil.twin.model import TwinSetupError
-    from rehab_hil.twin.session import start_twin
-
-    try:
-        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, recorder, telemetry, cycle_s, lockstep)
-    except TwinSetupError as e:
-        raise UserError(f"{args.config}: [twin] {e}") from None
 
 
 def _progress_table(p: Progress) -> Table:
@@ -220,136 +161,90 @@ def recorded_line(r: RunResult) -> str | None:
     return f"recorded: {folder}/ ({', '.join(Path(f).name for f in r.files)})"
 
 
-def _device_config(args: argparse.Namespace, cfg: Any, device: str) -> Path:
-    """The plant config the simulated device runs: ``--sim-plant`` (same plant, maybe other effects)
-    or the host's own."""
-    if args.sim_plant is None:
-        return args.config
-    if device not in RIG_KINDS:
-        raise UserError(f"--sim-plant is for simulated devices ({', '.join(RIG_KINDS)}); --device {device} is a "
-                        "real board, whose plant is the physical one")
-    dev = load_config(args.sim_plant)
-    if dev.plant != cfg.plant:
-        raise UserError(f"--sim-plant {args.sim_plant}: a {dev.plant!r} plant; the host's config "
-                        f"{args.config} is a {cfg.plant!r} plant")
-    return args.sim_plant
+def _telemetry(args: argparse.Namespace) -> TelemetryOptions | None:
+    """``--telemetry RIG``: the loopback hub on --telemetry-port, or a client of the lab router(s)
+    given by --telemetry-connect (password from the environment)."""
+    from rehab_hil.telemetry.cliargs import PASSWORD_ENV
+
+    if not args.telemetry:
+        return None
+    password = os.environ.get(PASSWORD_ENV) if args.telemetry_user else None
+    if args.telemetry_connect and args.telemetry_user and password is None:
+        raise UserError(f"--telemetry-user needs the {PASSWORD_ENV} environment variable")
+    return TelemetryOptions(args.telemetry, args.telemetry_port, tuple(args.telemetry_connect or ()),
+                            args.telemetry_user, password)
 
 
-def run(args: argparse.Namespace) -> int:
-    cfg = load_config(args.config)
-    if args.profile is not None:  # the patient's session and limits over the rig's (tighten only)
-        from rehab_hil.profiles import apply_profile, load_profile
-
-        cfg = apply_profile(cfg, load_profile(args.profile), args.config, args.profile)
-    if not 0 < args.duration <= 24 * 3600:
-        raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
-    binding = get_plant(cfg.plant).device(cfg)
-    try:
-        controller = assembly.build_controller(cfg, args.controller, args.reference, source=str(args.config))
-    except assembly.ServiceSetupError as e:
-        raise UserError(f"{args.config}: {e}") from None
-    for note in controller.controller.notes:
-        print(f"warning: {note}")
-    device = args.device or cfg.rig.port
-    device_config = _device_config(args, cfg, device)
+def _session(args: argparse.Namespace) -> RigSession:
+    """The session the arguments ask for (``service.session``); its errors as one line on the option."""
     if args.record:
         writable_folder(args.record, "--record", "each run makes a new folder inside it")
-    console = Console()
-    lockstep = args.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
-    with ExitStack() as stack:
+    try:
+        return open_session(
+            args.config, args.device, controller=args.controller, reference=args.reference, profile=args.profile,
+            pacing=args.pacing, lockstep=args.lockstep, home=args.home, record=args.record, rig_id=args.rig_id,
+            sim_plant=args.sim_plant, twin=args.twin, telemetry=_telemetry(args),
+            foxglove=FoxgloveOptions(args.foxglove_host, args.foxglove) if args.foxglove is not None else None,
+            confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)
+    except SessionError as e:
+        raise UserError(_option_error(e)) from None
+
+
+def _option_error(e: SessionError) -> str:
+    """A session's error as the CLI names its option (``--sim-plant: ...``)."""
+    return f"--{e.option.replace('_', '-')}: {e.message}" if e.option else e.message
+
+
+def _run_in_thread(session: RigSession, duration_s: float, display: bool, console: Console) -> RunResult:
+    """Run the loop on its own thread, so the main thread stays free for signals and the live display;
+    Ctrl-C and SIGTERM stop it through the safe state."""
+    result: list[RunResult] = []
+    errors: list[BaseException] = []
+
+    def work() -> None:
         try:
-            hw = stack.enter_context(open_rig(device, device_config, lockstep=args.lockstep, baud=cfg.rig.baud,
-                                                write_timeout_s=cfg.rig.write_timeout_ms / 1000.0))
-            on_configure(binding, hw.info, controller.claims)  # refuse a mismatch before anything moves
-        except HardwareError as e:
-            raise UserError(f"--device {device}: {e}") from None
-        # homing (issue 15): the encoder's zero at a confirmed pose or the closed hard stop
-        import sys
+            result.append(session.run(duration_s))
+        except BaseException as e:  # reported on the main thread
+            errors.append(e)
 
-        from rehab_hil.service.homing import home
-
-        try:
-            homed = home(args.home, hw, cfg, binding, assembly.firmware_configure(cfg, binding),
-                         confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)
-        except HardwareError as e:
-            raise UserError(f"--home {args.home}: {e}") from None
-        if homed is not None:
-            print(f"homed ({homed.mode}): encoder count {homed.count} at the home pose")
-        recorder = None
-        if args.record:
-            rig_id = args.rig_id or args.telemetry or cfg.plant
-            try:
-                run_dir = new_run_dir(args.record, rig_id)
-            except OSError as e:
-                raise UserError(f"--record {args.record}: cannot make the run folder: {e}") from None
-            meta = session_metadata(plant=cfg.plant, config_path=args.config, device=device, rig_id=rig_id,
-                                    binding=binding, hello=hw.info, controller=controller.controller.name,
-                                    pacing=args.pacing, sim_plant=args.sim_plant,
-                                    calibration={"force": calibration_summary(cfg)})
-            write_metadata(run_dir, meta)  # first now: a killed run still says what it ran against
-            recorder = Recorder(run_dir, binding, metadata=meta)
-            stack.callback(recorder.close)
-        telemetry = _telemetry(args, cfg, binding, hw) if args.telemetry else None
-        if telemetry is not None:
-            stack.callback(telemetry.close)
-        if args.foxglove is not None:  # the Foxglove live view, tee'd with zenoh telemetry when that is on
-            telemetry = _foxglove(args, binding, telemetry)
-            stack.callback(telemetry.close)
-        ref = controller.controller.reference
-        twin = _twin(args, cfg, binding, run_dir if recorder is not None else None, recorder, telemetry,
-                     ref.period_s if ref.kind == "session" else None, lockstep)
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller,
-                          assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
-                          assembly.period_s(cfg), recorder=recorder, telemetry=telemetry and telemetry.sink,
-                          meter=assembly.build_meter(cfg, controller, args.duration),
-                          twin=twin.live if twin is not None else None)
-        if twin is not None:
-            twin.on_stop = lambda text: svc.request_stop(text, "model_mismatch")
-        if telemetry is not None:
-            telemetry.watch(svc, hw)
-        previous = {s: signal.signal(s, lambda n, f: svc.request_stop(signal.Signals(n).name))
-                    for s in (signal.SIGINT, signal.SIGTERM)}
-        stack.callback(lambda: [signal.signal(s, h) for s, h in previous.items()])
-        result: list[RunResult] = []
-        errors: list[BaseException] = []
-
-        def work() -> None:
-            try:
-                result.append(svc.run(args.duration, pacing=args.pacing, realtime=not lockstep,
-                                      sample_timeout_s=LOCKSTEP_SAMPLE_TIMEOUT_S if lockstep else None,
-                                      lockstep=lockstep,
-                                      on_trip=telemetry.on_trip if telemetry else None))
-            except BaseException as e:  # reported on the main thread
-                errors.append(e)
-
-        # the loop runs on its own thread so the main thread stays free for signals and the display
+    previous = {s: signal.signal(s, lambda n, f: session.request_stop(signal.Signals(n).name))
+                for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
         th = threading.Thread(target=work, name="loop")
         th.start()
-        if args.no_display:
+        if not display:
             while th.is_alive():
                 th.join(0.1)
         else:
-            with Live(_progress_table(svc.progress), console=console, refresh_per_second=4) as live:
+            with Live(_progress_table(session.progress), console=console, refresh_per_second=4) as live:
                 while th.is_alive():
                     th.join(0.25)
-                    live.update(_progress_table(svc.progress))
-        if errors:
-            if isinstance(errors[0], HardwareError):
-                raise UserError(f"device: {errors[0]}")
-            raise errors[0]
-        twin_meta = twin.close() if twin is not None else {}
-        if twin_meta:
-            result[0].twin = twin_meta
-            if twin.twin.csv_path is not None:
-                result[0].files.append(str(twin.twin.csv_path))
-        if recorder is not None:
-            recorder.drain()  # rows still queued when the loop stopped (Ctrl-C on a busy machine) are counted
-            end = {**result_metadata(result[0], recorder.rows), **twin_meta}
-            recorder.close(summary=end)
-            write_metadata(run_dir, {**meta, **end})
-            result[0].files.append(str(run_dir / METADATA_FILE))
-    time.sleep(0)
-    console.print(summary_table(result[0]))
-    if (line := recorded_line(result[0])) is not None:
+                    live.update(_progress_table(session.progress))
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if errors:
+        if isinstance(errors[0], HardwareError):
+            raise UserError(f"device: {errors[0]}")
+        if isinstance(errors[0], SessionError):
+            raise UserError(_option_error(errors[0]))
+        raise errors[0]
+    return result[0]
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0 < args.duration <= 24 * 3600:
+        raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
+    console = Console()
+    with _session(args) as session:
+        for note in getattr(session.controller, "controller", session.controller).notes:
+            print(f"warning: {note}")
+        if session.homed is not None:
+            print(f"homed ({session.homed.mode}): encoder count {session.homed.count} at the home pose")
+        if session.foxglove is not None:
+            print(f"Foxglove live view: {session.foxglove.live.url} (layout: docs/foxglove_layout.json)")
+        result = _run_in_thread(session, args.duration, not args.no_display, console)
+    console.print(summary_table(result))
+    if (line := recorded_line(result)) is not None:
         print(line)
-    return 1 if result[0].events and result[0].events[0].reason != "stop_request" else 0
+    return 1 if result.events and result.events[0].reason != "stop_request" else 0

@@ -1,0 +1,289 @@
+"""One session on one rig, built one way: ``open_session(config, device, ...)``.
+
+The builder turns a plant config (and a patient profile), a device and a few options into a
+``RigSession``: the rig opened and its HELLO checked against the plant and the controller's
+claims, the homing, the run directory and its metadata, the sinks (recording, zenoh telemetry,
+Foxglove, the live twin) and the loop. ``RigSession`` is a context manager whose ``run(duration_s)``
+returns the ``RunResult``; leaving it closes everything it opened, in reverse order. The CLI
+(``rehab-hil run``), the tests, the benches and a lab's own CI all build sessions here::
+
+    with open_session("configs/finger_extensor.toml", "inprocess", controller="pid") as s:
+        result = s.run(5.0)
+    assert result.pwm_off_at_end
+
+Errors a user can fix (a config the controller cannot run on, a device that does not answer or
+does not match, a homing that fails) raise ``SessionError`` with one line.
+"""
+
+from __future__ import annotations
+
+from contextlib import ExitStack
+from dataclasses import dataclass, fields
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from rehab_hil.calibration import calibration_summary
+from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
+from rehab_hil.profiles import apply_profile, load_profile
+from rehab_hil.protocol import Configure
+from rehab_hil.service import assembly
+from rehab_hil.service.controllers import ControllerRuntime
+from rehab_hil.service.errors import SessionError
+from rehab_hil.service.homing import HomingResult, home
+from rehab_hil.service.recorder import Recorder
+from rehab_hil.service.run_dir import METADATA_FILE, new_run_dir, result_metadata, session_metadata, write_metadata
+from rehab_hil.service.runner import PACINGS, LoopService, Progress, RunResult
+from rehab_hil.service.session_sinks import FoxgloveOptions, TelemetryOptions, foxglove_view, live_twin, zenoh_telemetry
+
+__all__ = ["HOMING_MODES", "LOCKSTEP_SAMPLE_TIMEOUT_S", "FoxgloveOptions", "RigSession", "SessionError",
+           "SessionOptions", "TelemetryOptions", "open_session"]
+
+# virtual time: a sample that takes this long in wall time is missing (a starved machine pauses a
+# lockstep device without losing anything; link loss there is link_loss_periods such waits in a row)
+LOCKSTEP_SAMPLE_TIMEOUT_S = 5.0
+HOMING_MODES = ("current", "hard-stop", "none")
+MAX_DURATION_S = 24 * 3600.0
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    """How a session runs, beside its config and device (every field has the CLI's meaning, ``rehab-hil
+    run --help``). ``controller``: a controller's name (``rehab_hil.controllers``), or an object the
+    loop can step (``service.controllers.Controller``: ``claims``, ``reset``, ``__call__``)."""
+
+    controller: Any = None  # None: [rig.session] controller
+    reference: str = "session"  # "session" (open-close cycles) or "step" ([rig.session] step_deg)
+    profile: Path | None = None  # a patient profile (profiles/*.toml): the session and tighter limits
+    pacing: str = "device"  # react to the sample stream, or wake on host deadlines (docs/loop.md)
+    lockstep: bool = False  # sim/avr: virtual time (the in-process device always is)
+    realtime: bool | None = None  # the loop's real-time setup (scheduler, GC); None: unless lockstep
+    home: str = "none"  # "current", "hard-stop" or "none" (the CLI's default is "current")
+    confirm: Any = None  # homing "current": asks the user before zeroing (None: no question)
+    record: Path | None = None  # a folder: each run writes a new run directory in it
+    rig_id: str | None = None  # the rig's name in run directories and metadata
+    sim_plant: Path | None = None  # simulated devices: the plant config the device runs
+    twin: bool = False  # the live twin beside the rig (also on with [twin] enabled)
+    telemetry: TelemetryOptions | None = None  # publish over zenoh (loopback hub or the lab's router)
+    foxglove: FoxgloveOptions | None = None  # serve the session live to Foxglove
+    hw: HardwareInterface | None = None  # an already connected rig (the caller closes it) instead of ``device``
+    supervisor: Any = None  # a ``Supervisor`` instead of the config's limits (tests of the loop only)
+    configure: Configure | None = None  # a CONFIGURE instead of the config's (tests of the link only)
+
+
+class RigSession:
+    """A built session: ``run(duration_s)`` once, inside ``with``. ``loop`` is the ``LoopService``
+    (``progress`` for a live display, ``request_stop`` for a signal handler)."""
+
+    def __init__(self, stack: ExitStack, cfg: Any, config_path: Path, device: str, options: SessionOptions,
+                 hw: HardwareInterface, controller: Any, configure: Configure) -> None:
+        self.stack, self.cfg, self.config_path, self.device, self.options = stack, cfg, config_path, device, options
+        self.hw, self.controller, self.configure = hw, controller, configure
+        self.binding = get_plant(cfg.plant).device(cfg)
+        self.period_s = assembly.period_s(cfg)
+        self.lockstep = options.lockstep or device == "inprocess"  # the in-process device is lockstep by nature
+        self.homed: HomingResult | None = None
+        self.run_dir: Path | None = None
+        self.metadata: dict[str, Any] = {}
+        self.recorder: Recorder | None = None
+        self.telemetry: Any = None  # the zenoh publisher's owner (RigTelemetry), or None
+        self.foxglove: Any = None  # the Foxglove live view (LiveView), or None
+        self.twin: Any = None  # the live twin's run (TwinRun), or None
+        self.loop: LoopService | None = None
+        self.result: RunResult | None = None
+
+    @property
+    def progress(self) -> Progress:
+        assert self.loop is not None
+        return self.loop.progress
+
+    @property
+    def rig_id(self) -> str:
+        """The rig's name in the run directory and metadata: the option, the telemetry name, the plant."""
+        tel = self.options.telemetry
+        return self.options.rig_id or (tel.rig_id if tel is not None else None) or self.cfg.plant
+
+    @property
+    def controller_name(self) -> str:
+        declared = getattr(self.controller, "controller", self.controller)  # a built controller's declaration
+        return getattr(declared, "name", None) or type(self.controller).__name__
+
+    def request_stop(self, reason: str, kind: str = "stop_request") -> None:
+        """Stop at the next cycle through the safe state (a signal handler's call; any thread)."""
+        if self.loop is not None:
+            self.loop.request_stop(reason, kind)
+
+    def __enter__(self) -> RigSession:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stack.close()
+
+    def close(self) -> None:
+        """Close everything the session opened (the rig, the sinks), in reverse order; idempotent."""
+        self.stack.close()
+
+    def run(self, duration_s: float) -> RunResult:
+        """Loop for ``duration_s`` of device time (or until a trip or a stop request), leave the rig
+        in the safe state, finish the sinks and the run's metadata; returns the result."""
+        if not 0 < duration_s <= MAX_DURATION_S:
+            raise SessionError("duration", f"must be in (0, {MAX_DURATION_S:.0f}] s, got {duration_s}")
+        if self.result is not None or self.loop is None:
+            raise SessionError(None, "a session runs once, after open_session; open a new one")
+        if isinstance(self.controller, ControllerRuntime):  # per-cycle figures of a session's open-close cycles
+            self.loop.meter = assembly.build_meter(self.cfg, self.controller, duration_s)
+        realtime = self.options.realtime if self.options.realtime is not None else not self.lockstep
+        tel = self.foxglove or self.telemetry
+        result = self.loop.run(duration_s, pacing=self.options.pacing, realtime=realtime,
+                               sample_timeout_s=LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None,
+                               lockstep=self.lockstep, on_trip=tel.on_trip if tel is not None else None)
+        self.result = result
+        self._finish(result)
+        return result
+
+    # ---- building, in the order things must happen ------------------------------------------------
+    def _open(self) -> None:
+        """Before anything moves: the contract check, the homing; then the run directory, the sinks
+        and the loop."""
+        try:
+            on_configure(self.binding, self.hw.info, self.controller.claims)
+        except HardwareError as e:
+            raise SessionError("device", f"{self.device}: {e}") from None
+        self._home()
+        if self.options.record is not None:
+            self._recording()
+        self.telemetry = zenoh_telemetry(self) if self.options.telemetry is not None else None
+        if self.telemetry is not None:
+            self.stack.callback(self.telemetry.close)
+        self.foxglove = foxglove_view(self) if self.options.foxglove is not None else None
+        if self.foxglove is not None:
+            self.stack.callback(self.foxglove.close)
+        self.twin = live_twin(self)
+        self._loop()
+
+    def _home(self) -> None:
+        """The encoder's zero at a confirmed pose or the closed hard stop (``service.homing``)."""
+        mode = self.options.home
+        if mode not in HOMING_MODES:
+            raise SessionError("home", f"must be one of {list(HOMING_MODES)}, got {mode!r}")
+        try:
+            self.homed = home(mode, self.hw, self.cfg, self.binding, self.configure, confirm=self.options.confirm)
+        except HardwareError as e:
+            raise SessionError("home", f"{mode}: {e}") from None
+
+    def _recording(self) -> None:
+        """A new run directory, its metadata (written first: a killed run still says what it ran
+        against) and the recorder."""
+        opts = self.options
+        try:
+            self.run_dir = new_run_dir(opts.record, self.rig_id)
+        except OSError as e:
+            raise SessionError("record", f"{opts.record}: cannot make the run folder: {e}") from None
+        self.metadata = session_metadata(
+            plant=self.cfg.plant, config_path=self.config_path, device=self.device, rig_id=self.rig_id,
+            binding=self.binding, hello=self.hw.info, controller=self.controller_name, pacing=opts.pacing,
+            sim_plant=opts.sim_plant, calibration={"force": calibration_summary(self.cfg)})
+        write_metadata(self.run_dir, self.metadata)
+        self.recorder = Recorder(self.run_dir, self.binding, metadata=self.metadata)
+        self.stack.callback(self.recorder.close)
+
+    def _loop(self) -> None:
+        """The loop on the rig, with the sinks after its write."""
+        supervisor = self.options.supervisor or assembly.build_supervisor(self.cfg, self.binding)
+        tel = self.foxglove or self.telemetry
+        self.loop = loop = LoopService(
+            self.hw, self.configure, self.controller, assembly.build_estimator(self.cfg, self.binding), supervisor,
+            self.period_s, recorder=self.recorder, telemetry=tel.sink if tel is not None else None,
+            twin=self.twin.live if self.twin is not None else None)
+        if self.twin is not None:
+            self.twin.on_stop = lambda text: loop.request_stop(text, "model_mismatch")
+        if tel is not None:
+            tel.watch(loop, self.hw)
+
+    def _finish(self, result: RunResult) -> None:
+        """The twin's summary and the recording's end: every queued row counted, metadata completed."""
+        twin_meta = self.twin.close() if self.twin is not None else {}
+        if twin_meta:
+            result.twin = twin_meta
+            if self.twin.twin.csv_path is not None:
+                result.files.append(str(self.twin.twin.csv_path))
+        if self.recorder is not None and self.run_dir is not None:
+            self.recorder.drain()  # rows still queued when the loop stopped (Ctrl-C on a busy machine) are counted
+            end = {**result_metadata(result, self.recorder.rows), **twin_meta}
+            self.recorder.close(summary=end)
+            write_metadata(self.run_dir, {**self.metadata, **end})
+            result.files.append(str(self.run_dir / METADATA_FILE))
+
+
+def open_session(config: str | Path, device: str | None = None, **options: Any) -> RigSession:
+    """Build a session on ``device`` ("sim", "avr", "inprocess", a serial path or "auto"; default
+    ``[rig].port``) for the plant config at ``config``; ``options``: the fields of ``SessionOptions``.
+    Raises ``SessionError`` (one line) for what the user can fix."""
+    try:
+        opts = SessionOptions(**options)
+    except TypeError as e:
+        known = ", ".join(f.name for f in fields(SessionOptions))
+        raise SessionError(None, f"{e}; the options are: {known}") from None
+    config = Path(config)
+    cfg = _load(config, opts.profile)
+    if opts.pacing not in PACINGS:
+        raise SessionError("pacing", f"must be one of {list(PACINGS)}, got {opts.pacing!r}")
+    binding = get_plant(cfg.plant).device(cfg)
+    controller = _controller(cfg, config, opts)
+    device = device or cfg.rig.port
+    configure = opts.configure or assembly.firmware_configure(cfg, binding)
+    stack = ExitStack()
+    try:
+        hw = opts.hw if opts.hw is not None else _rig(stack, cfg, config, device, opts)
+        session = RigSession(stack, cfg, config, device, opts, hw, controller, configure)
+        session._open()
+    except BaseException:
+        stack.close()
+        raise
+    return session
+
+
+def _load(config: Path, profile: Path | None) -> Any:
+    """The validated config, with the patient's profile over the rig's session and limits (tighten only)."""
+    cfg = load_config(config)
+    if profile is not None:
+        cfg = apply_profile(cfg, load_profile(profile), config, profile)
+    return cfg
+
+
+def _controller(cfg: Any, config: Path, opts: SessionOptions) -> Any:
+    """The controller the loop steps: a declared one built by name for this plant, or the object given."""
+    if opts.controller is not None and not isinstance(opts.controller, str):
+        return opts.controller
+    try:
+        return assembly.build_controller(cfg, opts.controller, opts.reference, source=str(config))
+    except assembly.ServiceSetupError as e:
+        raise SessionError(None, f"{config}: {e}") from None
+
+
+def _rig(stack: ExitStack, cfg: Any, config: Path, device: str, opts: SessionOptions) -> HardwareInterface:
+    """Open and connect the rig (its process, for a simulated one, stops with the stack)."""
+    device_config = _device_config(cfg, config, device, opts.sim_plant)
+    try:
+        return stack.enter_context(open_rig(device, device_config, lockstep=opts.lockstep, baud=cfg.rig.baud,
+                                            write_timeout_s=cfg.rig.write_timeout_ms / 1000.0))
+    except HardwareError as e:
+        raise SessionError("device", f"{device}: {e}") from None
+
+
+def _device_config(cfg: Any, config: Path, device: str, sim_plant: Path | None) -> Path:
+    """The plant config a simulated device runs: ``sim_plant`` (the same plant, maybe with effects
+    the host's model lacks) or the host's own."""
+    if sim_plant is None:
+        return config
+    if device not in RIG_KINDS:
+        raise SessionError("sim_plant", f"for simulated devices ({', '.join(RIG_KINDS)}); device {device} is a "
+                           "real board, whose plant is the physical one")
+    dev = load_config(sim_plant)
+    if dev.plant != cfg.plant:
+        raise SessionError("sim_plant", f"{sim_plant}: a {dev.plant!r} plant; the host's config {config} is a "
+                           f"{cfg.plant!r} plant")
+    return sim_plant
