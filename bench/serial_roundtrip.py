@@ -24,7 +24,7 @@ import numpy as np
 
 from rehab_hil.devices import spawn_device
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.protocol import Command, Configure
+from rehab_hil.protocol import CommandFrame, Configure
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "finger_extensor.toml"
@@ -43,7 +43,7 @@ def command_echo(hw: SerialHardware, n: int) -> dict[str, float]:
     for _ in range(n):
         hw.discard_pending()
         t0 = time.perf_counter()
-        seq = hw.send_command(Command(0, 0, 0, 1))
+        seq = hw.send_command(CommandFrame(0, 0, 0, 1))
         for _ in range(5000):
             s = hw.read_sample(1.0)
             if s is None:
@@ -70,11 +70,11 @@ def sustained(hw: SerialHardware, seconds: float) -> dict[str, float]:
     dropped0, bad0 = hw.stats.dropped_samples, hw.stats.bad_frames.total()
     first = hw.read_sample(1.0)
     if first is None:
-        hw.send_command(Command(0, 0, 0, 1))  # lockstep: the first COMMAND starts the exchange
+        hw.send_command(CommandFrame(0, 0, 0, 1))  # lockstep: the first COMMAND starts the exchange
         first = hw.read_sample(1.0)
     t0, n, last = time.perf_counter(), 0, first
     while time.perf_counter() - t0 < seconds:
-        hw.send_command(Command(0, 0, 0, 1))
+        hw.send_command(CommandFrame(0, 0, 0, 1))
         s = hw.read_sample(1.0)
         if s is None:
             raise RuntimeError("device stopped streaming")
@@ -97,7 +97,7 @@ def run_device(kind: str, clock: str, n: int, seconds: float) -> dict[str, Any]:
             hw.configure(OPEN)
             if not hw.clear():
                 raise RuntimeError("device has a fault that does not clear")
-            hw.send_command(Command(0, 0, 0, 1))
+            hw.send_command(CommandFrame(0, 0, 0, 1))
             out: dict[str, Any] = {"startup_s": startup}
             out["heartbeat"] = heartbeat(hw, n // 2)
             out["command_echo"] = command_echo(hw, n)

@@ -46,14 +46,14 @@ def test_crc_equals_the_bitwise_definition(data: bytes) -> None:
 
 def test_frame_sizes_fit_1khz_at_1mbaud() -> None:
     sample = p.encode_frame(p.Sample(*([0] * 12)), 0)
-    command = p.encode_frame(p.Command(0, 0, 0, 0), 0)
+    command = p.encode_frame(p.CommandFrame(0, 0, 0, 0), 0)
     assert (len(sample), len(command)) == (37, 14)
     assert len(sample) * 10 * 1000 < 1_000_000 / 2  # bits per second at 1 kHz: under half the link
 
 
 def test_documented_test_vectors_encode_exactly() -> None:
     assert p.encode_frame(p.HelloReq(), 0).hex() == "030101010344c500"
-    assert p.encode_frame(p.Command(5000, 0, 0, 1), 7).hex() == "0401030703881301010401eb4700"
+    assert p.encode_frame(p.CommandFrame(5000, 0, 0, 1), 7).hex() == "0401030703881301010401eb4700"
 
 
 @given(messages, seqs)
@@ -143,7 +143,7 @@ def test_truncated_frame_is_counted_and_the_next_one_decodes() -> None:
 
 def test_payload_out_of_wire_range_is_refused_on_encode() -> None:
     with pytest.raises(struct.error):
-        p.encode_frame(p.Command(70_000, 0, 0, 1), 0)
+        p.encode_frame(p.CommandFrame(70_000, 0, 0, 1), 0)
 
 
 @pytest.mark.parametrize(("rate", "k"), [(1000, 1), (500, 2), (333, 3), (300, 3), (250, 4), (1, 1000),

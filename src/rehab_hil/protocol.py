@@ -29,7 +29,7 @@ __all__ = [
     "Ack",
     "AckResult",
     "Clear",
-    "Command",
+    "CommandFrame",
     "Configure",
     "DeviceHeartbeat",
     "EStop",
@@ -202,8 +202,9 @@ class Configure(Message):
 
 
 @dataclass(frozen=True)
-class Command(Message):
-    """PWM duty per channel, direction bits and enable; applied on arrival, feeds the watchdog."""
+class CommandFrame(Message):
+    """The COMMAND frame: PWM duty per channel, direction bits and enable; applied on arrival, feeds
+    the watchdog. (``service.controllers.Command`` is the loop's command, in duty 0..1.)"""
 
     TYPE: ClassVar[int] = 0x03
     FMT: ClassVar[struct.Struct] = struct.Struct("<HHBB")
@@ -334,7 +335,7 @@ assert _sample_of(tuple(range(12))) == Sample(*range(12))
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
-    cls.TYPE: cls for cls in (HelloReq, Configure, Command, Heartbeat, EStop, Clear, SetEncoder,
+    cls.TYPE: cls for cls in (HelloReq, Configure, CommandFrame, Heartbeat, EStop, Clear, SetEncoder,
                               Hello, Sample, FaultReport, DeviceHeartbeat, Ack)
 }
 assert all(HEADER.size + c.FMT.size + CRC.size <= MAX_PACKET for c in MESSAGE_TYPES.values())
@@ -350,16 +351,16 @@ class Frame:
 
 # The hot path's packets as one struct each (header, payload, CRC): a COMMAND out and a SAMPLE in
 # every cycle, packed and unpacked in one call.
-_COMMAND_BODY = struct.Struct("<BBH" + Command.FMT.format.lstrip("<"))
+_COMMAND_BODY = struct.Struct("<BBH" + CommandFrame.FMT.format.lstrip("<"))
 _SAMPLE_PACKET = struct.Struct("<BBH" + Sample.FMT.format.lstrip("<") + "H")
 _crc = binascii.crc_hqx
 _cobs_encode = cobs.encode
 
 
 def encode_command(seq: int, duty0: int, duty1: int, direction: int = 0, enable: int = 1) -> bytes:
-    """``encode_frame(Command(duty0, duty1, direction, enable), seq)`` without building the message
+    """``encode_frame(CommandFrame(duty0, duty1, direction, enable), seq)`` without building the message
     (the loop's one frame per cycle); ``struct.error`` if a field is out of its wire range."""
-    body = _COMMAND_BODY.pack(PROTOCOL_VERSION, Command.TYPE, seq & 0xFFFF, duty0, duty1, direction, enable)
+    body = _COMMAND_BODY.pack(PROTOCOL_VERSION, CommandFrame.TYPE, seq & 0xFFFF, duty0, duty1, direction, enable)
     crc = _crc(body, 0xFFFF)
     return _cobs_encode(body + bytes((crc & 0xFF, crc >> 8))) + b"\x00"
 

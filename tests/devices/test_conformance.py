@@ -19,7 +19,7 @@ from rehab_hil.hardware import HardwareError, SerialHardware
 from rehab_hil.protocol import (
     DUTY_FULL,
     PROTOCOL_VERSION,
-    Command,
+    CommandFrame,
     Configure,
     Fault,
     FaultReport,
@@ -108,7 +108,7 @@ def _fresh(hw: SerialHardware) -> Sample:
     return _next(hw)
 
 
-def _step(hw: SerialHardware, command: Command) -> tuple[int, Sample]:
+def _step(hw: SerialHardware, command: CommandFrame) -> tuple[int, Sample]:
     """Lockstep: one COMMAND and the SAMPLE that answers it, the first that echoes it or shows a
     latched fault (the device then ignores commands). The Python device applies a COMMAND before its
     sample; the firmware streams on its own timer and applies one that lands late in a tick at the
@@ -130,7 +130,7 @@ class Stepped:
     hw: SerialHardware
     lockstep: bool
 
-    def step(self, command: Command) -> tuple[int, Sample]:
+    def step(self, command: CommandFrame) -> tuple[int, Sample]:
         """Send a COMMAND; return its seq and the first SAMPLE taken after the device handled it
         (lockstep: the COMMAND's own sample; real time: the first sample after a HEARTBEAT round
         trip, since the device handles frames in order)."""
@@ -179,14 +179,14 @@ def test_configure_carries_the_encoder_resolution_which_the_device_adopts_and_re
 def test_set_encoder_moves_the_count_and_edges_continue_from_it(stepped: Stepped) -> None:
     hw = stepped.hw
     hw.set_encoder(-123_456)
-    _, s = stepped.step(Command(0, 0, 0, 1))
+    _, s = stepped.step(CommandFrame(0, 0, 0, 1))
     assert abs(s.encoder_count + 123_456) < 50  # the iris may still drift back on its spring
     for _ in range(300):  # open the iris: the count rises from the new value
-        _, s = stepped.step(Command(3000, 0, 0, 1))
+        _, s = stepped.step(CommandFrame(3000, 0, 0, 1))
         if s.encoder_count > -123_456 + 40:
             break
     assert s.encoder_count > -123_456 + 40
-    stepped.step(Command(0, 0, 0, 0))
+    stepped.step(CommandFrame(0, 0, 0, 0))
 
 
 def test_set_encoder_applies_to_the_range_of_motion_from_the_next_tick(stepped: Stepped) -> None:
@@ -194,10 +194,10 @@ def test_set_encoder_applies_to_the_range_of_motion_from_the_next_tick(stepped: 
     hw.configure(_config(enc_min=-100, enc_max=100))
     hw.set_encoder(0)
     assert hw.clear()  # a range fault from the old count is gone now
-    _, s = stepped.step(Command(0, 0, 0, 1))
+    _, s = stepped.step(CommandFrame(0, 0, 0, 1))
     assert s.faults == 0 and abs(s.encoder_count) < 50  # the iris may still drift back on its spring
     hw.set_encoder(500)
-    _, s = stepped.step(Command(0, 0, 0, 1))
+    _, s = stepped.step(CommandFrame(0, 0, 0, 1))
     assert s.faults == Fault.RANGE_OF_MOTION and abs(s.encoder_count - 500) < 50
     hw.set_encoder(0)
     assert hw.clear()
@@ -226,7 +226,7 @@ def test_rate_zero_stops_streaming(rig: tuple[Any, SerialHardware]) -> None:
 def test_lockstep_sends_one_sample_per_command_one_period_apart(lockstep_rig: tuple[Any, SerialHardware]) -> None:
     _, hw = lockstep_rig
     hw.configure(_config(sample_rate_hz=500))
-    samples = [_step(hw, Command(0, 0, 0, 1))[1] for _ in range(20)]
+    samples = [_step(hw, CommandFrame(0, 0, 0, 1))[1] for _ in range(20)]
     assert [b.device_time_us - a.device_time_us for a, b in itertools.pairwise(samples)] == [2000] * 19
     assert hw.read_sample(0.1) is None
 
@@ -234,12 +234,12 @@ def test_lockstep_sends_one_sample_per_command_one_period_apart(lockstep_rig: tu
 def test_command_is_applied_clamped_and_echoed(stepped: Stepped) -> None:
     hw = stepped.hw
     hw.configure(_config(max_duty=6000))
-    seq, s = stepped.step(Command(2500, 7000, 0b10, 1))
+    seq, s = stepped.step(CommandFrame(2500, 7000, 0b10, 1))
     assert (s.duty0, s.duty1, s.direction, s.cmd_seq_echo) == (2500, 6000, 0b10, seq)
     assert s.status & Status.DUTY_CLAMPED and s.status & Status.PWM_ENABLED and s.status & Status.WATCHDOG_ARMED
-    seq, s = stepped.step(Command(1000, 0, 0, 1))
+    seq, s = stepped.step(CommandFrame(1000, 0, 0, 1))
     assert (s.duty0, s.duty1, s.cmd_seq_echo) == (1000, 0, seq) and not s.status & Status.DUTY_CLAMPED
-    seq, s = stepped.step(Command(1000, 1000, 0, 0))
+    seq, s = stepped.step(CommandFrame(1000, 1000, 0, 0))
     assert (s.duty0, s.duty1, s.cmd_seq_echo) == (0, 0, seq) and not s.status & Status.PWM_ENABLED
 
 
@@ -270,19 +270,19 @@ def test_heating_time_trips_after_max_heating_ms_of_continuous_drive(rig: tuple[
 
 def test_a_force_above_the_limit_trips_and_cuts_pwm(stepped: Stepped) -> None:
     hw = stepped.hw
-    _, rest = stepped.step(Command(0, 0, 0, 1))
+    _, rest = stepped.step(CommandFrame(0, 0, 0, 1))
     hw.configure(_config(force_limit_counts=rest.adc0 + 40, force_debounce_ms=3))
-    _, s = stepped.step(Command(2000, 0, 0, 1))
+    _, s = stepped.step(CommandFrame(2000, 0, 0, 1))
     assert s.faults == 0 and s.duty0 == 2000
     stepped.device.control("input patient_torque_nm 1.0")  # A0 (the torque sensor) +100 counts
     try:
         for _ in range(200):
-            _, s = stepped.step(Command(2000, 0, 0, 1))
+            _, s = stepped.step(CommandFrame(2000, 0, 0, 1))
             if s.faults:
                 break
         assert s.faults == Fault.FORCE_LIMIT and s.duty0 == 0 and not s.status & Status.PWM_ENABLED
         echo = s.cmd_seq_echo
-        _, s = stepped.step(Command(2000, 0, 0, 1))
+        _, s = stepped.step(CommandFrame(2000, 0, 0, 1))
         assert s.duty0 == 0 and s.cmd_seq_echo == echo  # ignored while latched
     finally:
         stepped.device.control("input patient_torque_nm 0.0")
@@ -290,10 +290,10 @@ def test_a_force_above_the_limit_trips_and_cuts_pwm(stepped: Stepped) -> None:
 
 def test_driving_out_of_the_range_of_motion_trips(stepped: Stepped) -> None:
     hw = stepped.hw
-    _, rest = stepped.step(Command(0, 0, 0, 1))
+    _, rest = stepped.step(CommandFrame(0, 0, 0, 1))
     hw.configure(_config(enc_min=rest.encoder_count - 20, enc_max=rest.encoder_count + 20))
     for _ in range(500):
-        _, s = stepped.step(Command(4000, 0, 0, 1))
+        _, s = stepped.step(CommandFrame(4000, 0, 0, 1))
         if s.faults:
             break
     assert s.faults == Fault.RANGE_OF_MOTION and s.duty0 == 0
@@ -352,13 +352,13 @@ def test_a_broken_estop_wire_is_a_stop_with_the_normally_closed_loop(rig: tuple[
 
 def test_estop_command_latches_ignores_commands_until_clear(stepped: Stepped) -> None:
     hw = stepped.hw
-    seq, s = stepped.step(Command(1000, 0, 0, 1))
+    seq, s = stepped.step(CommandFrame(1000, 0, 0, 1))
     assert s.duty0 == 1000
     hw.estop()
-    _, s = stepped.step(Command(1000, 0, 0, 1))
+    _, s = stepped.step(CommandFrame(1000, 0, 0, 1))
     assert s.faults == Fault.ESTOP_COMMAND and s.duty0 == 0 and s.cmd_seq_echo == seq
     assert hw.clear()
-    seq, s = stepped.step(Command(1000, 0, 0, 1))
+    seq, s = stepped.step(CommandFrame(1000, 0, 0, 1))
     assert s.faults == 0 and s.duty0 == 1000 and s.cmd_seq_echo == seq
 
 
@@ -372,10 +372,10 @@ def test_bad_frames_are_ignored_and_counted(stepped: Stepped) -> None:
     from cobs import cobs
 
     hw = stepped.hw
-    _, before = stepped.step(Command(0, 0, 0, 1))
+    _, before = stepped.step(CommandFrame(0, 0, 0, 1))
     bad = [
         b"\x01\x02\x03\x00",  # short
-        encode_frame(Command(3000, 0, 0, 1), 9)[:6] + b"\x00",  # truncated
+        encode_frame(CommandFrame(3000, 0, 0, 1), 9)[:6] + b"\x00",  # truncated
         cobs.encode(_packet(1, 0x03, bytes(6))[:-1] + b"\x01") + b"\x00",  # crc
         cobs.encode(_packet(9, 0x03, bytes(6))) + b"\x00",  # version
         cobs.encode(_packet(1, 0x42, b"")) + b"\x00",  # unknown type
@@ -384,7 +384,7 @@ def test_bad_frames_are_ignored_and_counted(stepped: Stepped) -> None:
         encode_frame(Sample(*([0] * 12)), 5),  # a valid device->host type is unknown to the device
     ]
     hw.send_raw(b"".join(bad))
-    seq, s = stepped.step(Command(3000, 0, 0, 1))
+    seq, s = stepped.step(CommandFrame(3000, 0, 0, 1))
     assert s.rx_bad_frames - before.rx_bad_frames == len(bad)
     assert (s.duty0, s.cmd_seq_echo) == (3000, seq)
     assert hw.clear()

@@ -9,7 +9,7 @@ from rehab_hil.protocol import (
     Ack,
     AckResult,
     Clear,
-    Command,
+    CommandFrame,
     Configure,
     DeviceHeartbeat,
     EStop,
@@ -62,7 +62,7 @@ def test_boot_after_a_hardware_watchdog_reset_latches_the_fault() -> None:
 
 def test_commands_before_configure_are_ignored() -> None:
     core = DeviceCore(2000)
-    core.on_frame(Frame(1, Command(5000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(5000, 0, 0, 1)))
     assert core.duty == [0, 0] and not core.armed and core.tick(OK) == []
 
 
@@ -75,7 +75,7 @@ def test_samples_stream_every_kth_tick(rate: int, every: int | None) -> None:
 
 def test_command_is_applied_clamped_and_echoed() -> None:
     core = _configured(max_duty=8000)
-    core.on_frame(Frame(7, Command(9000, 100, 0b11, 1)))
+    core.on_frame(Frame(7, CommandFrame(9000, 100, 0b11, 1)))
     (s,) = _samples(core.tick(OK))
     assert (s.duty0, s.duty1, s.direction, s.cmd_seq_echo) == (8000, 100, 0b11, 7)
     assert s.status & Status.DUTY_CLAMPED and s.status & Status.PWM_ENABLED and s.status & Status.WATCHDOG_ARMED
@@ -83,15 +83,15 @@ def test_command_is_applied_clamped_and_echoed() -> None:
 
 def test_enable_zero_turns_every_output_off() -> None:
     core = _configured()
-    core.on_frame(Frame(1, Command(3000, 3000, 0, 1)))
-    core.on_frame(Frame(2, Command(3000, 3000, 0, 0)))
+    core.on_frame(Frame(1, CommandFrame(3000, 3000, 0, 1)))
+    core.on_frame(Frame(2, CommandFrame(3000, 3000, 0, 0)))
     (s,) = _samples(core.tick(OK))
     assert (s.duty0, s.duty1, s.cmd_seq_echo) == (0, 0, 2) and not s.status & Status.PWM_ENABLED
 
 
 def test_watchdog_trips_after_exactly_watchdog_ms_of_ticks_without_a_command() -> None:
     core = _configured(watchdog_ms=20)
-    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(3000, 0, 0, 1)))
     trip_tick = next(i for i in range(1, 100) if _faults(core.tick(OK)))
     assert trip_tick == 20
     assert core.duty == [0, 0] and core.faults == Fault.WATCHDOG and not core.armed
@@ -99,7 +99,7 @@ def test_watchdog_trips_after_exactly_watchdog_ms_of_ticks_without_a_command() -
 
 def test_heartbeat_does_not_feed_the_watchdog() -> None:
     core = _configured(watchdog_ms=5)
-    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(3000, 0, 0, 1)))
     for _ in range(4):
         assert core.on_frame(Frame(2, Heartbeat(0))) == [DeviceHeartbeat(core.uptime_ms)]
         core.tick(OK)
@@ -108,19 +108,19 @@ def test_heartbeat_does_not_feed_the_watchdog() -> None:
 
 def test_heating_time_trips_after_continuous_drive() -> None:
     core = _configured(max_heating_ms=30, watchdog_ms=1000)
-    core.on_frame(Frame(1, Command(100, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(100, 0, 0, 1)))
     trip = next(i for i in range(1, 100) if _faults(core.tick(OK)))
     assert trip == 30 and core.faults == Fault.HEATING_TIME
 
 
 def test_heating_counter_restarts_when_the_drive_pauses() -> None:
     core = _configured(max_heating_ms=30, watchdog_ms=1000)
-    core.on_frame(Frame(1, Command(100, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(100, 0, 0, 1)))
     for _ in range(20):
         core.tick(OK)
-    core.on_frame(Frame(2, Command(0, 0, 0, 1)))
+    core.on_frame(Frame(2, CommandFrame(0, 0, 0, 1)))
     core.tick(OK)
-    core.on_frame(Frame(3, Command(100, 0, 0, 1)))
+    core.on_frame(Frame(3, CommandFrame(100, 0, 0, 1)))
     assert not any(_faults(core.tick(OK)) for _ in range(29))
     assert _faults(core.tick(OK))
 
@@ -133,10 +133,10 @@ def test_heating_counter_restarts_when_the_drive_pauses() -> None:
 ])
 def test_limit_trips_cut_pwm_and_clear_refuses_while_the_cause_holds(readings: Readings, fault: int) -> None:
     core = _configured(watchdog_ms=1000)
-    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(3000, 0, 0, 1)))
     assert _faults(core.tick(readings)) == [FaultReport(fault, fault)]
     assert core.duty == [0, 0]
-    core.on_frame(Frame(2, Command(3000, 0, 0, 1)))  # ignored while latched
+    core.on_frame(Frame(2, CommandFrame(3000, 0, 0, 1)))  # ignored while latched
     assert core.duty == [0, 0] and core.cmd_seq_echo == 1
     assert core.on_frame(Frame(3, Clear())) == [Ack(Clear.TYPE, 3, AckResult.REFUSED)]
     core.tick(OK)
@@ -162,7 +162,7 @@ NC = Configure.FLAG_ESTOP_INPUT | Configure.FLAG_ESTOP_NORMALLY_CLOSED
 def test_a_normally_closed_estop_loop_trips_on_a_press_and_on_a_broken_wire(flags: int, readings: Readings,
                                                                             trips: bool) -> None:
     core = _configured(flags=flags, watchdog_ms=1000)
-    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(3000, 0, 0, 1)))
     out = core.tick(readings)
     assert bool(_faults(out)) is trips and (core.duty == [0, 0]) is trips
     (s,) = _samples(out)
@@ -171,7 +171,7 @@ def test_a_normally_closed_estop_loop_trips_on_a_press_and_on_a_broken_wire(flag
 
 def test_force_limit_is_debounced_a_noise_burst_does_not_trip_a_real_overload_does() -> None:
     core = _configured(watchdog_ms=1000, force_debounce_ms=3)
-    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(3000, 0, 0, 1)))
     high = Readings(0, 1000, 0)
     for _ in range(5):  # bursts of 2 ticks above the limit, separated by one normal tick
         assert not _faults(core.tick(high)) and not _faults(core.tick(high))
@@ -184,7 +184,7 @@ def test_force_limit_is_debounced_a_noise_burst_does_not_trip_a_real_overload_do
 
 def test_estop_command_latches_and_clear_releases_it() -> None:
     core = _configured()
-    core.on_frame(Frame(1, Command(3000, 0, 0, 1)))
+    core.on_frame(Frame(1, CommandFrame(3000, 0, 0, 1)))
     out = core.on_frame(Frame(2, EStop()))
     assert FaultReport(Fault.ESTOP_COMMAND, Fault.ESTOP_COMMAND) in out
     assert Ack(EStop.TYPE, 2, AckResult.OK) in out and core.duty == [0, 0]

@@ -17,7 +17,7 @@ from rehab_hil.devices.sim_device import SimDevice
 from rehab_hil.devices.spawn import DeviceProcessError
 from rehab_hil.hardware import HardwareError, SerialHardware
 from rehab_hil.plants import get_plant, load_config
-from rehab_hil.protocol import Command, Configure, FrameDecoder, Sample, encode_frame
+from rehab_hil.protocol import CommandFrame, Configure, FrameDecoder, Sample, encode_frame
 
 from .conftest import CONFIG
 
@@ -171,7 +171,7 @@ def binding() -> Any:
     return get_plant(cfg.plant).device(cfg)
 
 
-def _lockstep_run(binding: Any, commands: list[Command]) -> bytes:
+def _lockstep_run(binding: Any, commands: list[CommandFrame]) -> bytes:
     dev = SimDevice(PlantIO(binding, adc_noise_counts=2.0, seed=7), binding.encoder_counts_per_rev,
                     clock="lockstep", seed=7)
     try:
@@ -191,7 +191,7 @@ def _lockstep_run(binding: Any, commands: list[Command]) -> bytes:
 
 
 def test_lockstep_is_deterministic_with_noise_and_one_sample_per_command(binding: Any) -> None:
-    commands = [Command(500 * (i % 7), 0, i % 2, 1) for i in range(60)]
+    commands = [CommandFrame(500 * (i % 7), 0, i % 2, 1) for i in range(60)]
     a, b = _lockstep_run(binding, commands), _lockstep_run(binding, commands)
     assert a == b
     samples = [f.msg for f in FrameDecoder().feed(a) if isinstance(f.msg, Sample)]
@@ -205,7 +205,7 @@ def test_lockstep_advances_no_time_without_commands(binding: Any) -> None:
     try:
         dev.on_bytes(encode_frame(Configure(1000, 50, 10000, 60_000, 1023, -WIDE, WIDE, 0), 0))
         assert dev.core.ticks == 0
-        dev.on_bytes(encode_frame(Command(0, 0, 0, 1), 1))
+        dev.on_bytes(encode_frame(CommandFrame(0, 0, 0, 1), 1))
         assert dev.core.ticks == 1
     finally:
         dev.close()

@@ -16,7 +16,7 @@ from cobs import cobs
 
 from rehab_hil.devices import spawn_device
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.protocol import Command, Configure, crc16_ccitt_false
+from rehab_hil.protocol import CommandFrame, Configure, crc16_ccitt_false
 
 from .conftest import CONFIG, avr_skip_reason
 
@@ -57,7 +57,7 @@ def _session(kind: str) -> list[tuple[int, ...]]:
     with _lockstep_device(kind, 50) as (dev, hw):
         out = []
         for i in range(250):
-            seq = hw.send_command(Command(500 * ((i // 25) % 8), 0, (i // 125) % 2, 1))
+            seq = hw.send_command(CommandFrame(500 * ((i // 25) % 8), 0, (i // 125) % 2, 1))
             s = hw.read_sample(20.0)
             assert s is not None, dev.control("status")
             out.append((s.device_time_us, s.sample_index, s.encoder_count, s.adc0, s.adc1, s.duty0, s.direction,
@@ -95,7 +95,7 @@ def test_a_frame_the_device_drops_advances_no_time_and_each_sample_still_answers
     with _lockstep_device(kind, 200) as (dev, hw):
 
         def step(duty: int) -> tuple[int, int, int]:
-            seq = hw.send_command(Command(duty, 0, 0, 1))
+            seq = hw.send_command(CommandFrame(duty, 0, 0, 1))
             s = hw.read_sample(20.0)
             assert s is not None, dev.control("status")
             return seq, s.cmd_seq_echo, s.device_time_us

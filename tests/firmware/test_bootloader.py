@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.protocol import Command, Fault, ResetCause
+from rehab_hil.protocol import CommandFrame, Fault, ResetCause
 
 from .conftest import ELF, ROOT, Hardware, Harness, config, unsolicited_hello
 from .test_build import _make
@@ -65,7 +65,7 @@ def test_an_external_reset_runs_optiboot_for_about_a_second_with_the_pwm_pins_fl
     try:
         hw.connect(timeout=10.0)
         hw.configure(config(watchdog_ms=2000))
-        hw.send_command(Command(5000, 0, 0, 1))
+        hw.send_command(CommandFrame(5000, 0, 0, 1))
         assert hw.read_sample(2.0) is not None
         hw.flush_input()
         booted.send("R")
@@ -96,7 +96,7 @@ def test_a_hung_sketch_under_optiboot_is_reset_by_the_watchdog_and_the_fault_lat
     try:
         hw.connect(timeout=10.0)
         hw.configure(config(sample_rate_hz=100))
-        hw.send_command(Command(4000, 0, 0, 1))
+        hw.send_command(CommandFrame(4000, 0, 0, 1))
         assert hw.read_sample(2.0) is not None
         h.send("D 4 0")  # test build: loop() spins forever (e-stop pin low, input disabled)
         hello, seq = unsolicited_hello(hw)
@@ -162,14 +162,14 @@ def test_bytes_lost_in_the_2_byte_receive_buffer_are_counted_and_the_link_recove
         assert booted_lockstep.state()["rx_dropped"] == 0
         hw.configure(config())
         for _ in range(500):
-            hw.send_command(Command(1000, 0, 0, 1))
+            hw.send_command(CommandFrame(1000, 0, 0, 1))
             assert hw.read_sample(2.0) is not None
         # a frame broken near its end waits, incomplete, for more bytes: the next frame completes it
         # as one bad frame and is lost with it. Replies right after each sample from now on (nothing
         # overruns then): the host sends on, one COMMAND a sample, and the link recovers
         booted_lockstep.send("H 0")
         for _ in range(5):
-            seq = hw.send_command(Command(2000, 0, 0, 1))
+            seq = hw.send_command(CommandFrame(2000, 0, 0, 1))
             s = hw.read_sample(2.0)
             assert s is not None
             if s.cmd_seq_echo == seq:

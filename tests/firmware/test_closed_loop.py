@@ -9,7 +9,7 @@ import pytest
 
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.plants import get_plant, load_config
-from rehab_hil.protocol import Command, Sample
+from rehab_hil.protocol import CommandFrame, Sample
 
 from .conftest import ROOT, Hardware, _missing, config
 
@@ -32,7 +32,7 @@ def test_encoder_count_follows_the_plant() -> None:
             hw.configure(config(watchdog_ms=300))
             hw.discard_pending()
             while len(samples) < 600:  # 40 % forward, then 40 % reversed (H-bridge)
-                hw.send_command(Command(4000, 0, 1 if len(samples) >= 300 else 0, 1))
+                hw.send_command(CommandFrame(4000, 0, 1 if len(samples) >= 300 else 0, 1))
                 s = hw.read_sample(10.0)
                 assert s is not None, dev.control("status")
                 samples.append(s)

@@ -19,7 +19,7 @@ from rehab_hil.devices.avr_device import adc_counts_to_mv
 from rehab_hil.hardware import HardwareError, SerialHardware
 from rehab_hil.protocol import (
     DUTY_FULL,
-    Command,
+    CommandFrame,
     Configure,
     Fault,
     FaultReport,
@@ -54,7 +54,7 @@ def _until(hw: SerialHardware, pred: Callable[[Sample], bool], max_samples: int 
     raise AssertionError(f"condition not met within {max_samples} samples")
 
 
-def _applied(hw: SerialHardware, command: Command) -> Sample:
+def _applied(hw: SerialHardware, command: CommandFrame) -> Sample:
     seq = hw.send_command(command)
     return _until(hw, lambda s: s.cmd_seq_echo == seq)
 
@@ -83,16 +83,16 @@ def test_streams_one_sample_per_period_in_device_time(rig: tuple[Harness, Serial
 def test_command_drives_the_timer1_registers_clamped_with_direction_pins(rig: tuple[Harness, SerialHardware]) -> None:
     harness, hw = rig
     hw.configure(config(max_duty=6000))
-    s = _applied(hw, Command(2500, 7000, 0b10, 1))
+    s = _applied(hw, CommandFrame(2500, 7000, 0b10, 1))
     assert (s.duty0, s.duty1, s.direction) == (2500, 6000, 0b10)
     assert s.status & Status.DUTY_CLAMPED and s.status & Status.PWM_ENABLED and s.status & Status.WATCHDOG_ARMED
     st = harness.state()  # what the pins do: OCR1A/OCR1B against ICR1, COM bits, PORTB/PORTD
     assert abs(st["duty0"] - 2500) <= PWM_STEP and abs(st["duty1"] - 6000) <= PWM_STEP and st["dir"] == 0b10
     hw.configure(config())
-    _applied(hw, Command(DUTY_FULL, 1, 0b01, 1))
+    _applied(hw, CommandFrame(DUTY_FULL, 1, 0b01, 1))
     st = harness.state()
     assert (st["duty0"], st["duty1"], st["dir"]) == (DUTY_FULL, 0, 0b01)  # 100 %: pin high; 1 unit rounds to off
-    s = _applied(hw, Command(5000, 5000, 0b10, 0))
+    s = _applied(hw, CommandFrame(5000, 5000, 0b10, 0))
     assert (s.duty0, s.duty1, s.direction) == (0, 0, 0b01) and not s.status & Status.PWM_ENABLED
     assert (harness.state()["duty0"], harness.state()["duty1"]) == (0, 0)
 
@@ -101,7 +101,7 @@ def test_commands_before_configure_are_ignored(harness: Harness) -> None:
     hw = Hardware(harness.port)
     try:
         hw.connect(timeout=10.0)
-        hw.send_command(Command(5000, 5000, 0, 1))
+        hw.send_command(CommandFrame(5000, 5000, 0, 1))
         hw.heartbeat()  # a round trip: the COMMAND before it has been handled
         assert (harness.state()["duty0"], harness.state()["duty1"]) == (0, 0)
         hw.configure(config(sample_rate_hz=100))
@@ -113,23 +113,23 @@ def test_commands_before_configure_are_ignored(harness: Harness) -> None:
 def test_watchdog_cuts_pwm_watchdog_ms_after_the_last_command(rig: tuple[Harness, SerialHardware]) -> None:
     harness, hw = rig
     hw.configure(config(watchdog_ms=25))
-    on = _applied(hw, Command(4000, 0, 0, 1))
+    on = _applied(hw, CommandFrame(4000, 0, 0, 1))
     tripped = _until(hw, lambda s: s.faults != 0)
     assert tripped.faults == Fault.WATCHDOG and tripped.duty0 == 0
     # the command arrived within the millisecond before `on`
     assert 24_000 <= tripped.device_time_us - on.device_time_us <= 25_000
     assert harness.state()["duty0"] == 0
     assert FaultReport(Fault.WATCHDOG, Fault.WATCHDOG) in hw.faults_reported, (hw.stats, harness.state())
-    ignored = hw.send_command(Command(4000, 0, 0, 1))
+    ignored = hw.send_command(CommandFrame(4000, 0, 0, 1))
     assert _next(hw).cmd_seq_echo != ignored and harness.state()["duty0"] == 0  # latched until CLEAR
     assert hw.clear()
-    assert _applied(hw, Command(4000, 0, 0, 1)).duty0 == 4000
+    assert _applied(hw, CommandFrame(4000, 0, 0, 1)).duty0 == 4000
 
 
 def test_heating_time_limit(rig: tuple[Harness, SerialHardware]) -> None:
     harness, hw = rig
     hw.configure(config(max_heating_ms=30))
-    on = _applied(hw, Command(100, 0, 0, 1))
+    on = _applied(hw, CommandFrame(100, 0, 0, 1))
     tripped = _until(hw, lambda s: s.faults != 0)
     assert tripped.faults == Fault.HEATING_TIME and harness.state()["duty0"] == 0
     assert 29_000 <= tripped.device_time_us - on.device_time_us <= 30_000
@@ -140,7 +140,7 @@ def test_force_limit_trips_and_clear_waits_for_the_force_to_drop(rig: tuple[Harn
     harness, hw = rig
     harness.send(f"A 0 {mv(500)}")
     hw.configure(config(force_limit_counts=600))
-    assert _applied(hw, Command(3000, 3000, 0, 1)).adc0 == 500
+    assert _applied(hw, CommandFrame(3000, 3000, 0, 1)).adc0 == 500
     harness.send(f"A 0 {mv(601)}")
     s = _until(hw, lambda s: s.faults != 0)
     assert s.faults == Fault.FORCE_LIMIT and s.adc0 == 601 and (s.duty0, s.duty1) == (0, 0)
@@ -169,7 +169,7 @@ def test_range_of_motion_from_encoder_edges(rig: tuple[Harness, SerialHardware])
     harness.send("E 300")  # 300 quadrature edges on D2/D3
     s = _until(hw, lambda s: s.encoder_count == 300)
     assert s.faults == 0
-    _applied(hw, Command(2000, 0, 0, 1))
+    _applied(hw, CommandFrame(2000, 0, 0, 1))
     harness.send("E 301")
     s = _until(hw, lambda s: s.faults != 0)
     assert s.faults == Fault.RANGE_OF_MOTION and s.encoder_count == 301 and s.duty0 == 0
@@ -191,7 +191,7 @@ def test_estop_input_pin(rig: tuple[Harness, SerialHardware]) -> None:
     harness.send("D 4 1")
     _until(hw, lambda s: not s.status & Status.ESTOP_INPUT_ACTIVE)
     hw.configure(config(flags=Configure.FLAG_ESTOP_INPUT))
-    _applied(hw, Command(3000, 0, 0, 1))
+    _applied(hw, CommandFrame(3000, 0, 0, 1))
     harness.send("D 4 0")
     s = _until(hw, lambda s: s.faults != 0)
     assert s.faults == Fault.ESTOP_INPUT and s.duty0 == 0 and harness.state()["duty0"] == 0
@@ -206,7 +206,7 @@ def test_a_normally_closed_estop_loop_trips_when_opened_by_the_button_or_a_broke
     harness, hw = rig
     harness.send("D 4 0")  # the NC loop intact holds D4 low: released
     hw.configure(config(flags=Configure.FLAG_ESTOP_INPUT | Configure.FLAG_ESTOP_NORMALLY_CLOSED))
-    s = _applied(hw, Command(3000, 0, 0, 1))
+    s = _applied(hw, CommandFrame(3000, 0, 0, 1))
     assert s.faults == 0 and not s.status & Status.ESTOP_INPUT_ACTIVE and s.duty0 > 0
     harness.send("D 4 1")  # loop opened (pressed, or the wire cut): the pull-up reads high
     s = _until(hw, lambda s: s.faults != 0)
@@ -223,7 +223,7 @@ def test_force_limit_is_debounced_noise_bursts_pass_a_real_overload_trips(
     harness, hw = rig
     harness.send(f"A 0 {mv(500)}")
     hw.configure(config(force_limit_counts=600, force_debounce_ms=3))
-    assert _applied(hw, Command(3000, 0, 0, 1)).adc0 == 500
+    assert _applied(hw, CommandFrame(3000, 0, 0, 1)).adc0 == 500
     for _ in range(5):  # 1.5 ms bursts: above the limit for at most 2 ticks, never 3 in a row
         harness.send(f"P 0 {mv(900)} 1500")
         _until(hw, lambda s: s.adc0 == 900, max_samples=50)  # one burst at a time, each seen
@@ -241,16 +241,16 @@ def test_force_limit_is_debounced_noise_bursts_pass_a_real_overload_trips(
 
 def test_estop_command_latches_until_clear(rig: tuple[Harness, SerialHardware]) -> None:
     harness, hw = rig
-    on = _applied(hw, Command(3000, 2000, 0, 1))
+    on = _applied(hw, CommandFrame(3000, 2000, 0, 1))
     hw.estop()
     assert harness.state()["duty0"] == 0 and harness.state()["duty1"] == 0  # off before the ACK came back
-    hw.send_command(Command(3000, 0, 0, 1))
+    hw.send_command(CommandFrame(3000, 0, 0, 1))
     s = _until(hw, lambda s: s.faults != 0)
     s = _next(hw)
     assert s.faults == Fault.ESTOP_COMMAND and s.cmd_seq_echo == on.cmd_seq_echo and s.duty0 == 0
     assert FaultReport(Fault.ESTOP_COMMAND, Fault.ESTOP_COMMAND) in hw.faults_reported
     assert hw.clear()
-    assert _applied(hw, Command(3000, 0, 0, 1)).faults == 0
+    assert _applied(hw, CommandFrame(3000, 0, 0, 1)).faults == 0
 
 
 def test_bad_configuration_is_refused_and_latched(rig: tuple[Harness, SerialHardware]) -> None:
@@ -273,7 +273,7 @@ def _packet(version: int, mtype: int, payload: bytes, seq: int = 1) -> bytes:
 def test_corrupt_frames_are_counted_and_dropped(rig: tuple[Harness, SerialHardware]) -> None:
     _, hw = rig
     before = _next(hw)
-    good = encode_frame(Command(3000, 0, 0, 1), 900)
+    good = encode_frame(CommandFrame(3000, 0, 0, 1), 900)
     bad = [
         b"\x01\x02\x03\x00",  # short
         good[:6] + b"\x00",  # truncated
@@ -295,13 +295,13 @@ def test_corrupt_frames_are_counted_and_dropped(rig: tuple[Harness, SerialHardwa
 
 def test_external_reset_reboots_unconfigured_with_a_hello(rig: tuple[Harness, SerialHardware]) -> None:
     harness, hw = rig
-    _applied(hw, Command(3000, 0, 0, 1))
+    _applied(hw, CommandFrame(3000, 0, 0, 1))
     harness.send("R")
     # the reboot shows as an unsolicited HELLO with seq 0; SerialHardware counts it
     hello = hw.connect(timeout=10.0)
     assert hw.stats.reboots == 1 and hello.reset_cause == ResetCause.EXTERNAL
     assert (harness.state()["duty0"], harness.state()["resets"]) == (0, 1)
-    hw.send_command(Command(3000, 0, 0, 1))  # unconfigured: ignored
+    hw.send_command(CommandFrame(3000, 0, 0, 1))  # unconfigured: ignored
     hw.heartbeat()
     assert harness.state()["duty0"] == 0
 
@@ -311,7 +311,7 @@ def test_a_flood_of_commands_is_survived_and_the_link_recovers(rig: tuple[Harnes
     (counted, see firmware/README.md) but must not reset or hang, and must apply the next one."""
     harness, hw = rig
     before = _next(hw)
-    hw.send_raw(b"".join(encode_frame(Command(1000 + i, 0, 0, 1), 2000 + i) for i in range(300)))
+    hw.send_raw(b"".join(encode_frame(CommandFrame(1000 + i, 0, 0, 1), 2000 + i) for i in range(300)))
     # let the flood drain (42 ms on the wire): the echo enters the flood, then stops moving
     s = _until(hw, lambda s: s.cmd_seq_echo >= 2000)
     stable, echo = 0, s.cmd_seq_echo
@@ -322,7 +322,7 @@ def test_a_flood_of_commands_is_survived_and_the_link_recovers(rig: tuple[Harnes
     # A dropped byte may have been the last flood frame's delimiter, leaving the receiver mid-frame:
     # a lone 0x00 resynchronises it (docs/protocol.md) before the next frame.
     hw.send_raw(b"\x00")
-    s = _applied(hw, Command(4321, 0, 0, 1))
+    s = _applied(hw, CommandFrame(4321, 0, 0, 1))
     assert s.duty0 == 4321 and s.faults == 0
     assert harness.state()["resets"] == 0
     dropped = s.rx_bad_frames - before.rx_bad_frames

@@ -18,7 +18,7 @@ from rehab_hil.protocol import (
     MAX_FRAME,
     Ack,
     Clear,
-    Command,
+    CommandFrame,
     Configure,
     DeviceHeartbeat,
     EStop,
@@ -44,7 +44,7 @@ messages: st.SearchStrategy[Message] = st.one_of(
     st.just(EStop()),
     st.just(Clear()),
     st.builds(Configure, u16, u16, u16, u32, u16, i32, i32, u8),
-    st.builds(Command, u16, u16, u8, u8),
+    st.builds(CommandFrame, u16, u16, u8, u8),
     st.builds(Heartbeat, u32),
     st.builds(Hello, u8, u8, u8, u8, u8, u8, u16, u16, u8, u16, u8),
     st.builds(Sample, u32, u32, i32, u16, u16, u16, u16, u8, u16, u16, u16, u16),
@@ -171,7 +171,7 @@ def test_a_packet_with_a_burst_of_up_to_16_bit_errors_is_always_rejected(frame, 
 ONE_OF_EACH = [
     Frame(1, HelloReq()), Frame(2, EStop()), Frame(3, Clear()),
     Frame(0x1234, Configure(1000, 50, 10_000, 600_000, 1023, -2000, 2000, 1)),
-    Frame(0xFFFF, Command(7500, 0, 1, 1)), Frame(9, Heartbeat(123_456)),
+    Frame(0xFFFF, CommandFrame(7500, 0, 1, 1)), Frame(9, Heartbeat(123_456)),
     Frame(0, Hello(1, 0, 1, 0, 2, 2, 2000, 5000, 10, 1000, 1)),
     Frame(40_000, Sample(1_000_000, 1000, -5, 512, 1023, 10_000, 0, 1, 0x23, 0, 0xFFFE, 3)),
     Frame(77, FaultReport(4, 5)), Frame(78, DeviceHeartbeat(0xFFFF_FFFF)), Frame(79, Ack(2, 0x1234, 0)),
@@ -199,5 +199,5 @@ def test_a_megabyte_of_garbage_without_delimiter_is_dropped_as_one_overflow_with
         assert dec.feed(blob[i : i + 4096]) == []
     assert dec.bad == {"overflow": 1}
     assert len(dec._buf) <= MAX_FRAME
-    f = Frame(7, Command(5000, 0))
+    f = Frame(7, CommandFrame(5000, 0))
     assert dec.feed(b"\x00" + encode_frame(f.msg, f.seq)) == [f]

@@ -18,7 +18,7 @@ from rehab_hil.protocol import (
     Ack,
     AckResult,
     Clear,
-    Command,
+    CommandFrame,
     Configure,
     FrameDecoder,
     Hello,
@@ -187,8 +187,8 @@ def test_command_echo_gives_a_latency(peer: PtyPeer) -> None:
     _answer(peer, lambda f: Ack(Configure.TYPE, f.seq, AckResult.OK))
     hw.configure(Configure(1000, 50, 10000, 1000, 1023, -1, 1, 0))  # write_command needs ACTIVE
     seq = hw.write_command(0.25, direction=1)
-    (frame,) = [f for f in peer.receive() if isinstance(f.msg, Command)]
-    assert frame.seq == seq and frame.msg == Command(2500, 0, 1, 1)
+    (frame,) = [f for f in peer.receive() if isinstance(f.msg, CommandFrame)]
+    assert frame.seq == seq and frame.msg == CommandFrame(2500, 0, 1, 1)
     peer.send(_sample(1, echo=seq, duty0=2500))
     assert hw.read_sample(1.0).cmd_seq_echo == seq
     assert len(hw.stats.latencies_s) == 1 and hw.stats.latencies_s[0] > 0

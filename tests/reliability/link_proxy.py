@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
 
-from rehab_hil.protocol import Command, FaultReport, FrameDecoder, Hello, Sample
+from rehab_hil.protocol import CommandFrame, FaultReport, FrameDecoder, Hello, Sample
 
 __all__ = ["DeviceTap", "Direction", "LinkProxy"]
 
@@ -92,7 +92,7 @@ class DeviceTap:
             elif isinstance(msg, FaultReport):
                 self.fault_reports.append(msg)
                 self._reported |= msg.faults
-            elif isinstance(msg, Command):
+            elif isinstance(msg, CommandFrame):
                 self.commands += 1
 
     def pwm_off_after(self, device_time_us: int) -> int | None:

@@ -18,7 +18,7 @@ from rehab_hil.protocol import (
     Ack,
     AckResult,
     Clear,
-    Command,
+    CommandFrame,
     Configure,
     DeviceHeartbeat,
     EStop,
@@ -121,7 +121,7 @@ class DeviceCore:
     def on_frame(self, frame: Frame) -> list[Message]:
         """Handle one valid frame; returns the replies (and FAULT frames of trips it causes)."""
         msg = frame.msg
-        if isinstance(msg, Command):
+        if isinstance(msg, CommandFrame):
             self._command(msg, frame.seq)
             return []
         if isinstance(msg, HelloReq):
@@ -161,7 +161,7 @@ class DeviceCore:
         self.since_cmd = 0
         return [Ack(Configure.TYPE, seq, AckResult.OK)]
 
-    def _command(self, c: Command, seq: int) -> None:
+    def _command(self, c: CommandFrame, seq: int) -> None:
         if self.config is None:
             return
         self.since_cmd = 0

@@ -44,7 +44,7 @@ from typing import TextIO
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.devices.plant_io import PlantIO
-from rehab_hil.protocol import BASE_RATE_HZ, Command, Configure, FrameDecoder, Message, ResetCause, encode_frame
+from rehab_hil.protocol import BASE_RATE_HZ, CommandFrame, Configure, FrameDecoder, Message, ResetCause, encode_frame
 
 __all__ = ["SimDevice", "build_parser", "main"]
 
@@ -150,7 +150,7 @@ class SimDevice(ControlChannel):
             self._send(self.core.on_frame(frame))
             if isinstance(frame.msg, Configure) and self.core.config is frame.msg:  # accepted: a session starts
                 self.plant.start_session()
-            if self.clock == "lockstep" and isinstance(frame.msg, Command) and self.core.streaming:
+            if self.clock == "lockstep" and isinstance(frame.msg, CommandFrame) and self.core.streaming:
                 for _ in range(self.core.divider):
                     self.tick()
 

@@ -17,7 +17,7 @@ from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
     Clear,
-    Command,
+    CommandFrame,
     Configure,
     EStop,
     Frame,
@@ -96,7 +96,7 @@ class InProcessHardware(HardwareInterface):
 
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
         self._require_active("write_command")
-        return self._send(Command(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF, 1 if enable else 0))
+        return self._send(CommandFrame(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF, 1 if enable else 0))
 
     def estop(self, timeout: float = 1.0) -> None:
         self._require_connected("estop")
@@ -117,7 +117,7 @@ class InProcessHardware(HardwareInterface):
     def close(self) -> None:
         """PWM off (as the serial link's last COMMAND does) and FINALIZED; idempotent."""
         if self.state.connected:
-            self.core.on_frame(Frame(self._tx_seq, Command(0, 0, 0, 0)))
+            self.core.on_frame(Frame(self._tx_seq, CommandFrame(0, 0, 0, 0)))
         self.state = LifecycleState.FINALIZED
 
     # ---- the device side ----------------------------------------------------------------------
@@ -129,12 +129,12 @@ class InProcessHardware(HardwareInterface):
         self._tx_seq = (seq + 1) & 0xFFFF
         self.stats.frames_tx += 1
         core = self.core
-        if isinstance(msg, Command):
+        if isinstance(msg, CommandFrame):
             self._sent = (seq, time.perf_counter())
         self._receive(core.on_frame(Frame(seq, msg)))
         if isinstance(msg, Configure) and core.config is msg:  # accepted: a session starts (scheduled changes)
             self.plant.start_session()
-        if isinstance(msg, Command) and core.streaming:
+        if isinstance(msg, CommandFrame) and core.streaming:
             periods = self._bursts[self._burst_i % len(self._bursts)]
             self._burst_i += 1
             for _ in range(core.divider * periods):

@@ -23,7 +23,7 @@ import serial
 from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
     Clear,
-    Command,
+    CommandFrame,
     Configure,
     DeviceHeartbeat,
     EStop,
@@ -171,7 +171,7 @@ class SerialHardware(HardwareInterface):
         self._sent_at[seq] = time.perf_counter()
         return seq
 
-    def send_command(self, command: Command) -> int:
+    def send_command(self, command: CommandFrame) -> int:
         """Send a COMMAND in raw duty units, in any connected state (conformance tests send commands
         before CONFIGURE on purpose); returns its seq (latency is matched on the echo)."""
         seq = self._send(command)
@@ -214,7 +214,7 @@ class SerialHardware(HardwareInterface):
         if self._ser is None:
             return
         try:
-            self._send(Command(0, 0, 0, 0))
+            self._send(CommandFrame(0, 0, 0, 0))
         except HardwareError:
             pass
         ser, self._ser = self._ser, None
