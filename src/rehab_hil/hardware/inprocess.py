@@ -16,16 +16,13 @@ from typing import Protocol
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
-    Clear,
     CommandFrame,
     Configure,
-    EStop,
     Frame,
     Hello,
     HelloReq,
     Message,
     Sample,
-    SetEncoder,
 )
 
 __all__ = ["InProcessHardware", "PlantPort"]
@@ -78,14 +75,6 @@ class InProcessHardware(HardwareInterface):
             self.state = LifecycleState.INACTIVE
         return self.info
 
-    def configure(self, config: Configure, timeout: float = 1.0) -> None:
-        self._require_connected("configure")
-        result = self._request(config)
-        if result != 0:
-            raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})")
-        self._last_index = None
-        self.state = LifecycleState.ACTIVE
-
     def read(self, timeout: float | None = None) -> Arrival | None:
         """The next queued sample or None at once, whatever ``timeout`` (nothing arrives while the
         host waits in lockstep)."""
@@ -97,22 +86,6 @@ class InProcessHardware(HardwareInterface):
     def write_command(self, duty0: float, duty1: float = 0.0, direction: int = 0, enable: bool = True) -> int:
         self._require_active("write_command")
         return self._send(CommandFrame(duty_units(duty0), duty_units(duty1), int(direction) & 0xFF, 1 if enable else 0))
-
-    def estop(self, timeout: float = 1.0) -> None:
-        self._require_connected("estop")
-        result = self._request(EStop())
-        if result != 0:
-            raise HardwareError(f"ESTOP answered with result {result}")
-
-    def clear(self, timeout: float = 1.0) -> bool:
-        self._require_connected("clear")
-        return self._request(Clear()) == 0
-
-    def set_encoder(self, count: int = 0, timeout: float = 1.0) -> None:
-        self._require_connected("set_encoder")
-        result = self._request(SetEncoder(int(count)))
-        if result != 0:
-            raise HardwareError(f"SET_ENCODER {count} answered with result {result}")
 
     def close(self) -> None:
         """PWM off (as the serial link's last COMMAND does) and FINALIZED; idempotent."""
@@ -142,7 +115,9 @@ class InProcessHardware(HardwareInterface):
                 self._receive(core.tick(Readings(enc, a0, a1, self.estop_pin)))
         return seq
 
-    def _request(self, msg: Message) -> int:
+    def _request(self, msg: Message, timeout: float) -> int:
+        """Hand the request to the device and take its ACK, there at once (lockstep: nothing is
+        lost or late, so ``timeout`` is not waited on)."""
         seq = self._send(msg)
         result = self._acks.pop((msg.TYPE, seq), None)
         if result is None:

@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from rehab_hil.protocol import DUTY_FULL, Ack, Configure, FaultReport, Hello, Sample
+from rehab_hil.protocol import DUTY_FULL, Ack, Clear, Configure, EStop, FaultReport, Hello, Message, Sample, SetEncoder
 
 __all__ = ["Arrival", "HardwareError", "HardwareInterface", "LifecycleState", "LinkStats", "angle_limits_counts",
            "configure_from_config", "duty_units"]
@@ -136,11 +136,21 @@ def configure_from_config(cfg: Any, encoder_counts_per_rev: int, force_limit_cou
     )
 
 
+def _cpr_hint(info: Hello | None, config: Configure) -> str:
+    """Why a CONFIGURE may have been refused: a firmware build pinned to another encoder."""
+    cpr, dev = config.encoder_counts_per_rev, info.encoder_counts_per_rev if info else 0
+    if cpr and dev and cpr != dev:
+        return f"; the device reports {dev} encoder counts/rev, the config {cpr} (a build pinned to another encoder?)"
+    return ""
+
+
 class HardwareInterface(ABC):
     """A rig the host drives: one device with PWM channels, an encoder and ADC inputs.
 
     Subclasses call ``super().__init__()``, guard each call with ``_require_connected`` /
-    ``_require_active`` and move ``state`` on connect, configure and close."""
+    ``_require_active`` and move ``state`` on connect and close. The requests (CONFIGURE, ESTOP,
+    CLEAR, SET_ENCODER) are written here once, over one back-end hook, ``_request``: how a frame
+    reaches the device and how its ACK comes back is all that differs between transports."""
 
     info: Hello | None  # the device's HELLO (capabilities), once connected
     stats: LinkStats
@@ -201,10 +211,12 @@ class HardwareInterface(ABC):
         """Open the link and handshake; returns the device's capabilities. UNCONFIGURED -> INACTIVE
         (a connected interface re-handshakes and keeps its state)."""
 
-    @abstractmethod
     def configure(self, config: Configure, timeout: float = 1.0) -> None:
         """Send rate, watchdog and limits; raises ``HardwareError`` if the device refuses (the state
         is then unchanged). INACTIVE or ACTIVE -> ACTIVE."""
+        self._require_connected("configure")
+        self._configure(config, timeout)
+        self.state = LifecycleState.ACTIVE
 
     @abstractmethod
     def read(self, timeout: float | None = None) -> Arrival | None:
@@ -242,20 +254,43 @@ class HardwareInterface(ABC):
 
     def set_encoder(self, count: int = 0, timeout: float = 1.0) -> None:
         """Set the device's encoder count (SET_ENCODER; homing: the home pose's count), connected
-        states; waits for the ACK. The default: a device that cannot."""
-        raise HardwareError(f"{type(self).__name__} cannot set the encoder count")
+        states; waits for the ACK."""
+        self._require_connected("set_encoder")
+        result = self._request(SetEncoder(int(count)), timeout)
+        if result != 0:
+            raise HardwareError(f"SET_ENCODER {count} answered with result {result}")
 
-    @abstractmethod
     def estop(self, timeout: float = 1.0) -> None:
         """Emergency stop: PWM off on the device, ESTOP_COMMAND latched; waits for the ACK."""
+        self._require_connected("estop")
+        result = self._request(EStop(), timeout)
+        if result != 0:
+            raise HardwareError(f"ESTOP answered with result {result}")
 
-    @abstractmethod
     def clear(self, timeout: float = 1.0) -> bool:
         """Clear latched faults whose cause is gone; True if none remain."""
+        self._require_connected("clear")
+        return self._request(Clear(), timeout) == 0
 
     @abstractmethod
     def close(self) -> None:
         """Stop streaming if possible and release the link; idempotent. Any state -> FINALIZED."""
+
+    # ---- requests: the back-end hook ----------------------------------------------------------
+
+    @abstractmethod
+    def _request(self, msg: Message, timeout: float) -> int:
+        """Send one request and return its ACK's result; raise ``HardwareError`` if none comes
+        within ``timeout`` (a back-end may resend a lost request, and must not return while a copy
+        could still reach the device)."""
+
+    def _configure(self, config: Configure, timeout: float) -> None:
+        """Send ``config`` and check its ACK; the stream restarts, so gap accounting does too."""
+        result = self._request(config, timeout)
+        if result != 0:
+            raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})"
+                                + _cpr_hint(self.info, config))
+        self._last_index = None  # the stream restarts: no gap accounting across it
 
     # ---- lifecycle guards ---------------------------------------------------------------------
 

@@ -22,11 +22,8 @@ import serial
 
 from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState, duty_units
 from rehab_hil.protocol import (
-    Clear,
     CommandFrame,
-    Configure,
     DeviceHeartbeat,
-    EStop,
     Frame,
     FrameDecoder,
     Heartbeat,
@@ -34,7 +31,6 @@ from rehab_hil.protocol import (
     HelloReq,
     Message,
     Sample,
-    SetEncoder,
     encode_command,
     encode_frame,
 )
@@ -53,14 +49,6 @@ _READ_SIZE = 4096  # bytes per read: a burst of ~110 SAMPLEs
 _RESEND_S = 0.5
 _HELLO_RESEND_S = 0.25  # HELLO_REQ is asked again sooner: nothing else can start before it
 _POLLIN = select.POLLIN | select.POLLPRI
-
-
-def _cpr_hint(info: Hello | None, config: Configure) -> str:
-    """Why a CONFIGURE may have been refused: a firmware build pinned to another encoder."""
-    cpr, dev = config.encoder_counts_per_rev, info.encoder_counts_per_rev if info else 0
-    if cpr and dev and cpr != dev:
-        return f"; the device reports {dev} encoder counts/rev, the config {cpr} (a build pinned to another encoder?)"
-    return ""
 
 
 class SerialHardware(HardwareInterface):
@@ -118,15 +106,6 @@ class SerialHardware(HardwareInterface):
                     return self.info
         raise HardwareError(f"no HELLO from {self.port} within {timeout:.2f} s")
 
-    def configure(self, config: Configure, timeout: float = 1.0) -> None:
-        self._require_connected("configure")
-        result = self._request(config, timeout)
-        if result != 0:
-            raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})"
-                                + _cpr_hint(self.info, config))
-        self._last_index = None  # the stream restarts: no gap accounting across it
-        self.state = LifecycleState.ACTIVE
-
     def read(self, timeout: float | None = None) -> Arrival | None:
         """A queued sample at once (one state test and a popleft: the loop's path); else the link is
         read until one arrives or ``timeout`` passes (0: what the OS holds now)."""
@@ -177,22 +156,6 @@ class SerialHardware(HardwareInterface):
         seq = self._send(command)
         self._sent_at[seq] = time.perf_counter()
         return seq
-
-    def estop(self, timeout: float = 1.0) -> None:
-        self._require_connected("estop")
-        result = self._request(EStop(), timeout)
-        if result != 0:
-            raise HardwareError(f"ESTOP answered with result {result}")
-
-    def clear(self, timeout: float = 1.0) -> bool:
-        self._require_connected("clear")
-        return self._request(Clear(), timeout) == 0
-
-    def set_encoder(self, count: int = 0, timeout: float = 1.0) -> None:
-        self._require_connected("set_encoder")
-        result = self._request(SetEncoder(int(count)), timeout)
-        if result != 0:
-            raise HardwareError(f"SET_ENCODER {count} answered with result {result}")
 
     def heartbeat(self, timeout: float = 1.0) -> int:
         """Link check: the device's uptime in ms."""
