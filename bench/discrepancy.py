@@ -58,7 +58,8 @@ from rich.table import Table
 from rehab_hil.discrepancy.selection import MIN_IMPROVEMENT
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
 from rehab_hil.interchange import Recording
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "finger_extensor.toml"

@@ -13,8 +13,9 @@ import statistics
 import time
 from pathlib import Path
 
+from rehab_hil.loading import load_config
 from rehab_hil.models.system import Diagram
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.plants import get_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM_SECONDS = 60.0

@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.hardware import open_rig
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import State

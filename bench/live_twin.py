@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.hardware.open import inprocess_hardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
 from rehab_hil.testing import config_with_changes

@@ -52,7 +52,8 @@ def child(args: argparse.Namespace) -> int:
 
     import rehab_hil
     from rehab_hil.hardware.serial_hw import SerialHardware
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
     from rehab_hil.service import assembly
     from rehab_hil.service.recorder import Recorder
     from rehab_hil.service.runner import LoopService

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from rehab_hil.cli import main
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import State
 

@@ -41,10 +41,8 @@ from link_proxy import LinkProxy  # noqa: E402
 
 from rehab_hil.devices.spawn import spawn_sim_device  # noqa: E402
 from rehab_hil.hardware import HardwareError, SerialHardware  # noqa: E402
-from rehab_hil.plants import (  # noqa: E402
-    get_plant,
-    load_config,
-)
+from rehab_hil.loading import load_config  # noqa: E402
+from rehab_hil.plants import get_plant  # noqa: E402
 from rehab_hil.service import assembly  # noqa: E402
 from rehab_hil.service.controllers import Command  # noqa: E402
 from rehab_hil.service.estimation import State  # noqa: E402

@@ -126,7 +126,8 @@ def main() -> None:
 
     import zenoh
 
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
     from rehab_hil.service.telemetry import NullSink
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
     from rehab_hil.telemetry.session import NetworkConfig

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from rehab_hil.config import ConfigError
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 BASE = (Path(__file__).resolve().parents[1] / "configs" / "finger_extensor.toml").read_text()
 

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from rehab_hil.effects import EFFECTS, applicable, attach, check_spec, parse_effect_option
+from rehab_hil.loading import load_config
 from rehab_hil.models.effect_parts import DELAY_SLOTS, Backlash, ContactSpringDamper, TransportDelay
 from rehab_hil.models.system import Diagram, DiagramError
-from rehab_hil.plants import base, get_plant, load_config
+from rehab_hil.plants import base, get_plant
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

@@ -13,9 +13,10 @@ import pytest
 from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
 from rehab_hil.effects import attach
+from rehab_hil.loading import load_config
 from rehab_hil.models.effect_parts import SensorCreepHysteresis
 from rehab_hil.models.system import Diagram
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.plants import get_plant
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

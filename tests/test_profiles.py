@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from rehab_hil.config import ConfigError
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.profiles import apply_profile, load_profile, profile_summary
 from rehab_hil.service.assembly import firmware_configure
 

@@ -11,7 +11,8 @@ import pytest
 
 from rehab_hil.cli import main
 from rehab_hil.interchange import CsvError
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.rig_recording import load_recording, read_recording
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -28,6 +28,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from rehab_hil.config import ConfigError, Section, load_toml, validate
+from rehab_hil.plants.base import DeviceBinding, get_plant
 
 __all__ = ["ADC_MAX", "CIRCUITS", "G0", "REFERENCE_KEY", "Calibration", "CalibrationFile", "CalibrationPoint",
            "ForceLimitError", "calibration_for", "calibration_summary", "fit_calibration", "force_limit_counts",
@@ -257,13 +258,13 @@ def force_limit_counts(cfg: Any, binding: Any, calibration: Calibration | None =
     return math.floor(counts)
 
 
-def calibration_summary(cfg: Any, base_dir: str | Path | None = None) -> dict[str, Any]:
+def calibration_summary(cfg: Any, binding: DeviceBinding | None = None,
+                        base_dir: str | Path | None = None) -> dict[str, Any]:
     """What a session's metadata records about its force sensor: the calibration in use (file,
     sensor, model, coefficients, fit, hysteresis, date) or the plant's linear map, and the
-    firmware force limit in counts (or why it cannot be set)."""
-    from rehab_hil.plants import get_plant
-
-    binding = get_plant(cfg.plant).device(cfg)
+    firmware force limit in counts (or why it cannot be set). ``binding``: the rig binding the
+    caller holds (default: the config's plant binds it again)."""
+    binding = binding if binding is not None else get_plant(cfg.plant).device(cfg)
     ch = _force_channel(binding)
     out: dict[str, Any] = {"max_force_n": cfg.rig.limits.max_force_n}
     if ch is None:

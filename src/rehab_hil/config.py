@@ -1,7 +1,7 @@
 """Load and validate ``configs/*.toml``: every error names the file and the dotted key.
 
 Each plant declares its schema as pydantic models on these sections (strict types, no unknown
-keys, no NaN or infinity, ranges as field constraints); ``rehab_hil.plants.load_config`` picks
+keys, no NaN or infinity, ranges as field constraints); ``rehab_hil.loading.load_config`` picks
 the schema by the file's top-level ``plant`` key. Units are in the key names (``radius_m``).
 """
 
@@ -10,6 +10,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -18,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 __all__ = [
     "ConfigError",
     "Field",
+    "MonitorSettings",
     "RigEstopSection",
     "RigHostSection",
     "RigLimitsSection",
@@ -27,6 +29,7 @@ __all__ = [
     "RigThermalSection",
     "Section",
     "SimulationSection",
+    "TwinSection",
     "load_toml",
     "model_validator",
     "validate",
@@ -182,6 +185,53 @@ class RigSection(Section):
         return (f"{self.limits.max_temperature_c} C is unreachable: the thermal estimate levels off at "
                 f"rig.thermal.ambient_c + rise_at_full_duty_c x rig.limits.max_duty = {ceiling:.1f} C, so the "
                 "temperature trip could never fire; set it below that")
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """The knobs of the twin's residual test (``rehab_hil.twin.monitor``), as ``TwinSection.monitor``
+    hands them over; defined beside the table that sets them, so the schema imports no twin."""
+
+    learn_s: float = 10.0  # the normal residual level is learned over this long
+    settle_s: float = 1.0  # ... after this much of the session (the first anchoring, homing)
+    drift_sigma: float = 4.0  # allowed excess over the normal level, in its spreads
+    min_excess_counts: float = 0.4  # ... and at least this many counts (a noiseless simulation has no spread)
+    threshold_counts: float = 1.5  # the CUSUM's alarm level, in counts x segments
+
+
+class TwinSection(Section):
+    """The live twin (docs/twin.md): the plant model beside the rig, its residual test and the
+    online estimate of the patient's interaction parameters."""
+
+    enabled: bool = Field(False, description="run the twin in every `rehab-hil run` (also: run --twin)")
+    segment_s: float = Field(0.25, gt=0.0, le=5.0, description="re-anchoring period: each residual is what the "
+                             "model got wrong in this long from a measured start [s]")
+    channels: list[str] = Field(default_factory=list, description="measured outputs whose residual is tested "
+                                "(default: every output the rig measures)")
+    learn_s: float = Field(10.0, gt=0.0, description="the normal residual level is learned over this long [s]")
+    settle_s: float = Field(1.0, ge=0.0, description="... starting this long into the session [s]")
+    drift_sigma: float = Field(4.0, gt=0.0, description="allowed excess over the normal level, in its spreads")
+    min_excess_counts: float = Field(0.4, ge=0.0, description="... and at least this many sensor counts")
+    threshold_counts: float = Field(1.5, gt=0.0, description="CUSUM alarm level [counts x segments]")
+    stop_on_mismatch: bool = Field(False, description="a model mismatch trips the rig into its safe state "
+                                   "(default: an event only)")
+    diagnose: bool = Field(True, description="name the likeliest cause of a mismatch on the recent window")
+    diagnose_window_s: float = Field(5.0, gt=0.5, le=30.0, description="data after the change the diagnosis "
+                                     "fits on [s]")
+    estimate: list[str] = Field(default_factory=list, description="interaction parameters estimated online, as "
+                                "diagram parameters (part.param) or effect parameters (effect.param); default: "
+                                "the contact's stiffness and damping when the model has a contact")
+    estimate_segment_s: float | None = Field(None, gt=0.0, le=5.0, description="re-anchoring period of the online "
+                                             "estimate's own model [s] (default: segment_s); a slow plant's "
+                                             "monitor may look over longer segments than its estimate needs")
+    forgetting_s: float = Field(2.0, gt=0.0, description="memory of the online estimate (RLS forgetting) [s]")
+    min_realtime_factor: float = Field(5.0, gt=0.0, description="the model must run this many times faster than "
+                                       "real time here, per model run a segment needs (the twin, the estimate and "
+                                       "one per estimated parameter), or the twin is refused at start")
+
+    def monitor(self) -> MonitorSettings:
+        return MonitorSettings(learn_s=self.learn_s, settle_s=self.settle_s, drift_sigma=self.drift_sigma,
+                               min_excess_counts=self.min_excess_counts, threshold_counts=self.threshold_counts)
 
 
 T = TypeVar("T", bound=BaseModel)

@@ -36,7 +36,8 @@ def inprocess_rig(config_path: str | Path = CONFIGS / "finger_extensor.toml", *,
     the config's CONFIGURE (ACTIVE: each ``write_command`` returns the next sample at once).
     ``hello`` overrides fields of the device's HELLO (a different firmware version, fewer channels);
     ``bursts`` are the sample periods each command runs, cycled (a USB bridge's 2-3 at a time)."""
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
     from rehab_hil.service import assembly
 
     cfg = load_config(config_path)
@@ -108,7 +109,7 @@ def config_with_changes(base_path: str | Path, out_path: str | Path, *,
     for ``rehab-hil run --sim-plant`` (it takes a file). The result is loaded once, so a bad entry
     raises the ConfigError a user would see. A relative ``force_calibration`` of the base is taken
     as it stands, relative to ``out_path``'s folder."""
-    from rehab_hil.plants import load_config
+    from rehab_hil.loading import load_config
 
     text = Path(base_path).read_text()
     for table, entries in (("effects", effects), ("changes", changes)):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rehab_hil.analysis import sma_experiments as ex
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 CFG_PATH = Path(__file__).resolve().parents[2] / "configs" / "sma_exoskeleton.toml"
 

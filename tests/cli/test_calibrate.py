@@ -28,7 +28,8 @@ from rehab_hil.cli.calibrate import measure
 from rehab_hil.cli.doctor import firmware_configure_fallback, locked_configure
 from rehab_hil.config import ConfigError
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 FE = ROOT / "configs" / "finger_extensor.toml"

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from rehab_hil.cli import main
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "emps"

@@ -15,7 +15,8 @@ import pytest
 from rehab_hil.cli import main
 from rehab_hil.cli.doctor import Hand, SimulatedHand, run_checks, table
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 FE = ROOT / "configs" / "finger_extensor.toml"

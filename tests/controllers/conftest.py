@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 from rehab_hil.testing import CONFIGS
 
 

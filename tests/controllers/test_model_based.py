@@ -10,7 +10,7 @@ import pytest
 from rehab_hil import metrics
 from rehab_hil.controllers import Reference, build_controller, closed_loop, offline_session
 from rehab_hil.controllers.observer import OBSERVER
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 from rehab_hil.testing import CONFIGS
 
 from .conftest import effect, with_text

@@ -10,8 +10,9 @@ from rehab_hil.config import Field, Section
 from rehab_hil.controllers import ControlContext, Controller, ControllerSpec, Reference, build_controller, closed_loop
 from rehab_hil.controllers.pid import limit_part
 from rehab_hil.interfaces import Claims
+from rehab_hil.loading import load_config
 from rehab_hil.models.system import Part, njit
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
 from rehab_hil.testing import CONFIGS, inprocess_rig

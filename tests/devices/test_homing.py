@@ -16,7 +16,8 @@ import pytest
 
 from rehab_hil.cli import main
 from rehab_hil.hardware import HardwareError, SerialHardware, on_configure
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Sample
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import Estimator

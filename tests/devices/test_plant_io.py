@@ -8,7 +8,8 @@ from typing import Any
 import pytest
 
 from rehab_hil.devices.plant_io import PlantIO
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 from .conftest import CONFIG
 

@@ -11,7 +11,8 @@ import pytest
 
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.hardware.open import inprocess_hardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.protocol import BASE_RATE_HZ
 from rehab_hil.service import assembly
 from rehab_hil.testing import CONFIGS, config_with_changes

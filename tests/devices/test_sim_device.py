@@ -16,7 +16,8 @@ from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.devices.sim_device import SimDevice
 from rehab_hil.devices.spawn import DeviceProcessError
 from rehab_hil.hardware import HardwareError, SerialHardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.protocol import CommandFrame, Configure, FrameDecoder, Sample, encode_frame
 
 from .conftest import CONFIG

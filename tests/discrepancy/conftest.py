@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 FE_CONFIG = ROOT / "configs" / "finger_extensor.toml"

@@ -10,7 +10,7 @@ import pytest
 from rehab_hil.discrepancy.identify import _weak_direction
 from rehab_hil.discrepancy.report import augmented_toml
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 from .conftest import FE_CONFIG
 

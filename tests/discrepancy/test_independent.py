@@ -11,7 +11,7 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.report import augmented_toml
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 from .conftest import FE_CONFIG
 

@@ -9,7 +9,8 @@ import pytest
 
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 from .conftest import ROOT
 

@@ -62,7 +62,8 @@ def test_a_start_guessed_under_the_wrong_model_does_not_bias_the_fit(independent
     martensite) is estimated under the nominal model, which lacks the dead zone; the wire forgets it
     within seconds, and the fits skip those seconds, so the fitted width is the true one."""
     from rehab_hil.discrepancy.workflow import Options, find_missing_effects
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
 
     from .conftest import ROOT
 

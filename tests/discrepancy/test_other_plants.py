@@ -7,7 +7,8 @@ import pytest
 from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
 from rehab_hil.effects import applicable
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 from .conftest import ROOT
 

@@ -14,7 +14,8 @@ from rehab_hil.discrepancy.report import report_dict
 from rehab_hil.discrepancy.validation import validate
 from rehab_hil.discrepancy.workflow import Options, Result, find_missing_effects
 from rehab_hil.interchange import read_csv
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "emps"

@@ -65,7 +65,8 @@ def test_a_force_logged_in_whole_adc_counts_is_read_through_the_adc_even_from_a_
     through it too; a continuous force column (a simulation's) is not."""
     from rehab_hil.discrepancy.replay import Replay
     from rehab_hil.interchange import read_csv
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
 
     from .conftest import ROOT
 

@@ -9,7 +9,7 @@ import pytest
 from rehab_hil.cli import main
 from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.interchange import write_csv
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 from .conftest import FE_CONFIG
 

@@ -18,7 +18,8 @@ from rehab_hil.hardware import (
     on_configure,
     open_rig,
 )
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.testing import inprocess_rig
 

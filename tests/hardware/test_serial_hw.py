@@ -13,7 +13,7 @@ from collections.abc import Iterator
 import pytest
 
 from rehab_hil.hardware import Arrival, HardwareError, SerialHardware, configure_from_config, duty_units
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 from rehab_hil.protocol import (
     Ack,
     AckResult,

@@ -9,9 +9,9 @@ import control
 import numpy as np
 import pytest
 
+from rehab_hil.loading import load_config
 from rehab_hil.models.lti import StateSpace1, lti_part, state_space_params
 from rehab_hil.models.system import Diagram, DiagramError
-from rehab_hil.plants import load_config
 from rehab_hil.plants.tcp_finger import table1
 
 DT = 1e-3

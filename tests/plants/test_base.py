@@ -8,9 +8,10 @@ from pathlib import Path
 import pytest
 
 from rehab_hil.effects import applicable, attach
+from rehab_hil.loading import load_config
 from rehab_hil.models.sensors import Gain
 from rehab_hil.models.system import Diagram, DiagramError
-from rehab_hil.plants import compose, get_plant, load_config
+from rehab_hil.plants import compose, get_plant
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 EFFECT = '\n[[effects]]\nname = "coulomb_friction"\nparams = { level_nm = 0.03 }\n'

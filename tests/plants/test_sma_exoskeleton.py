@@ -11,7 +11,8 @@ import pytest
 
 from rehab_hil.analysis.sma_experiments import compile_plant
 from rehab_hil.config import ConfigError
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.plants import sma_exoskeleton as sx
 
 CFG_PATH = Path(__file__).resolve().parents[2] / "configs" / "sma_exoskeleton.toml"

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from rehab_hil.config import ConfigError
+from rehab_hil.loading import load_config
 from rehab_hil.models.system import Diagram
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.plants.base import run_scenario
 from rehab_hil.plants.tcp_finger import (
     JOINTS,

@@ -10,11 +10,12 @@ import pytest
 
 from rehab_hil.config import Field, Section
 from rehab_hil.devices.plant_io import PlantIO
+from rehab_hil.loading import load_config
 from rehab_hil.models.mechanics import RotaryInertia, ViscousFriction
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain
 from rehab_hil.plants import base
-from rehab_hil.plants.base import EncoderSection, Plant, PlantConfig, Scenario, compose, get_plant, load_config
+from rehab_hil.plants.base import EncoderSection, Plant, PlantConfig, Scenario, compose, get_plant
 
 TOY_TOML = """
 plant = "toy_rotor"

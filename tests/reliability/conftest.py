@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 from .link_proxy import LinkProxy
 

@@ -8,7 +8,8 @@ import pytest
 from rehab_hil.cli import main
 from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.interchange import write_csv
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.report.browser import check_page, find_chromium
 from rehab_hil.testing import CONFIGS
 

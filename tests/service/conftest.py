@@ -10,7 +10,8 @@ import pytest
 
 from rehab_hil.devices.spawn import spawn_sim_device
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
 from rehab_hil.service.supervisor import Supervisor

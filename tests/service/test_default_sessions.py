@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.runner import LoopService
 from rehab_hil.testing import CONFIGS, inprocess_rig

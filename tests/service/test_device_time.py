@@ -8,11 +8,11 @@ import random
 
 import pytest
 
+from rehab_hil.control.thermal import FirstOrderThermal
 from rehab_hil.protocol import Status
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State
 from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
-from rehab_hil.service.thermal import FirstOrderThermal
 
 DT = 0.001
 

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from rehab_hil import metrics
+from rehab_hil.control.thermal import FirstOrderThermal
 from rehab_hil.interchange import read_csv
 from rehab_hil.protocol import Status
 from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.runner import LoopService
 from rehab_hil.service.supervisor import Supervisor
-from rehab_hil.service.thermal import FirstOrderThermal
 from rehab_hil.testing import push_runtime
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("service-shared-device")]

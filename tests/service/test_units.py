@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from rehab_hil.control.open_loop import DutyMap
+from rehab_hil.control.thermal import FirstOrderThermal
 from rehab_hil.controllers import Reference
 from rehab_hil.interchange import read_csv
 from rehab_hil.plants.base import AdcChannel
@@ -22,7 +23,6 @@ from rehab_hil.service.loop import DeadlineTimer, realtime_setup, realtime_teard
 from rehab_hil.service.recorder import Record, Recorder, read_mcap
 from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.service.telemetry import NullSink, QueueSink, TelemetrySink
-from rehab_hil.service.thermal import FirstOrderThermal
 
 
 def limits(**kw):

@@ -12,7 +12,8 @@ import math
 from pathlib import Path
 
 from rehab_hil.hardware import Claims, InProcessHardware
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.testing import inprocess_rig
 

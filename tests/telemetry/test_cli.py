@@ -12,7 +12,8 @@ import zenoh
 
 from rehab_hil.cli import main
 from rehab_hil.interchange import read_csv
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import Record

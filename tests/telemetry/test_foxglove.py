@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 
 from rehab_hil.cli import main
 from rehab_hil.config import ConfigError
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator

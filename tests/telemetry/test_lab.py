@@ -17,7 +17,8 @@ import zenoh
 from mcap.reader import make_reader
 
 from rehab_hil.cli import main
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Sample
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import Estimator

@@ -11,7 +11,8 @@ import pytest
 import zenoh
 
 from rehab_hil.hardware.interface import LinkStats
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service.supervisor import SafetyEvent
 from rehab_hil.telemetry import NetworkConfig, TelemetryConfigError, open_session, query_info, subscribe
 from rehab_hil.telemetry.cliargs import PASSWORD_ENV, add_network_args, network_from_args

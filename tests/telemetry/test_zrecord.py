@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import Recorder, read_mcap

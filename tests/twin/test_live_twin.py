@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from rehab_hil.config import TwinSection
 from rehab_hil.plants.base import EffectSpec
 from rehab_hil.twin.live import LiveTwin, Twin
-from rehab_hil.twin.settings import TwinSection
 
 from .conftest import CONFIGS, plant_records
 

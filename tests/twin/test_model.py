@@ -7,10 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rehab_hil.plants.base import get_plant, load_config
+from rehab_hil.config import TwinSection
+from rehab_hil.loading import load_config
+from rehab_hil.plants.base import get_plant
 from rehab_hil.twin.live import Twin
 from rehab_hil.twin.model import TwinModel, TwinSetupError
-from rehab_hil.twin.settings import TwinSection
 
 from .conftest import CONFIGS, plant_records
 

@@ -17,10 +17,10 @@ import numpy as np
 
 from rehab_hil.analysis.contact_regression import ContactFit, fit_contact
 from rehab_hil.analysis.torque_decomposition import compare, decompose
+from rehab_hil.loading import load_config
 from rehab_hil.models.finger_chain import COUPLING, chain_param_vector
 from rehab_hil.models.hill_muscle import paper_literal_force_n, passive_length_factor
 from rehab_hil.models.system import CompiledSystem, Diagram, SimulationResult
-from rehab_hil.plants import load_config
 from rehab_hil.plants import sma_exoskeleton as sx
 
 __all__ = [

@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
     if args.config is None or args.sensor_id is None or args.weights_g is None:
         raise UserError("calibrate force needs --config, --sensor-id and --weights-g (or --points CSV)")
     from rehab_hil.cli.doctor import open_for_checks
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
 
     cfg = load_config(args.config)
     binding = get_plant(cfg.plant).device(cfg)

@@ -51,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
     from rehab_hil.report.discrepancy import discrepancy_page
     from rehab_hil.rig_recording import load_recording
 

@@ -327,7 +327,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli.flash import expected_firmware_version
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
 
     cfg = load_config(args.config)
     if not 0 < args.seconds <= 600 or not 0 < args.timeout <= 600:

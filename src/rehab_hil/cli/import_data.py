@@ -27,7 +27,8 @@ def run(args: argparse.Namespace) -> int:
     rec = read_mapped(args.data, mapping, source)
     if args.config is not None:  # the signals must be the plant's: check them before writing
         from rehab_hil.cli import UserError
-        from rehab_hil.plants import get_plant, load_config
+        from rehab_hil.loading import load_config
+        from rehab_hil.plants import get_plant
 
         cfg = load_config(args.config)
         spec = get_plant(cfg.plant)

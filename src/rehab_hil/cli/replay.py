@@ -23,7 +23,8 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli.data_path import missing_channels, resolve_data
     from rehab_hil.discrepancy.replay import Replay, channel_metrics, check_recording
     from rehab_hil.interchange import write_csv
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
     from rehab_hil.rig_recording import load_recording
 
     cfg = load_config(args.config)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from rehab_hil.cli import UserError
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

@@ -10,7 +10,8 @@ from typing import Any
 
 from rehab_hil.cli import UserError
 from rehab_hil.interchange import write_csv
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 from rehab_hil.plants.base import run_scenario, scheduled
 
 

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from rehab_hil.cli import UserError
-from rehab_hil.plants import load_config
+from rehab_hil.loading import load_config
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

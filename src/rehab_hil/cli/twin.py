@@ -56,13 +56,14 @@ def _config_path(args: argparse.Namespace, meta: Path | None) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli import UserError, writable_folder
-    from rehab_hil.plants.base import get_plant, load_config
+    from rehab_hil.config import TwinSection
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants.base import get_plant
     from rehab_hil.twin.diagnosis import diagnose
     from rehab_hil.twin.live import Twin, normal_residual_text
     from rehab_hil.twin.model import TwinSetupError
     from rehab_hil.twin.offline import replay_run
     from rehab_hil.twin.session import model_event
-    from rehab_hil.twin.settings import TwinSection
 
     csv, meta = _paths(args.run)
     cfg_path = _config_path(args, meta)

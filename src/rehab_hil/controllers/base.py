@@ -25,11 +25,13 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from rehab_hil.config import ConfigError, Section
+from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.control.trajectories import OpenCloseReference, StepReference, open_close_reference
 from rehab_hil.interfaces import Claims
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import Diagram, DiagramError, Part, SimulationResult
 from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
+from rehab_hil.session_metrics import cycle_metrics, session_summary
 
 __all__ = [
     "DT",
@@ -348,9 +350,6 @@ def offline_session(controller: Controller, cycles: int = 3, plant_cfg: Any = No
                     outputs: Sequence[str] = ()) -> tuple[SimulationResult, dict[str, float]]:
     """``cycles`` open-close cycles of the controller on the model (after its rest at closed) and
     the per-cycle figures of all but the first (from rest), as a session reports them."""
-    from rehab_hil.service.thermal import thermal_from_config
-    from rehab_hil.session_metrics import cycle_metrics, session_summary
-
     ref, ctx = controller.reference, controller.ctx
     cfg = ctx.cfg if plant_cfg is None else plant_cfg
     res = closed_loop(controller, ref.first_open_s + cycles * ref.period_s, plant_cfg=plant_cfg, outputs=outputs)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.config import ConfigError, validate
+from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.controllers.base import (
     ControlContext,
     Controller,
@@ -23,7 +24,6 @@ from rehab_hil.controllers.base import (
     closed_loop,
     get_controller,
 )
-from rehab_hil.service.thermal import thermal_from_config
 
 __all__ = ["PREFLIGHT_MAX_S", "build_controller", "preflight", "settings_for", "validate_controllers"]
 

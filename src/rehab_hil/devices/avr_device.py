@@ -213,7 +213,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from rehab_hil.config import ConfigError
-    from rehab_hil.plants import get_plant, load_config
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
 
     harness, elf = default_paths()
     harness, elf = args.harness or harness, args.elf or elf

@@ -323,7 +323,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     device_argv = args.device_argv[1:] if args.device_argv[:1] == ["--"] else args.device_argv
     from rehab_hil.config import ConfigError
-    from rehab_hil.plants import load_config
+    from rehab_hil.loading import load_config
 
     try:
         _, params = link_params(load_config(args.config))

@@ -15,7 +15,8 @@ from rehab_hil.discrepancy.parameters import corrected_config_text
 from rehab_hil.discrepancy.result import Result, parameter_sentence
 from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.effects import EFFECTS
-from rehab_hil.plants import get_plant, load_config
+from rehab_hil.loading import load_config
+from rehab_hil.plants import get_plant
 
 __all__ = ["SCHEMA", "augmented_toml", "report_dict", "write_report"]
 

@@ -80,7 +80,7 @@ def _spawn(kind: str, config_path: str | Path, lockstep: bool, extra_args: list[
 
 
 def _config(config_path: str | Path) -> Any:
-    from rehab_hil.plants import load_config
+    from rehab_hil.loading import load_config
 
     return load_config(config_path)
 

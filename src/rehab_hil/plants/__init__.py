@@ -8,11 +8,10 @@ from rehab_hil.plants.base import (
     Scenario,
     compose,
     get_plant,
-    load_config,
     plant_names,
     plants,
     run_scenario,
 )
 
-__all__ = ["DeviceBinding", "Plant", "PlantConfig", "Scenario", "compose", "get_plant", "load_config",
+__all__ = ["DeviceBinding", "Plant", "PlantConfig", "Scenario", "compose", "get_plant",
            "plant_names", "plants", "run_scenario"]

@@ -15,22 +15,19 @@ import importlib
 import pkgutil
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
-from rehab_hil.config import ConfigError, Field, RigSection, Section, SimulationSection, load_toml, model_validator
-from rehab_hil.config import validate as validate_config
+from rehab_hil.config import Field, RigSection, Section, SimulationSection, TwinSection, model_validator
 from rehab_hil.control.cascade import RecordedControllerSection
-from rehab_hil.effects import EFFECTS, applicable, attach, check_spec, not_applicable_message
+from rehab_hil.effects import EFFECTS, applicable, attach, check_spec
 from rehab_hil.importing import ImportMapping
 from rehab_hil.interfaces import CommandInterface, StateInterface
 from rehab_hil.models.ports import MeasuredPort, Ports
 from rehab_hil.models.schedule import Schedule, ScheduleError, Timing, build_schedule
 from rehab_hil.models.system import Diagram, Part, SimulationResult
-from rehab_hil.twin.settings import TwinSection
 
 __all__ = [
     "AdcChannel",
@@ -47,7 +44,6 @@ __all__ = [
     "Scenario",
     "compose",
     "get_plant",
-    "load_config",
     "multisine",
     "plant_names",
     "plants",
@@ -537,41 +533,6 @@ def get_plant(name: str) -> type[Plant]:
         hint = f" (did you mean {near[0]!r}?)" if near else ""
         raise KeyError(f"unknown plant {name!r}{hint}; known: {sorted(known)}")
     return known[name]
-
-
-def load_config(path: str | Path, expect: str | None = None) -> Any:
-    """Load a plant config; its top-level ``plant`` key selects the schema. Errors name file and key."""
-    known = plants()
-    data = load_toml(path)
-    plant = data.get("plant")
-    if plant is None:
-        raise ConfigError(path, "plant", f"missing key (one of {sorted(known)})")
-    if not isinstance(plant, str) or plant not in known:
-        raise ConfigError(path, "plant", f"unknown plant {plant!r}; known plants: {sorted(known)}")
-    if expect is not None and plant != expect:
-        raise ConfigError(path, "plant", f"this command needs a {expect!r} config, the file is {plant!r}")
-    cls = known[plant]
-    cfg = validate_config(path, data, cls.config)
-    ref = cfg.rig.force_calibration
-    if ref is not None:  # resolved against the config's directory and checked now, not mid-session
-        from rehab_hil.calibration import calibration_for
-
-        resolved = ref if Path(ref).is_absolute() else str((Path(path).parent / ref).resolve())
-        cfg = cfg.model_copy(update={"rig": cfg.rig.model_copy(update={"force_calibration": resolved})})
-        calibration_for(cfg, path)
-    ports = cls.ports(cfg)
-    ok = {e.name for e in applicable(ports)}
-    for i, e in enumerate(cfg.effects):
-        if e.name not in ok:
-            raise ConfigError(path, f"effects.{i}.name", not_applicable_message(e.name, plant, ports))
-    if scheduled(cfg):  # checked now (keys, values, structure), not when a simulated rig starts
-        try:
-            cls.device(cfg)
-        except ScheduleError as e:
-            raise ConfigError(path, e.key, e.message) from None
-    from rehab_hil.controllers.build import validate_controllers  # controllers build on plants
-
-    return validate_controllers(cfg, path)
 
 
 def run_scenario(spec: type[Plant], cfg: Any, scenario: Scenario,

@@ -9,13 +9,16 @@ import dataclasses
 from typing import Any
 
 from rehab_hil.calibration import force_limit_counts
+from rehab_hil.config import ConfigError
+from rehab_hil.control.thermal import thermal_from_config
+from rehab_hil.controllers import ControllerError, Reference
+from rehab_hil.controllers import build_controller as build
 from rehab_hil.hardware.interface import configure_from_config
 from rehab_hil.plants.base import DeviceBinding, get_plant
 from rehab_hil.protocol import Configure
 from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
-from rehab_hil.service.thermal import thermal_from_config
 from rehab_hil.session_metrics import SessionMeter
 
 __all__ = ["REFERENCES", "ServiceSetupError", "build_controller", "build_estimator", "build_meter", "build_supervisor",
@@ -42,10 +45,6 @@ def build_controller(cfg: Any, name: str | None = None, reference: str = "sessio
     """The controller ``name`` (default: ``[rig.session] controller``) built for the config's
     plant (``rehab_hil.controllers``: refused in one line if it does not apply) and ready for the
     loop; ``reference`` is the session's cycles or a step to ``[rig.session] step_deg``."""
-    from rehab_hil.config import ConfigError
-    from rehab_hil.controllers import ControllerError, Reference
-    from rehab_hil.controllers import build_controller as build
-
     if cfg.rig.session is None:
         raise ServiceSetupError("the config has no [rig.session] table (what `rehab-hil run` does)")
     if reference not in REFERENCES:

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from rehab_hil.controllers.base import DT
 from rehab_hil.interfaces import Claims
 from rehab_hil.plants.base import DeviceBinding, DutyInput
 from rehab_hil.service.estimation import State
@@ -92,8 +93,6 @@ class ControllerRuntime:
     allocation per step beyond the returned command."""
 
     def __init__(self, controller: Any) -> None:
-        from rehab_hil.controllers.base import DT
-
         ctx = controller.ctx
         self.controller = controller
         self.claims = controller.claims

@@ -16,10 +16,10 @@ import logging
 import math
 from dataclasses import dataclass
 
+from rehab_hil.control.thermal import ModalThermal
 from rehab_hil.protocol import Fault, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command
 from rehab_hil.service.estimation import State
-from rehab_hil.service.thermal import ModalThermal
 
 __all__ = ["SafetyEvent", "Supervisor", "SupervisorLimits"]
 

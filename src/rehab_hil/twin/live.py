@@ -27,12 +27,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from rehab_hil.config import TwinSection
 from rehab_hil.interchange import Recording
 from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
 from rehab_hil.twin.model import TwinModel, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
-from rehab_hil.twin.settings import TwinSection
 
 __all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener", "patient_column"]
 

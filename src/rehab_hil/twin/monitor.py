@@ -22,18 +22,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from rehab_hil.config import MonitorSettings  # the [twin] table's knobs, defined beside it
+
 __all__ = ["MismatchEvent", "MonitorSettings", "ResidualMonitor"]
-
-
-@dataclass(frozen=True)
-class MonitorSettings:
-    """The test's knobs (``[twin]`` in a plant config; units in the names)."""
-
-    learn_s: float = 10.0  # the normal residual level is learned over this long
-    settle_s: float = 1.0  # ... after this much of the session (the first anchoring, homing)
-    drift_sigma: float = 4.0  # allowed excess over the normal level, in its spreads
-    min_excess_counts: float = 0.4  # ... and at least this many counts (a noiseless simulation has no spread)
-    threshold_counts: float = 1.5  # the CUSUM's alarm level, in counts x segments
 
 
 @dataclass

@@ -9,12 +9,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.config import TwinSection
 from rehab_hil.plants.base import DeviceBinding, get_plant
 from rehab_hil.twin.live import LiveTwin, Twin
 from rehab_hil.twin.model import TwinSetupError
 from rehab_hil.twin.monitor import MismatchEvent
 from rehab_hil.twin.outputs import FoxgloveOutput, RecordingOutput, ZenohOutput
-from rehab_hil.twin.settings import TwinSection
 
 __all__ = ["TwinRun", "start_twin"]
 
