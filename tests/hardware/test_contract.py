@@ -111,6 +111,24 @@ def test_lifecycle_states_and_calls_in_the_wrong_state(cfg, binding) -> None:
         hw.connect()
 
 
+def test_deactivate_stops_the_in_process_device_streaming_and_driving(cfg, binding) -> None:
+    """ACTIVE -> INACTIVE on the device's own logic: not streaming, PWM off, max duty 0, the
+    session's limits kept; configure() activates again."""
+    session = assembly.firmware_configure(cfg, binding)
+    hw = inprocess_rig(CONFIG)
+    hw.write_command(0.5)
+    assert hw.read() is not None and hw.core.streaming and hw.core.duty != [0, 0]
+    hw.deactivate()
+    assert hw.state is LifecycleState.INACTIVE and not hw.core.streaming and hw.core.duty == [0, 0]
+    assert hw.core.config == dataclasses.replace(session, sample_rate_hz=0, max_duty=0)
+    with pytest.raises(HardwareError, match=r"write_command: the hardware is inactive; call configure\(\) first"):
+        hw.write_command(0.5)
+    hw.configure(session)
+    hw.write_command(0.0)
+    assert hw.state is LifecycleState.ACTIVE and hw.read() is not None
+    hw.close()
+
+
 def test_a_serial_hardware_before_connect_refuses_commands() -> None:
     hw = SerialHardware("/dev/null-not-opened")
     assert hw.state is LifecycleState.UNCONFIGURED

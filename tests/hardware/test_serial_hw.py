@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from rehab_hil.hardware import Arrival, HardwareError, SerialHardware, configure_from_config, duty_units
+from rehab_hil.hardware import Arrival, HardwareError, LifecycleState, SerialHardware, configure_from_config, duty_units
 from rehab_hil.loading import load_config
 from rehab_hil.protocol import (
     Ack,
@@ -200,6 +200,32 @@ def test_configure_refused_by_the_device_raises(peer: PtyPeer) -> None:
     _answer(peer, lambda f: Ack(Configure.TYPE, f.seq, AckResult.BAD_PARAMETER))
     with pytest.raises(HardwareError, match="refused"):
         hw.configure(Configure(1000, 0, 10000, 1000, 1023, -1, 1, 0))
+    hw.close()
+
+
+def test_deactivate_stops_streaming_and_pwm_with_the_limits_kept(peer: PtyPeer) -> None:
+    """ACTIVE -> INACTIVE: one CONFIGURE at rate 0 and max duty 0 with the session's other fields,
+    acknowledged; commands are refused until the next configure."""
+    hw = _connected(peer)
+    with pytest.raises(HardwareError, match="no CONFIGURE acknowledged yet"):
+        hw.deactivate()  # nothing to take the limits from
+    session = Configure(1000, 50, 8000, 1000, 700, -28, 723, Configure.FLAG_ESTOP_INPUT, 3, 2000)
+    _answer(peer, lambda f: Ack(Configure.TYPE, f.seq, AckResult.OK))
+    hw.configure(session)
+    seen: list[Configure] = []
+    _answer(peer, lambda f: seen.append(f.msg) or Ack(Configure.TYPE, f.seq, AckResult.OK))
+    hw.deactivate(timeout=2.0)
+    assert seen == [Configure(0, 50, 0, 1000, 700, -28, 723, Configure.FLAG_ESTOP_INPUT, 3, 2000)]
+    assert hw.state is LifecycleState.INACTIVE
+    with pytest.raises(HardwareError, match=r"write_command: the hardware is inactive; call configure\(\) first"):
+        hw.write_command(0.1)
+    wide = Configure(1000, 50, 8000, 1000, 1023, -10**6, 10**6)  # or the limits of a given CONFIGURE
+    _answer(peer, lambda f: seen.append(f.msg) or Ack(Configure.TYPE, f.seq, AckResult.OK))
+    hw.deactivate(wide, timeout=2.0)
+    assert seen[-1] == Configure(0, 50, 0, 1000, 1023, -10**6, 10**6) and hw.state is LifecycleState.INACTIVE
+    _answer(peer, lambda f: Ack(Configure.TYPE, f.seq, AckResult.BAD_PARAMETER))
+    with pytest.raises(HardwareError, match="refused"):
+        hw.deactivate(timeout=2.0)
     hw.close()
 
 

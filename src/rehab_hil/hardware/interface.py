@@ -2,14 +2,16 @@
 
 Lifecycle (``LifecycleState``): UNCONFIGURED --``connect()`` (open the link, HELLO)--> INACTIVE
 --``configure()`` (rate, watchdog, limits: ACK)--> ACTIVE (each cycle ``read()`` /
-``write_command()``; ``estop()`` / ``clear()`` on faults) --``close()``--> FINALIZED. A call made
-in the wrong state raises ``HardwareError`` naming the state and the missing step.
+``write_command()``; ``estop()`` / ``clear()`` on faults) --``deactivate()`` (PWM off, streaming
+stopped, limits kept: ACK)--> INACTIVE; any state --``close()``--> FINALIZED. A call made in the
+wrong state raises ``HardwareError`` naming the state and the missing step.
 Implementations: ``SerialHardware`` (any serial path, incl. the ptys of the simulated devices) and
 ``InProcessHardware`` (the device's firmware logic and a plant model in this process).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from abc import ABC, abstractmethod
@@ -34,7 +36,7 @@ class LifecycleState(enum.Enum):
     """Where a ``HardwareInterface`` is in its lifecycle (ros2_control's node states)."""
 
     UNCONFIGURED = "unconfigured"  # created; the link is not open
-    INACTIVE = "inactive"  # connected: the device's HELLO is known; no CONFIGURE acknowledged yet
+    INACTIVE = "inactive"  # connected (the device's HELLO is known), not streaming: not configured yet, or deactivated
     ACTIVE = "active"  # configured: the device streams and takes commands
     FINALIZED = "finalized"  # closed; terminal
 
@@ -170,6 +172,7 @@ class HardwareInterface(ABC):
         self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
         self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result
         self._last_index: int | None = None  # sample_index of the last SAMPLE (gap accounting)
+        self._configured: Configure | None = None  # the last CONFIGURE acknowledged (deactivate keeps its limits)
 
     def _received_sample(self, now: float, msg: Sample) -> None:
         """Book one SAMPLE: counted, queued with the samples missing before it. Gaps and device
@@ -217,6 +220,22 @@ class HardwareInterface(ABC):
         self._require_connected("configure")
         self._configure(config, timeout)
         self.state = LifecycleState.ACTIVE
+
+    def deactivate(self, config: Configure | None = None, timeout: float = 1.0) -> None:
+        """ros2_control's on_deactivate: PWM off and streaming stopped, the link and the device's
+        safety limits kept; ``configure()`` activates again. ACTIVE or INACTIVE -> INACTIVE (a device
+        still streaming for an earlier connection stops too).
+
+        The device's one way to stop streaming is a CONFIGURE at rate 0; it goes with max duty 0,
+        so no COMMAND can drive until the next ``configure()``, and the other fields (watchdog,
+        heating time, force and range limits) of ``config``, else of the last CONFIGURE acknowledged.
+        Raises ``HardwareError`` if there is neither, or the device refuses."""
+        self._require_connected("deactivate")
+        limits = config if config is not None else self._configured
+        if limits is None:
+            raise HardwareError("deactivate: no CONFIGURE acknowledged yet to take the limits from; pass one")
+        self._configure(dataclasses.replace(limits, sample_rate_hz=0, max_duty=0), timeout)
+        self.state = LifecycleState.INACTIVE
 
     @abstractmethod
     def read(self, timeout: float | None = None) -> Arrival | None:
@@ -291,6 +310,7 @@ class HardwareInterface(ABC):
             raise HardwareError(f"device refused CONFIGURE {config} (ACK result {result})"
                                 + _cpr_hint(self.info, config))
         self._last_index = None  # the stream restarts: no gap accounting across it
+        self._configured = config
 
     # ---- lifecycle guards ---------------------------------------------------------------------
 

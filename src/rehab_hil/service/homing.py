@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rehab_hil.hardware.interface import HardwareError, HardwareInterface, duty_units
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import Configure, Fault, Sample
 
 __all__ = ["BACK_DEG", "HOME_MODES", "HomingResult", "home", "home_count", "home_current", "home_hard_stop"]
@@ -60,10 +60,9 @@ def _fresh(hw: HardwareInterface, timeout_s: float) -> Sample:
 
 def home_current(hw: HardwareInterface, session: Configure, binding: DeviceBinding, angle_deg: float = 0.0,
                  timeout_s: float = 2.0) -> HomingResult:
-    """Give the present pose the count of ``angle_deg``: CONFIGURE with max duty 0 (nothing can move,
-    so the old frame's range of motion cannot trip on the jump), then SET_ENCODER."""
-    hw.configure(dataclasses.replace(session, sample_rate_hz=0, max_duty=0, enc_min=-WIDE, enc_max=WIDE),
-                 timeout=timeout_s)
+    """Give the present pose the count of ``angle_deg``: deactivate (max duty 0: nothing can move) with
+    the range of motion wide open (the old frame's cannot trip on the jump), then SET_ENCODER."""
+    hw.deactivate(dataclasses.replace(session, enc_min=-WIDE, enc_max=WIDE), timeout=timeout_s)
     count = home_count(binding, angle_deg)
     hw.set_encoder(count, timeout=timeout_s)
     return HomingResult("current", count)
