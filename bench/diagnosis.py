@@ -30,7 +30,7 @@ import numpy as np
 from rehab_hil.discrepancy.verdict import unexplained_channels
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.plants.base import EffectSpec
+from rehab_hil.plants.sections import EffectSpec
 from rehab_hil.twin.diagnosis import changed_window, diagnose
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,8 @@ from rehab_hil.effects import EFFECTS, applicable, attach, check_spec, parse_eff
 from rehab_hil.loading import load_config
 from rehab_hil.models.effect_parts import DELAY_SLOTS, Backlash, ContactSpringDamper, TransportDelay
 from rehab_hil.models.system import Diagram, DiagramError
-from rehab_hil.plants import base, get_plant
+from rehab_hil.plants import get_plant
+from rehab_hil.plants.sections import EffectSpec
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -164,7 +165,7 @@ def test_every_applicable_effect_at_zero_magnitude_leaves_the_nominal_response_u
         e.name for e in effects}  # the mechanical effects attach to every plant with an axis and an encoder
     scenario, duration = SHORT[plant]
     nominal = run_scenario(spec, cfg, spec.scenarios[scenario](cfg, duration))
-    off = [base.EffectSpec(name=e.name, params=e.disabled()) for e in effects]
+    off = [EffectSpec(name=e.name, params=e.disabled()) for e in effects]
     res = run_scenario(spec, cfg.model_copy(update={"effects": off}), spec.scenarios[scenario](cfg, duration))
     for name in spec.outputs:
         if name in nominal.signals:

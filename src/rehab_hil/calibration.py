@@ -28,7 +28,8 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from rehab_hil.config import ConfigError, Section, load_toml, validate
-from rehab_hil.plants.base import DeviceBinding, get_plant
+from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.plants.registry import get_plant
 
 __all__ = ["ADC_MAX", "CIRCUITS", "G0", "REFERENCE_KEY", "Calibration", "CalibrationFile", "CalibrationPoint",
            "ForceLimitError", "calibration_for", "calibration_summary", "fit_calibration", "force_limit_counts",

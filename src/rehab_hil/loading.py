@@ -18,7 +18,8 @@ from rehab_hil.config import validate as validate_config
 from rehab_hil.controllers.build import validate_controllers
 from rehab_hil.effects import applicable, not_applicable_message
 from rehab_hil.models.schedule import ScheduleError
-from rehab_hil.plants.base import plants, scheduled
+from rehab_hil.plants.changes import scheduled
+from rehab_hil.plants.registry import plants
 
 __all__ = ["load_config"]
 

@@ -35,7 +35,7 @@ def _hardware_modules_loaded_by(module: str) -> list[str]:
 
 
 def test_every_plant_module_is_checked():
-    assert {"rehab_hil.plants.base", "rehab_hil.plants.finger_extensor", "rehab_hil.plants.sma_exoskeleton",
+    assert {"rehab_hil.plants.registry", "rehab_hil.plants.finger_extensor", "rehab_hil.plants.sma_exoskeleton",
             "rehab_hil.plants.tcp_finger"} <= set(PLANT_MODULES)
 
 

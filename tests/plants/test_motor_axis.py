@@ -11,7 +11,7 @@ import pytest
 from rehab_hil.config import ConfigError, load_toml
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant, run_scenario
-from rehab_hil.plants.base import Scenario
+from rehab_hil.plants.experiments import Scenario
 from rehab_hil.plants.motor_axis import MotorAxisConfig, axis_values
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -14,8 +14,10 @@ from rehab_hil.loading import load_config
 from rehab_hil.models.mechanics import RotaryInertia, ViscousFriction
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain
-from rehab_hil.plants import base
-from rehab_hil.plants.base import EncoderSection, Plant, PlantConfig, Scenario, compose, get_plant
+from rehab_hil.plants import registry
+from rehab_hil.plants.experiments import Scenario
+from rehab_hil.plants.registry import Plant, compose, get_plant
+from rehab_hil.plants.sections import EffectSpec, EncoderSection, PlantConfig
 
 TOY_TOML = """
 plant = "toy_rotor"
@@ -107,17 +109,17 @@ class ToyRotor(Plant, register=False):
 @pytest.fixture
 def toy(tmp_path):
     """The toy plant registered (as a plant module's class statement would) for one test."""
-    base._REGISTRY[ToyRotor.name] = ToyRotor
+    registry._REGISTRY[ToyRotor.name] = ToyRotor
     path = tmp_path / "toy.toml"
     path.write_text(TOY_TOML)
     yield path
-    del base._REGISTRY[ToyRotor.name]
+    del registry._REGISTRY[ToyRotor.name]
 
 
 def test_a_registered_toy_plant_loads_and_simulates_to_its_analytic_speed(toy):
     cfg = load_config(toy)
     assert isinstance(cfg, ToyConfig) and get_plant("toy_rotor") is ToyRotor
-    res = base.run_scenario(ToyRotor, cfg, ToyRotor.scenarios["spin"](cfg, 2.0))
+    res = registry.run_scenario(ToyRotor, cfg, ToyRotor.scenarios["spin"](cfg, 2.0))
     speed = np.gradient(np.deg2rad(res["rotor_angle_deg"]), res.t)[-10]
     assert speed == pytest.approx(0.02 / cfg.rotor.damping_nm_s_per_rad, rel=0.02)  # T / b after 20 tau
 
@@ -127,8 +129,8 @@ def test_library_effects_attach_to_the_toy_plant_through_its_ports(toy):
     assert {"coulomb_friction", "viscous_friction", "backlash", "time_delay",
             "contact_spring_damper"} <= set(ToyRotor.applicable_effects(cfg))
     assert "sma_hysteresis" not in ToyRotor.applicable_effects(cfg)
-    stuck = cfg.model_copy(update={"effects": [base.EffectSpec(name="coulomb_friction", params={"level_nm": 0.03})]})
-    res = base.run_scenario(ToyRotor, stuck, ToyRotor.scenarios["spin"](stuck))
+    stuck = cfg.model_copy(update={"effects": [EffectSpec(name="coulomb_friction", params={"level_nm": 0.03})]})
+    res = registry.run_scenario(ToyRotor, stuck, ToyRotor.scenarios["spin"](stuck))
     assert np.ptp(res["rotor_angle_deg"]) < 1e-6  # 0.02 N m cannot break 0.03 N m of stiction
 
 

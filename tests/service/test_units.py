@@ -15,7 +15,7 @@ from rehab_hil.control.open_loop import DutyMap
 from rehab_hil.control.thermal import FirstOrderThermal
 from rehab_hil.controllers import Reference
 from rehab_hil.interchange import read_csv
-from rehab_hil.plants.base import AdcChannel
+from rehab_hil.interfaces import AdcChannel
 from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service.controllers import Actuator, Command
 from rehab_hil.service.estimation import Estimator, State, adc_to_si, unwrap_delta

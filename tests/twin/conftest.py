@@ -11,7 +11,7 @@ import numpy as np
 
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.loading import load_config
-from rehab_hil.plants.base import get_plant
+from rehab_hil.plants.registry import get_plant
 from rehab_hil.protocol import DUTY_FULL
 from rehab_hil.service.estimation import Estimator
 

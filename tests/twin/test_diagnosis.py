@@ -15,7 +15,7 @@ from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.interchange import Recording
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.plants.base import EffectSpec
+from rehab_hil.plants.sections import EffectSpec
 from rehab_hil.twin.diagnosis import changed_window, diagnose, rig_channels
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"

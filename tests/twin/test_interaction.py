@@ -14,7 +14,7 @@ import pytest
 from rehab_hil.cli import main
 from rehab_hil.interchange import read_csv
 from rehab_hil.loading import load_config
-from rehab_hil.plants.base import get_plant
+from rehab_hil.plants.registry import get_plant
 from rehab_hil.testing import CONFIGS, config_with_changes
 from rehab_hil.twin.interaction import resolve_parameters
 from rehab_hil.twin.model import TwinModel, TwinSetupError

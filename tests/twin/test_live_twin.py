@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from rehab_hil.config import TwinSection
-from rehab_hil.plants.base import EffectSpec
+from rehab_hil.plants.sections import EffectSpec
 from rehab_hil.twin.live import LiveTwin, Twin
 
 from .conftest import CONFIGS, plant_records

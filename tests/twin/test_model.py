@@ -9,7 +9,7 @@ import pytest
 
 from rehab_hil.config import TwinSection
 from rehab_hil.loading import load_config
-from rehab_hil.plants.base import get_plant
+from rehab_hil.plants.registry import get_plant
 from rehab_hil.twin.live import Twin
 from rehab_hil.twin.model import TwinModel, TwinSetupError
 

@@ -12,7 +12,8 @@ from rehab_hil.cli import UserError
 from rehab_hil.interchange import write_csv
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.plants.base import run_scenario, scheduled
+from rehab_hil.plants.changes import scheduled
+from rehab_hil.plants.registry import run_scenario
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -110,7 +111,7 @@ def _with_effects(cfg: Any, options: list[str]) -> Any:
     """The config with the ``--effect`` options appended to its ``effects`` list."""
     from rehab_hil.effects import applicable, not_applicable_message, parse_effect_option
     from rehab_hil.plants import get_plant
-    from rehab_hil.plants.base import EffectSpec
+    from rehab_hil.plants.sections import EffectSpec
 
     added = []
     ports = get_plant(cfg.plant).ports(cfg)

@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli import UserError, writable_folder
     from rehab_hil.config import TwinSection
     from rehab_hil.loading import load_config
-    from rehab_hil.plants.base import get_plant
+    from rehab_hil.plants.registry import get_plant
     from rehab_hil.twin.diagnosis import diagnose
     from rehab_hil.twin.live import Twin, normal_residual_text
     from rehab_hil.twin.model import TwinSetupError

@@ -27,10 +27,10 @@ import numpy as np
 from rehab_hil.config import ConfigError, Section
 from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.control.trajectories import OpenCloseReference, StepReference, open_close_reference
-from rehab_hil.interfaces import Claims
+from rehab_hil.interfaces import Claims, DeviceBinding
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import Diagram, DiagramError, Part, SimulationResult
-from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
+from rehab_hil.plants.registry import Plant, get_plant
 from rehab_hil.session_metrics import cycle_metrics, session_summary
 
 __all__ = [

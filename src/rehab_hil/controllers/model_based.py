@@ -30,7 +30,7 @@ from rehab_hil.controllers.observer import OBSERVER, temperature_signal, thermal
 from rehab_hil.controllers.pid import PID, feedback_parts, limit_part
 from rehab_hil.controllers.reachable import reachable_range
 from rehab_hil.models.sensors import Gain
-from rehab_hil.plants.base import compose
+from rehab_hil.plants.registry import compose
 
 __all__ = ["ModelBased", "ModelBasedSettings"]
 

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.models.system import Diagram
-from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.protocol import BASE_RATE_HZ, DUTY_FULL
 
 __all__ = ["PlantIO"]

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rehab_hil.effects import EffectParam
-from rehab_hil.plants.base import FitParameter
+from rehab_hil.plants.experiments import FitParameter
 
 if TYPE_CHECKING:
     from rehab_hil.discrepancy.replay import Replay

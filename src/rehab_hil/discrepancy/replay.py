@@ -23,7 +23,7 @@ from rehab_hil.effects import Effect, applicable, attach
 from rehab_hil.interchange import CsvError, Recording
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import CompiledSystem, Diagram
-from rehab_hil.plants.base import Plant, compose, plants
+from rehab_hil.plants.registry import Plant, compose, plants
 
 __all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "NOISY_SPREAD", "Replay", "check_recording",
            "on_adc_grid"]

@@ -17,7 +17,7 @@ import numpy as np
 
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.interchange import Recording
-from rehab_hil.plants.base import Plant
+from rehab_hil.plants.registry import Plant
 
 __all__ = ["hidden_effect_recording"]
 

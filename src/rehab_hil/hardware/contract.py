@@ -28,7 +28,7 @@ class ContractError(HardwareError):
 
 
 class Binding(Protocol):
-    """What ``on_configure`` reads of a plant's rig binding (``rehab_hil.plants.base.DeviceBinding``)."""
+    """What ``on_configure`` reads of a plant's rig binding (``rehab_hil.interfaces.DeviceBinding``)."""
 
     @property
     def state_interfaces(self) -> tuple[StateInterface, ...]: ...

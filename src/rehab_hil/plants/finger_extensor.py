@@ -36,7 +36,9 @@ from rehab_hil.models.mechanics import CoulombFriction, HardStop, RotaryInertia,
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain, QuadratureEncoder
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import EncoderSection, Excitation, FitParameter, Plant, PlantConfig, Scenario, multisine
+from rehab_hil.plants.experiments import Excitation, FitParameter, Scenario, multisine
+from rehab_hil.plants.registry import Plant
+from rehab_hil.plants.sections import EncoderSection, PlantConfig
 
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control

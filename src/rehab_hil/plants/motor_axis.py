@@ -29,7 +29,9 @@ from rehab_hil.models.mechanics import CoulombFriction, RotaryInertia, ViscousFr
 from rehab_hil.models.ports import ActuatorPort, AxisPort, MeasuredPort, Ports, Wire
 from rehab_hil.models.sensors import Gain
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import FitParameter, Plant, PlantConfig, Scenario
+from rehab_hil.plants.experiments import FitParameter, Scenario
+from rehab_hil.plants.registry import Plant
+from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["MotorAxis", "MotorAxisConfig", "axis_values", "build", "ports"]
 

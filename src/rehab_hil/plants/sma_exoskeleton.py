@@ -28,16 +28,9 @@ from rehab_hil.models.sensors import Gain
 from rehab_hil.models.sma_tanaka import SMATanakaWire
 from rehab_hil.models.sma_thermal import SMAThermal
 from rehab_hil.models.system import Part, SimulationResult
-from rehab_hil.plants.base import (
-    EncoderSection,
-    Excitation,
-    FitParameter,
-    ForceSensorSection,
-    Plant,
-    PlantConfig,
-    Scenario,
-    random_levels,
-)
+from rehab_hil.plants.experiments import Excitation, FitParameter, Scenario, random_levels
+from rehab_hil.plants.registry import Plant
+from rehab_hil.plants.sections import EncoderSection, ForceSensorSection, PlantConfig
 
 __all__ = ["SMAExoskeleton", "SMAExoskeletonConfig", "build", "duty_profile", "ports", "tendon_lever_m"]
 

@@ -32,15 +32,9 @@ from rehab_hil.models.sensors import Gain
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 from rehab_hil.models.tcp_tendon import TendonTorqueSplit
 from rehab_hil.models.tcp_thermal import LumpedThermal
-from rehab_hil.plants.base import (
-    EncoderSection,
-    Excitation,
-    ForceSensorSection,
-    Plant,
-    PlantConfig,
-    Scenario,
-    random_levels,
-)
+from rehab_hil.plants.experiments import Excitation, Scenario, random_levels
+from rehab_hil.plants.registry import Plant
+from rehab_hil.plants.sections import EncoderSection, ForceSensorSection, PlantConfig
 
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control

@@ -14,7 +14,8 @@ from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.controllers import ControllerError, Reference
 from rehab_hil.controllers import build_controller as build
 from rehab_hil.hardware.interface import configure_from_config
-from rehab_hil.plants.base import DeviceBinding, get_plant
+from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.plants.registry import get_plant
 from rehab_hil.protocol import Configure
 from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.estimation import Estimator

@@ -16,8 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from rehab_hil.controllers.base import DT
-from rehab_hil.interfaces import Claims
-from rehab_hil.plants.base import DeviceBinding, DutyInput
+from rehab_hil.interfaces import Claims, DeviceBinding, DutyInput
 from rehab_hil.service.estimation import State
 
 __all__ = ["SAFE_COMMAND", "Actuator", "Command", "Controller", "ControllerRuntime"]

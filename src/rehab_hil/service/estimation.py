@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from rehab_hil.plants.base import AdcChannel, DeviceBinding
+from rehab_hil.interfaces import AdcChannel, DeviceBinding
 
 __all__ = ["Estimator", "State", "adc_to_si", "unwrap_delta"]
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rehab_hil.hardware.interface import HardwareError, HardwareInterface, duty_units
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import Configure, Fault, Sample
 
 __all__ = ["BACK_DEG", "HOME_MODES", "HomingResult", "home", "home_count", "home_current", "home_hard_stop"]

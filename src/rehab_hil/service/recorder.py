@@ -32,7 +32,7 @@ from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import DUTY_FULL, Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State

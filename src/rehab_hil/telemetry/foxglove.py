@@ -22,7 +22,7 @@ from typing import Any
 
 import foxglove
 
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
 from rehab_hil.service.telemetry import loop_stats
 from rehab_hil.telemetry.ws_subprotocol import SubprotocolFront

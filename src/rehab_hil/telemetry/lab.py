@@ -21,9 +21,9 @@ from typing import Any
 
 import zenoh
 
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.plants.base import DeviceBinding
 from rehab_hil.service.run_dir import new_run_dir, write_metadata
 from rehab_hil.telemetry.subscriber import query_info, watch_alive
 from rehab_hil.telemetry.zrecord import ZenohRecorder

@@ -14,7 +14,7 @@ from typing import Any
 
 import zenoh
 
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import PROTOCOL_VERSION
 from rehab_hil.service.telemetry import loop_stats
 from rehab_hil.telemetry.codec import JSON_VERSION, STATE_VERSION

@@ -22,7 +22,7 @@ from typing import Any
 
 import zenoh
 
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State

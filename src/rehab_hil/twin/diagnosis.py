@@ -74,7 +74,8 @@ from rehab_hil.discrepancy.verdict import unexplained_channels
 from rehab_hil.discrepancy.workflow import _demanding, _sensor_demanded
 from rehab_hil.effects import EFFECTS, EffectParam
 from rehab_hil.interchange import CsvError, Recording
-from rehab_hil.plants.base import FitParameter, Plant
+from rehab_hil.plants.experiments import FitParameter
+from rehab_hil.plants.registry import Plant
 
 __all__ = ["ERROR", "MIN_REDUCTION", "SESSION_PARAMETERS", "Cause", "Diagnosis", "Window", "candidate_terms",
            "changed_window", "diagnose", "rig_channels"]

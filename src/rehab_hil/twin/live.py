@@ -29,7 +29,7 @@ import numpy as np
 
 from rehab_hil.config import TwinSection
 from rehab_hil.interchange import Recording
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
 from rehab_hil.twin.model import TwinModel, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor

@@ -25,8 +25,9 @@ import numpy as np
 from rehab_hil.discrepancy.initial_state import matched_states
 from rehab_hil.discrepancy.replay import ADC_FULL_SCALE_COUNTS, Replay
 from rehab_hil.interchange import Recording
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.models.sensors import QuadratureEncoder
-from rehab_hil.plants.base import DeviceBinding, Plant, get_plant
+from rehab_hil.plants.registry import Plant, get_plant
 from rehab_hil.protocol import DUTY_FULL
 
 __all__ = ["Block", "TwinModel", "TwinSetupError"]

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.interchange import CsvError, read_csv
-from rehab_hil.plants.base import DeviceBinding
+from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import DUTY_FULL
 from rehab_hil.twin.live import Twin
 

@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from rehab_hil.config import TwinSection
-from rehab_hil.plants.base import DeviceBinding, get_plant
+from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.plants.registry import get_plant
 from rehab_hil.twin.live import LiveTwin, Twin
 from rehab_hil.twin.model import TwinSetupError
 from rehab_hil.twin.monitor import MismatchEvent
