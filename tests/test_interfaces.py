@@ -36,3 +36,12 @@ def test_the_contract_re_exports_the_same_interface_types():
 
     assert (Claims, CommandInterface, StateInterface) == (interfaces.Claims, interfaces.CommandInterface,
                                                           interfaces.StateInterface)
+
+
+def test_a_command_interface_converts_effort_and_duty_both_ways():
+    bridge = interfaces.CommandInterface("motor_voltage_v", "v", channel=1, scale=24.0, signed=True)
+    assert bridge.duty(-12.0) == (0.5, True) and bridge.duty(48.0) == (1.0, False)
+    assert bridge.effort(0.5, direction_bits=0b10) == -12.0 and bridge.effort(0.5, direction_bits=0b01) == 12.0
+    heater = interfaces.CommandInterface("power_w", "w", channel=0, scale=2.0)
+    assert heater.duty(-1.0) == (0.0, False)  # an unsigned input applies no negative effort
+    assert heater.effort(0.25, direction_bits=0b1) == 0.5  # and ignores the direction pin

@@ -18,7 +18,7 @@ if TYPE_CHECKING:  # types only: the binding carries parts and a schedule, this 
     from rehab_hil.models.schedule import Schedule
     from rehab_hil.models.system import Part
 
-__all__ = ["AdcChannel", "Claims", "CommandInterface", "DeviceBinding", "DutyInput", "Source", "StateInterface",
+__all__ = ["AdcChannel", "Claims", "CommandInterface", "DeviceBinding", "Source", "StateInterface",
            "StateKind"]
 
 StateKind = Literal["angle", "force", "torque", "temperature"]
@@ -39,13 +39,29 @@ class StateInterface:
 @dataclass(frozen=True)
 class CommandInterface:
     """A commanded model input (``motor_voltage_v``, ``pwm_duty``, ``power_w``) driven by PWM
-    ``channel``: value = scale * duty, negated by the direction pin when ``signed`` (an H-bridge)."""
+    ``channel``: value = scale * duty (0..1), negated by the channel's direction pin when ``signed``
+    (an H-bridge); e.g. motor_voltage_v = 24 * duty. The one place effort <-> duty is written: the
+    loop's actuator, the recorder, the twin and the simulated rig convert with it."""
 
     name: str
-    unit: str
+    unit: str  # of the plant input (the actuator port's unit)
     channel: int
-    scale: float
+    scale: float  # the value at full duty
     signed: bool = False
+
+    def direction_sign(self, direction_bits: int) -> float:
+        """-1.0 when this input is signed and its channel's bit in ``direction_bits`` is set, else 1.0."""
+        return -1.0 if self.signed and direction_bits >> self.channel & 1 else 1.0
+
+    def effort(self, duty: float, direction_bits: int) -> float:
+        """The value on the plant input while ``duty`` (0..1) is applied with ``direction_bits``."""
+        return self.direction_sign(direction_bits) * self.scale * duty
+
+    def duty(self, effort: float) -> tuple[float, bool]:
+        """(duty 0..1, reversed) that applies ``effort``: |effort| / scale, at most 1, reversed when
+        the effort is negative on a signed input; an unsigned input applies no negative effort (0)."""
+        u = effort if self.signed else max(effort, 0.0)
+        return min(abs(u) / self.scale, 1.0), u < 0.0
 
 
 @dataclass(frozen=True)
@@ -59,19 +75,9 @@ class Claims:
 
 
 @dataclass(frozen=True)
-class DutyInput:
-    """A plant input driven by a PWM channel: value = scale * duty (0..1), negated when the
-    channel's direction pin is set and ``signed`` (an H-bridge); e.g. motor_voltage_v = 24 * duty."""
-
-    channel: int
-    scale: float
-    signed: bool = False
-    unit: str = ""  # of the plant input (the actuator port's unit)
-
-
-@dataclass(frozen=True)
 class AdcChannel:
     """An analog input the firmware samples: counts = offset + per_unit * signal, clipped to 0..1023.
+    The calibration behind a state interface of source ``adc<i>`` (``DeviceBinding.state_interfaces``).
 
     ``signal`` names the channel (the model signal, also the recorded column); ``source`` is the
     plant signal the simulated device reads (differs when a sensor effect sits on the wire)."""
@@ -97,7 +103,7 @@ class DeviceBinding:
     from the plant's ports (``Plant.device``)."""
 
     parts: list[Part]
-    duty_inputs: dict[str, DutyInput]
+    duty_inputs: dict[str, CommandInterface]  # by plant input name: the PWM-driven inputs
     constant_inputs: dict[str, float]
     encoder_signal: str | None  # plant signal in rad (the recorded column); None: no encoder
     encoder_counts_per_rev: int
@@ -127,8 +133,7 @@ class DeviceBinding:
     @property
     def command_interfaces(self) -> tuple[CommandInterface, ...]:
         """What the host commands: each duty-driven plant input."""
-        return tuple(CommandInterface(name, d.unit, d.channel, d.scale, d.signed)
-                     for name, d in self.duty_inputs.items())
+        return tuple(self.duty_inputs.values())
 
     def state(self, kind: str) -> StateInterface | None:
         """The first state interface of a kind (``angle``, ``force``, ``torque``, ``temperature``)."""

@@ -137,10 +137,8 @@ class PlantIO:
             self._apply_schedule()
         self.session_ticks += 1
         for name, d in self.binding.duty_inputs.items():
-            v = self._scale[name] * duty[d.channel] / DUTY_FULL
-            if d.signed and direction >> d.channel & 1:
-                v = -v
-            self._u[self._index[name]] = v
+            # the input's own sign; its full-duty value may move mid-session (a sagging supply)
+            self._u[self._index[name]] = d.direction_sign(direction) * self._scale[name] * duty[d.channel] / DUTY_FULL
         y = self.stepper.step(self._u)
         for _ in range(self.steps_per_tick - 1):
             self.stepper.step(self._u)

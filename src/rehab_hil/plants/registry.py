@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from rehab_hil.effects import applicable, attach
-from rehab_hil.interfaces import AdcChannel, DeviceBinding, DutyInput
+from rehab_hil.interfaces import AdcChannel, CommandInterface, DeviceBinding
 from rehab_hil.models.ports import MeasuredPort, Ports
 from rehab_hil.models.system import Diagram, Part, SimulationResult
 from rehab_hil.plants.changes import scheduled, scheduled_binding
@@ -121,7 +121,7 @@ class Plant:
         step_s, substeps = cls.step(cfg)
         return DeviceBinding(
             parts=parts,
-            duty_inputs={a.signal: DutyInput(a.duty_channel, a.duty_scale, a.signed, a.unit)
+            duty_inputs={a.signal: CommandInterface(a.signal, a.unit, a.duty_channel, a.duty_scale, a.signed)
                          for a in ports.actuators},
             constant_inputs=dict(ports.constants),
             encoder_signal=enc.wire.signal if enc and enc.wire else None,

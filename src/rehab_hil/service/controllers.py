@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from rehab_hil.controllers.base import DT
-from rehab_hil.interfaces import Claims, DeviceBinding, DutyInput
+from rehab_hil.interfaces import Claims, CommandInterface, DeviceBinding
 from rehab_hil.service.estimation import State
 
 __all__ = ["SAFE_COMMAND", "Actuator", "Command", "Controller", "ControllerRuntime"]
@@ -52,7 +52,7 @@ class Actuator:
         if not binding.duty_inputs:
             raise ValueError("the plant's device binding has no PWM-driven input")
         self.signal = signal or next(iter(binding.duty_inputs))
-        self.input: DutyInput = binding.duty_inputs[self.signal]
+        self.input: CommandInterface = binding.duty_inputs[self.signal]
         # the encoder angle a feedback controller reads ("angle" when the binding has none: refused)
         self.angle_signal: str = binding.encoder_signal or "angle"
 
@@ -65,14 +65,12 @@ class Actuator:
         return -self.input.scale if self.input.signed else 0.0
 
     def command(self, effort: float, reference_deg: float = math.nan) -> Command:
-        u = effort if self.input.signed else max(effort, 0.0)
-        return self.duty_command(min(abs(u) / self.input.scale, 1.0), u < 0.0, reference_deg)
+        duty, reverse = self.input.duty(effort)
+        return self.duty_command(duty, reverse, reference_deg)
 
     def effort(self, cmd: Command) -> float:
         """The effort a command applies on this actuator's input (the inverse of ``command``)."""
-        ch = self.input.channel
-        sign = -1.0 if self.input.signed and cmd.direction >> ch & 1 else 1.0
-        return sign * cmd.duty[ch] * self.input.scale if cmd.enable else 0.0
+        return self.input.effort(cmd.duty[self.input.channel], cmd.direction) if cmd.enable else 0.0
 
     def duty_command(self, duty: float, reverse: bool = False, reference_deg: float = math.nan) -> Command:
         ch = self.input.channel

@@ -297,8 +297,7 @@ class Recorder:
         row.update(st.analog)
         applied = (s.duty0 / DUTY_FULL, s.duty1 / DUTY_FULL)
         for name, inp in b.duty_inputs.items():
-            sign = -1.0 if (inp.signed and s.direction & (1 << inp.channel)) else 1.0
-            row[name] = sign * inp.scale * applied[inp.channel]
+            row[name] = inp.effort(applied[inp.channel], s.direction)
         row.update({
             "host_time_s": r.host_time_s, "device_time_s": st.t_s, "sample_index": s.sample_index,
             "raw_encoder_counts": s.encoder_count, "raw_adc0_counts": s.adc0, "raw_adc1_counts": s.adc1,

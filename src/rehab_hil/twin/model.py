@@ -94,8 +94,7 @@ class TwinModel:
         self._slots = sys_.out_slots(read)
         self._ws = sys_.workspace()
         names = sys_.input_names
-        self._duty = [(names.index(n), d.channel, d.scale, d.signed) for n, d in binding.duty_inputs.items()
-                      if n in names]
+        self._duty = [(names.index(n), d) for n, d in binding.duty_inputs.items() if n in names]
         self._adc_in = [(names.index(n), n) for n in self.adc_inputs if n in names]
         self._u_const = np.zeros(len(names))
         for n, v in binding.constant_inputs.items():
@@ -182,9 +181,8 @@ class TwinModel:
         """The model's external inputs while a sample's duties were applied."""
         u = self._u_const.copy()
         duty = (duty0 / DUTY_FULL, duty1 / DUTY_FULL)
-        for i, ch, scale, signed in self._duty:
-            v = scale * duty[ch]
-            u[i] = -v if signed and direction >> ch & 1 else v
+        for i, d in self._duty:
+            u[i] = d.effort(duty[d.channel], direction)
         for i, name in self._adc_in:
             u[i] = analog.get(name, 0.0)
         return u
