@@ -40,7 +40,7 @@ def rig(ep: str, rig_id: str, seconds: float) -> None:
     from rehab_hil.protocol import Sample
     from rehab_hil.service.controllers import Command
     from rehab_hil.service.estimation import State
-    from rehab_hil.service.recorder import Record
+    from rehab_hil.service.records import CommandRecord, SampleRecord
     from rehab_hil.telemetry import NetworkConfig, TelemetryPublisher, open_session
 
     zenoh.init_log_from_env_or("error")
@@ -69,9 +69,9 @@ def rig(ep: str, rig_id: str, seconds: float) -> None:
             break
         ts = time.perf_counter()
         cmd = Command((0.3, 0.0), 0, True, 30.0 + n % 100)
-        pub.offer(Record(ts, n * period, Sample(n * 1000, n, n % 4000, 512, 0, 300, 0, 0, 0, 0, n, 0),
-                         State(n * period, 0.5, 0.1, {"drive_torque_nm": 0.01 * (n % 50)}), cmd, n, 30.0))
-        pub.offer(Record(ts, n * period, None, None, cmd, n + 1, 30.0))
+        pub.offer(SampleRecord(ts, n * period, Sample(n * 1000, n, n % 4000, 512, 0, 300, 0, 0, 0, 0, n, 0),
+                               State(n * period, 0.5, 0.1, {"drive_torque_nm": 0.01 * (n % 50)}), cmd, n, 30.0))
+        pub.offer(CommandRecord(ts, n * period, cmd, n + 1, 30.0))
         n += 1
     pub.close()
     session.close()

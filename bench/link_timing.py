@@ -36,6 +36,7 @@ from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import State
+from rehab_hil.service.records import EventRecord
 from rehab_hil.service.runner import LoopService
 from rehab_hil.testing import push_runtime
 
@@ -162,6 +163,29 @@ def host_stall(kind: str, config: Path, watchdog_ms: int = 100, pause_s: float =
             "host_trip": res.events[0].reason if res.events else "none"}
 
 
+class TripClock:
+    """A loop sink that notes the host time the loop hands over its first safety event."""
+
+    name, critical, dropped, error, on_failure = "trip-clock", False, 0, None, None
+
+    def __init__(self) -> None:
+        self.at: list[float] = []
+
+    def offer(self, record: Any) -> bool:
+        if type(record) is EventRecord and not self.at:
+            self.at.append(time.perf_counter())
+        return True
+
+    def wake(self) -> None:
+        pass
+
+    def drain(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def link_loss(kind: str, config: Path) -> dict[str, Any]:
     """The device falls silent (Python device's ``stall`` knob): host time to the link_loss trip."""
     if kind != "sim":
@@ -176,12 +200,13 @@ def link_loss(kind: str, config: Path) -> dict[str, Any]:
     try:
         hw.connect(timeout=15.0)
         sup = assembly.build_supervisor(cfg, binding)
+        clock = TripClock()
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
                           assembly.build_controller(cfg, source=str(config)), assembly.build_estimator(cfg, binding),
-                          sup, assembly.period_s(cfg))
-        tripped: list[float] = []
+                          sup, assembly.period_s(cfg), sinks=[clock])
+        tripped = clock.at
         threading.Timer(1.0, dev.control, args=("stall 3000",)).start()
-        res = svc.run(5.0, pacing="device", realtime=True, on_trip=lambda ev: tripped.append(time.perf_counter()))
+        res = svc.run(5.0, pacing="device", realtime=True)
         ev = res.events[0] if res.events else None
         detection = float("nan")
         if ev is not None and ev.reason == "link_loss" and tripped:

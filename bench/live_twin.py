@@ -175,7 +175,7 @@ def run_session(host_path: Path, sim_path: Path, seed: int, case: str, duration_
         alt = _tee_alternative(twin.twin)
         svc = LoopService(hw, assembly.firmware_configure(host, binding), controller,
                           assembly.build_estimator(host, binding), assembly.build_supervisor(host, binding), period,
-                          meter=assembly.build_meter(host, controller, duration_s), twin=twin.live)
+                          sinks=[twin.live], meter=assembly.build_meter(host, controller, duration_s))
         res = svc.run(duration_s, pacing="device", realtime=False, lockstep=True, sample_timeout_s=5.0)
         meta = twin.close()
     finally:

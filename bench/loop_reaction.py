@@ -27,6 +27,7 @@ python bench/loop_reaction.py [--duration 30] [--repeats 3] [--links direct,brid
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import platform
@@ -78,9 +79,12 @@ def child(args: argparse.Namespace) -> int:
         print("READY", flush=True)  # the parent's subscriber connects now
         sys.stdin.readline()  # ... and says when it is subscribed
         sup = assembly.build_supervisor(cfg, binding)
+        if "sinks" in inspect.signature(LoopService).parameters:  # one list of sinks (issue 37)
+            sinks: dict[str, Any] = {"sinks": [x for x in (recorder, tel.sink if tel else None) if x is not None]}
+        else:  # an older tree: the "before" of a before/after run
+            sinks = {"recorder": recorder, "telemetry": tel.sink if tel else None}
         svc = LoopService(hw, conf, controller, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg),
-                          recorder=recorder, telemetry=tel.sink if tel else None,
-                          meter=assembly.build_meter(cfg, controller, args.duration))
+                          meter=assembly.build_meter(cfg, controller, args.duration), **sinks)
         if tel is not None:
             tel.watch(svc, hw)
         stop_display = threading.Event()

@@ -43,12 +43,11 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
         if telemetry:  # the real zenoh publisher, hub on a free loopback port
             info = rig_info(cfg.plant, config, binding, assembly.period_s(cfg), hw.info)
             tel = RigTelemetry("bench", info, NetworkConfig(port=free_port()), queue_size=20_000)
-        sink = tel.sink if tel is not None else None
         sup = assembly.build_supervisor(cfg, binding)
         if link_loss_periods is not None:
             sup.limits = dataclasses.replace(sup.limits, link_loss_periods=link_loss_periods)
         svc = LoopService(hw, conf, controller, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg),
-                          telemetry=sink)
+                          sinks=[tel.sink] if tel is not None else ())
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         res = svc.run(duration_s, pacing=pacing, realtime=True)
         r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()

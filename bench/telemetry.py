@@ -100,7 +100,8 @@ def segment(config: Path, cfg: Any, binding: Any, seconds: float, sink: Any) -> 
     controller = Hold()
     on_configure(binding, hw.info, controller.claims)
     svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller, Estimator(binding),
-                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), telemetry=sink)
+                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
+                      sinks=[sink] if sink is not None else ())
     res = svc.run(seconds, pacing="host", realtime=True)
     out = dict(res.timing)
     out["events"] = [f"{e.reason}: {e.detail}" for e in res.events]
@@ -128,7 +129,6 @@ def main() -> None:
 
     from rehab_hil.loading import load_config
     from rehab_hil.plants import get_plant
-    from rehab_hil.service.telemetry import NullSink
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
     from rehab_hil.telemetry.session import NetworkConfig
     from rehab_hil.testing import free_port
@@ -155,7 +155,7 @@ def main() -> None:
     for i in range(args.pairs):
         for mode in ("off", "on") if i % 2 == 0 else ("on", "off"):
             t0 = time.perf_counter()
-            sink = rig.sink if mode == "on" else NullSink()
+            sink = rig.sink if mode == "on" else None
             segments[mode].append(segment(args.config, cfg, binding, args.segment, sink))
             if mode == "on":
                 on_time += time.perf_counter() - t0
@@ -168,9 +168,9 @@ def main() -> None:
     # flat-out: how fast the publisher thread drains a burst (encode + put), samples/s
     burst = 15_000  # below the queue size: nothing dropped
     from rehab_hil.service.controllers import Command
-    from rehab_hil.service.recorder import Record
+    from rehab_hil.service.records import CommandRecord
 
-    rec = Record(time.perf_counter(), 0.0, None, None, Command((0.1, 0.0), 0, True, 1.0), 0, 25.0)
+    rec = CommandRecord(time.perf_counter(), 0.0, Command((0.1, 0.0), 0, True, 1.0), 0, 25.0)
     base = rig.sink.published_samples
     t0 = time.perf_counter()
     sent = sum(rig.sink.offer(rec) for _ in range(burst))

@@ -332,7 +332,7 @@ def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenar
                                             link_loss_periods=round(scenario.link_budget_s / assembly.period_s(cfg)),
                                             min_angle_deg=-math.inf, max_angle_deg=math.inf)
     svc = LoopService(ctx.hw, conf, controller, assembly.build_estimator(cfg, binding),
-                      supervisor, assembly.period_s(cfg), recorder=rec)
+                      supervisor, assembly.period_s(cfg), sinks=[rec])
     caplog.set_level(logging.ERROR, logger="rehab_hil.supervisor")
     try:
         # the shared device: streaming off (no backlog while we set up), faults of earlier tests cleared

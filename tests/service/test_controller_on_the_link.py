@@ -24,7 +24,7 @@ def step_on(cfg, binding, tmp_path, controller: str, bursts: tuple[int, ...]) ->
     try:
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
                           assembly.build_controller(cfg, controller, "step"), assembly.build_estimator(cfg, binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=rec)
+                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[rec])
         res = svc.run(2.0, realtime=False)
     finally:
         rec.close()

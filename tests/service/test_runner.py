@@ -35,7 +35,7 @@ def service(cfg, binding, hw, controller="pid", supervisor=None, recorder=None, 
     return LoopService(hw, configure or assembly.firmware_configure(cfg, binding),
                        ctl, assembly.build_estimator(cfg, binding),
                        supervisor or assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                       recorder=recorder)
+                       sinks=[recorder] if recorder is not None else ())
 
 
 def supervisor_with(cfg, binding, force_signals=None, thermal=None, **limits):

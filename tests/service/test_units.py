@@ -20,7 +20,8 @@ from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service.controllers import Actuator, Command
 from rehab_hil.service.estimation import Estimator, State, adc_to_si, unwrap_delta
 from rehab_hil.service.loop import DeadlineTimer, realtime_setup, realtime_teardown
-from rehab_hil.service.recorder import Record, Recorder, read_mcap
+from rehab_hil.service.recorder import Recorder, read_mcap
+from rehab_hil.service.records import SampleRecord
 from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.service.telemetry import NullSink, QueueSink, TelemetrySink
 
@@ -168,7 +169,7 @@ def test_recording_read_while_running_holds_everything_up_to_the_last_flush(bind
         est = Estimator(binding)
         for i in range(200):
             s = _sample(i)
-            rec.offer(Record(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
+            rec.offer(SampleRecord(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
                              Command((0.01, 0.0), 0, True), i, 23.0))
         deadline = time.monotonic() + 10.0
         while rec.rows < 200 and time.monotonic() < deadline:
@@ -190,7 +191,7 @@ def test_a_drained_recorder_counts_every_row_offered_before_it_and_the_csv_holds
     est = Estimator(binding)
     for i in range(3000):
         s = _sample(i)
-        rec.offer(Record(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
+        rec.offer(SampleRecord(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
                          Command((0.01, 0.0), 0, True), i, 23.0))
     rec.drain()
     rows = rec.rows

@@ -16,7 +16,7 @@ from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.recorder import Record
+from rehab_hil.service.records import SampleRecord
 from rehab_hil.telemetry import TelemetryPublisher
 from rehab_hil.telemetry.rig import rig_info
 
@@ -25,7 +25,7 @@ from .fake_rig import LockstepRig
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
 
 
-def records(n: int) -> list[Record]:
+def records(n: int) -> list[SampleRecord]:
     """n loop cycles of the finger extensor through the fake rig and the real estimator."""
     cfg = load_config(CONFIG)
     binding = get_plant(cfg.plant).device(cfg)
@@ -37,7 +37,7 @@ def records(n: int) -> list[Record]:
         s = hw.read_sample()
         assert s is not None
         st = est.update(s.encoder_count, s.device_time_us, (s.adc0, s.adc1))
-        out.append(Record(10.0 + i * 1e-3, i * 1e-3, s, st, cmd, i, 25.0 + i * 0.01))
+        out.append(SampleRecord(10.0 + i * 1e-3, i * 1e-3, s, st, cmd, i, 25.0 + i * 0.01))
     return out
 
 

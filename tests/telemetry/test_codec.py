@@ -8,7 +8,7 @@ import pytest
 from rehab_hil.protocol import Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State
-from rehab_hil.service.recorder import Record
+from rehab_hil.service.records import CommandRecord, SampleRecord
 from rehab_hil.telemetry.codec import (
     STATE_HEADER,
     STATE_RECORD,
@@ -53,9 +53,9 @@ def test_a_protocol_sample_encodes_with_nan_for_unknown_derived_values() -> None
 
 
 def test_a_recorder_record_round_trips_exactly() -> None:
-    rec = Record(host_time_s=12.345678901234, time_s=0.001, sample=Sample(1, 2, -3, 4, 5, 6, 7, 1, 9, 10, 11, 12),
-                 state=State(0.001, 0.1234567890123, -2.5, {"torque_nm": 0.3333333333333}),
-                 command=Command((0.5, 0.125), 1, True, 33.3), command_seq=77, temperature_c=31.25)
+    rec = SampleRecord(host_time_s=12.345678901234, time_s=0.001, sample=Sample(1, 2, -3, 4, 5, 6, 7, 1, 9, 10, 11, 12),
+                       state=State(0.001, 0.1234567890123, -2.5, {"torque_nm": 0.3333333333333}),
+                       command=Command((0.5, 0.125), 1, True, 33.3), command_seq=77, temperature_c=31.25)
     (s,) = decode_state(encode_state([rec])).samples
     assert (s.host_time_s, s.time_s, s.angle_rad, s.velocity_rad_s) == (12.345678901234, 0.001, 0.1234567890123, -2.5)
     assert s.analog == (0.3333333333333,) and s.has_state and s.has_sample
@@ -64,7 +64,7 @@ def test_a_recorder_record_round_trips_exactly() -> None:
 
 
 def test_a_cycle_without_a_sample_keeps_its_command() -> None:
-    rec = Record(1.0, 0.0, None, None, Command(), 5, float("nan"))
+    rec = CommandRecord(1.0, 0.0, Command(), 5, float("nan"))
     (s,) = decode_state(encode_state([rec])).samples
     assert not s.has_sample and not s.has_state and s.command_seq == 5 and not s.command_enable
 
@@ -148,9 +148,10 @@ def test_record_layout_matches_the_documented_size() -> None:
 
 
 def test_the_record_fast_path_packs_the_same_bytes_as_the_general_path() -> None:
-    recs = [Record(3.5, 0.002, Sample(9, 8, -7, 6, 5, 4, 3, 1, 2, 1, 0, 1), State(0.002, 1.25, -0.5, {"a_n": 2.0,
-                   "b_n": -1.0}), Command((0.75, 0.5), 2, False, float("nan")), 4, 40.5),
-            Record(3.6, 0.003, None, None, Command((0.0, 0.0), 0, True, 1.0), 5, 41.0)]
+    recs = [SampleRecord(3.5, 0.002, Sample(9, 8, -7, 6, 5, 4, 3, 1, 2, 1, 0, 1),
+                         State(0.002, 1.25, -0.5, {"a_n": 2.0, "b_n": -1.0}),
+                         Command((0.75, 0.5), 2, False, float("nan")), 4, 40.5),
+            CommandRecord(3.6, 0.003, Command((0.0, 0.0), 0, True, 1.0), 5, 41.0)]
     assert pack_record(recs[0]) == pack_record(to_state_sample(recs[0]))
     assert encode_state(recs) == encode_state([to_state_sample(r) for r in recs])
     (a, b) = decode_state(encode_state(recs)).samples

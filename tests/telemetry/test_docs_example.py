@@ -13,7 +13,7 @@ import zenoh
 from rehab_hil.protocol import Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State
-from rehab_hil.service.recorder import Record
+from rehab_hil.service.records import SampleRecord
 from rehab_hil.telemetry import TelemetryPublisher
 
 
@@ -30,7 +30,7 @@ def test_the_docs_example_prints_the_samples_it_receives(client: Callable[..., z
             i = 0
             while not stop.wait(0.01):
                 s = Sample(i, i, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
-                pub.offer(Record(0.0, i * 1e-3, s, State(0.0, 0.5, 0.0, {}), Command((0.25, 0.0)), i, 30.0))
+                pub.offer(SampleRecord(0.0, i * 1e-3, s, State(0.0, 0.5, 0.0, {}), Command((0.25, 0.0)), i, 30.0))
                 i += 1
 
         th = threading.Thread(target=feed)

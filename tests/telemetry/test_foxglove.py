@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import threading
 import time
@@ -18,7 +17,8 @@ from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.recorder import GENERIC_FIELDS, Record, Recorder, read_mcap
+from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, read_mcap
+from rehab_hil.service.records import SampleRecord
 from rehab_hil.service.runner import LoopService
 from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, rig_prefix, schemas, topics
 from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths
@@ -50,7 +50,7 @@ def test_a_websocket_client_sees_the_channels_and_the_samples_of_the_local_recor
             local = Recorder(tmp_path, binding)
             svc = LoopService(LockstepRig(), assembly.firmware_configure(cfg, binding), RampController(),
                               Estimator(binding), assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                              recorder=local, telemetry=feed)
+                              sinks=[local, feed])
             try:
                 result = svc.run(0.4, pacing="device", realtime=False, sample_timeout_s=0.5)
             finally:
@@ -133,7 +133,7 @@ def wait_for(pred, timeout_s: float = 10.0) -> bool:  # type: ignore[no-untyped-
     return bool(pred())
 
 
-def loop_records(binding, n: int) -> list[Record]:  # type: ignore[no-untyped-def]
+def loop_records(binding, n: int) -> list[SampleRecord]:  # type: ignore[no-untyped-def]
     """n sample records of the in-process rig through the real estimator."""
     hw, est, out = LockstepRig(), Estimator(binding), []
     for i in range(n):
@@ -141,7 +141,7 @@ def loop_records(binding, n: int) -> list[Record]:  # type: ignore[no-untyped-de
         hw.write_command(*cmd.duty, cmd.direction, cmd.enable)
         smp = hw.read_sample()
         st = est.update(smp.encoder_count, smp.device_time_us, (smp.adc0, smp.adc1))
-        out.append(Record(10.0 + i * 1e-3, i * 1e-3, smp, st, cmd, i, 25.0))
+        out.append(SampleRecord(10.0 + i * 1e-3, i * 1e-3, smp, st, cmd, i, 25.0))
     return out
 
 
@@ -150,7 +150,7 @@ def test_a_stalled_viewer_never_blocks_the_feed_and_a_full_queue_is_counted(wait
 
     _, binding = binding_of(CONFIG)
     base = loop_records(binding, 50)
-    recs = [dataclasses.replace(base[i % 50], time_s=i * 1e-3) for i in range(5000)]
+    recs = [base[i % 50]._replace(time_s=i * 1e-3) for i in range(5000)]
     with FoxgloveLive(port=0, message_backlog=64) as live:
         feed = live.add_rig(binding, queue_size=100)
         # a viewer that subscribes and then never reads: its socket and backlog fill up
@@ -163,7 +163,7 @@ def test_a_stalled_viewer_never_blocks_the_feed_and_a_full_queue_is_counted(wait
             t0 = time.perf_counter()
             accepted = [feed.offer(r) for r in recs]
             offer_s = time.perf_counter() - t0
-            assert wait(lambda: len(feed._queue) == 0)  # the worker keeps draining while the viewer reads nothing
+            assert wait(lambda: feed.queued == 0)  # the worker keeps draining while the viewer reads nothing
     assert offer_s < 0.5  # 5000 offers: O(1) appends, no waiting for the viewer
     assert feed.offered == 5000 and feed.dropped == accepted.count(False) > 0 and feed.sent > 0
 

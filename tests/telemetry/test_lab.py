@@ -106,8 +106,8 @@ def test_three_rigs_on_one_router_monitor_and_a_multi_rig_recording(router: str,
 
         def session(r: str) -> None:
             svc = LoopService(hws[r], assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=locals_[r],
-                              telemetry=pubs[r])
+                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
+                              sinks=[locals_[r], pubs[r]])
             results[r] = svc.run(0.3, pacing="device", realtime=False, sample_timeout_s=0.5)
 
         loops = [threading.Thread(target=session, args=(r,)) for r in rigs]
@@ -195,7 +195,7 @@ def test_the_foxglove_bridge_serves_a_rig_from_zenoh(router: str, wait, capsys: 
         client = FoxgloveClient(ws_port, ["/rig/sample"])
         assert client.wait_subscribed(), client.error
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), telemetry=pub)
+                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[pub])
         result = svc.run(0.2, pacing="device", realtime=False, sample_timeout_s=0.5)
         assert wait(lambda: len(client.messages["/rig/sample"]) >= result.samples - 5)
     finally:

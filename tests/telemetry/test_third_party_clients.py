@@ -37,7 +37,8 @@ def _session(feed, tmp_path: Path) -> list[tuple[str, dict]]:
     binding = get_plant(cfg.plant).device(cfg)
     local = Recorder(tmp_path, binding)
     svc = LoopService(LockstepRig(), assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=local, telemetry=feed)
+                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
+                      sinks=[local] if feed is None else [local, feed])
     try:
         result = svc.run(0.3, pacing="device", realtime=False, sample_timeout_s=0.5)
     finally:
@@ -171,7 +172,7 @@ def test_a_plain_zenoh_subscriber_written_from_the_docs_alone_decodes_the_publis
     from rehab_hil.protocol import Sample
     from rehab_hil.service.controllers import Command
     from rehab_hil.service.estimation import State
-    from rehab_hil.service.recorder import Record
+    from rehab_hil.service.records import CommandRecord, SampleRecord
     from rehab_hil.telemetry import TelemetryPublisher
 
     code = _docs_block("### Without this project's code")
@@ -184,7 +185,7 @@ def test_a_plain_zenoh_subscriber_written_from_the_docs_alone_decodes_the_publis
         s = Sample(1000 * i, i, 3 * i, 100 + i, 200 + i, 2500, 0, 1, 4, 0, i, 2)
         st = State(i * 1e-3, math.radians(0.5 * i), 0.1, {"force_n": 1.5 * i, "torque_nm": -0.25 * i})
         cmd = Command((0.25 + i / 1000, 0.0), reference_deg=10.0 + i)
-        records += [Record(0.0, i * 1e-3, s, st, cmd, i, 30.0 + i), Record(0.0, i * 1e-3, None, None, cmd, i, 30.0)]
+        records += [SampleRecord(0.0, i * 1e-3, s, st, cmd, i, 30.0 + i), CommandRecord(0.0, i * 1e-3, cmd, i, 30.0)]
     proc = subprocess.Popen([sys.executable, str(script), "plain1", f"tcp/127.0.0.1:{hub}", str(n)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -44,8 +44,7 @@ def test_a_zenoh_recording_equals_the_local_recording_sample_for_sample(
     try:
         assert wait(pub.has_subscribers)
         svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=local,
-                          telemetry=pub)
+                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[local, pub])
         result = svc.run(0.6, pacing="device", realtime=False, sample_timeout_s=0.5)
         assert result.cycles > 500 and not result.events
     finally:
@@ -102,8 +101,7 @@ def test_a_zenoh_recording_on_a_busy_machine_states_every_sample_it_did_not_rece
         try:
             assert wait(pub.has_subscribers)
             svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), recorder=local,
-                              telemetry=pub)
+                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[local, pub])
             result = svc.run(2.0, pacing="device", realtime=False, sample_timeout_s=5.0)
             assert not result.events
         finally:

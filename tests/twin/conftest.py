@@ -13,7 +13,9 @@ from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.loading import load_config
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.protocol import DUTY_FULL
+from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator
+from rehab_hil.service.records import SampleRecord
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -34,7 +36,6 @@ def plant_records(config: str | Path, duty: np.ndarray, seed: int = 0, keep: np.
         enc, a0, a1 = io.tick((counts, 0), direction)
         state = est.update(enc, int(k * period * 1e6), (a0, a1))
         if keep is None or keep[k]:
-            records.append(SimpleNamespace(time_s=k * period, sample=SimpleNamespace(duty0=counts, duty1=0,
-                                                                                    direction=direction),
-                                           state=state))
+            smp = SimpleNamespace(duty0=counts, duty1=0, direction=direction)
+            records.append(SampleRecord(0.0, k * period, smp, state, Command(), k, float("nan")))
     return cfg, binding, records

@@ -23,7 +23,7 @@ from rehab_hil.telemetry.lab import LabError, RigWatch, binding_from_info
 from rehab_hil.telemetry.session import TelemetryConfigError, open_session
 from rehab_hil.telemetry.subscriber import Subscription, list_rigs, query_info, subscribe
 from rehab_hil.telemetry.zrecord import to_record
-from rehab_hil.twin.outputs import FoxgloveOutput, prediction_topic
+from rehab_hil.twin.outputs import SinkOutput, prediction_topic
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 class Bridge:
-    """Rigs' zenoh subscriptions feeding one ``FoxgloveLive`` (records converted back to loop ``Record`` s)."""
+    """Rigs' zenoh subscriptions feeding one ``FoxgloveLive`` (records converted back to loop records)."""
 
     def __init__(self, session: Any, live: FoxgloveLive, several: bool, config: Path | None) -> None:
         self.session, self.live, self.several, self.config = session, live, several, config
@@ -75,7 +75,7 @@ class Bridge:
 
     def _twin(self, rig: str, feed: RigFeed) -> Any:
         """The rig's live twin (``rehab/<rig>/twin``, when it runs one) onto its prediction topic and events."""
-        out = FoxgloveOutput(self.live, feed)
+        out = SinkOutput(feed)
 
         def on_twin(s: Any) -> None:
             try:

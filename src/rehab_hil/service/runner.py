@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,9 +29,10 @@ from rehab_hil.protocol import Configure, Sample, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command, Controller
 from rehab_hil.service.estimation import Estimator, State
 from rehab_hil.service.loop import DeadlineTimer, RealtimeReport, TimingStats, realtime_setup, realtime_teardown
-from rehab_hil.service.recorder import Record, Recorder
+from rehab_hil.service.recorder import Recorder
+from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, SampleRecord
+from rehab_hil.service.sinks import Sink, sink_report
 from rehab_hil.service.supervisor import SafetyEvent, Supervisor
-from rehab_hil.service.telemetry import NullSink, TelemetrySink
 from rehab_hil.session_metrics import SessionMeter
 
 __all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "Session"]
@@ -72,15 +73,26 @@ class RunResult:
     tracking: dict[str, float]
     link: dict[str, Any]
     events: list[SafetyEvent]
-    recorder_dropped: int
-    telemetry_dropped: int
-    twin_dropped: int
     final_sample: Sample | None
     stop_reason: str
+    sinks: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> {"dropped": n, "error": str | None}
     files: list[str] = field(default_factory=list)
     session: dict[str, float] = field(default_factory=dict)  # per-cycle figures summed up (session_metrics)
     session_cycles: list[dict[str, float]] = field(default_factory=list)
     twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
+
+    @property
+    def recorder_dropped(self) -> int:
+        return int(self.sinks.get("recorder", {}).get("dropped", 0))
+
+    @property
+    def telemetry_dropped(self) -> int:
+        """Drops of the live views: zenoh telemetry and the Foxglove feed."""
+        return sum(int(v["dropped"]) for k, v in self.sinks.items() if k in ("telemetry", "foxglove"))
+
+    @property
+    def twin_dropped(self) -> int:
+        return int(self.sinks.get("twin", {}).get("dropped", 0))
 
     @property
     def pwm_off_at_end(self) -> bool:
@@ -199,20 +211,21 @@ class LoopService:
     """Runs one session on a connected ``HardwareInterface``; see the module docstring."""
 
     def __init__(self, hw: HardwareInterface, configure: Configure, controller: Controller, estimator: Estimator,
-                 supervisor: Supervisor, period_s: float, recorder: Recorder | None = None,
-                 telemetry: TelemetrySink | None = None, meter: SessionMeter | None = None,
-                 twin: Any = None) -> None:
+                 supervisor: Supervisor, period_s: float, sinks: Sequence[Sink] = (),
+                 meter: SessionMeter | None = None) -> None:
         self.hw, self.configure_msg, self.controller = hw, configure, controller
         self.estimator, self.supervisor, self.period_s = estimator, supervisor, period_s
-        self.recorder, self.telemetry = recorder, telemetry or NullSink()
-        self.meter, self.twin = meter, twin  # the live twin: one more sink after the write (rehab_hil.twin)
+        self.meter = meter
         self._advance = getattr(controller, "advance", None)  # the controller's work that can wait for the write
         actuator = getattr(controller, "actuator", None)
         self._effort_of = actuator.effort if actuator is not None else (lambda cmd: math.nan)
         # who takes the records after the write, and who is woken once they are all there
-        after = (recorder, self.telemetry, twin)
-        self._sinks = [x.offer for x in after if x is not None and not isinstance(x, NullSink)]
-        self._wakes = [w for w in (getattr(x, "wake", None) for x in after) if callable(w)]
+        self.sinks = list(sinks)
+        self._sinks = [x.offer for x in self.sinks]
+        self._wakes = [x.wake for x in self.sinks]
+        self.sink_failures: list[str] = []  # one line per sink that stopped working (in the order they did)
+        for x in self.sinks:
+            x.on_failure = self._critical_failure if x.critical else self.sink_failures.append
         self.progress = Progress()
         self._stop_reason = ""
         self._stop_kind = "stop_request"
@@ -225,10 +238,15 @@ class LoopService:
         self._stop_kind = kind
         self._stop_reason = reason
 
+    def _critical_failure(self, text: str) -> None:
+        """A critical sink (the recorder) stopped working (a full disk): a session must not go on
+        unrecorded, so the loop trips into the safe state at its next cycle (from the sink's thread)."""
+        self.sink_failures.append(text)
+        self.request_stop(text, "sink_failure")
+
     # ------------------------------------------------------------------------------------------
     def run(self, duration_s: float, pacing: str = "device", realtime: bool = True,
-            sample_timeout_s: float | None = None,
-            on_trip: Callable[[SafetyEvent], None] | None = None, lockstep: bool = False) -> RunResult:
+            sample_timeout_s: float | None = None, lockstep: bool = False) -> RunResult:
         """Loop for ``duration_s`` of samples. ``sample_timeout_s`` (device pacing) is how long a
         cycle waits for its sample before it counts as missing (default: one period; lockstep
         devices on a busy machine need more). ``lockstep``: the device runs in virtual time, so
@@ -260,7 +278,7 @@ class LoopService:
         finally:
             if realtime:
                 realtime_teardown()
-            self._shutdown(on_trip)
+            self._shutdown()
         return self._result(pace, rt, duration_s)
 
     def _cycles(self, pace: DevicePacing | HostPacing) -> None:
@@ -355,20 +373,20 @@ class LoopService:
         if s.cycles < s.n_max:
             s.references[s.cycles], s.angles[s.cycles] = cmd.reference_deg, state.angle_deg
         s.cycles += 1
-        self._hand_over(Record(now, t_s, None, None, cmd, s.command_seq, self.supervisor.temperature_c))
+        self._hand_over(CommandRecord(now, t_s, cmd, s.command_seq, self.supervisor.temperature_c))
         if self.meter is not None:
             self._meter(t_s, state, cmd)
         if s.cycles % PROGRESS_EVERY == 0:
             self._update_progress(t_s, state, cmd)
 
-    def _hand_over(self, command_record: Record | None = None) -> None:
-        """Offer the samples' records (then the command's) to the recorder and telemetry, and wake
-        their threads once: they work while the loop waits for the next sample."""
+    def _hand_over(self, command_record: CommandRecord | None = None) -> None:
+        """Offer the samples' records (then the command's) to every sink, and wake each once: they
+        work while the loop waits for the next sample."""
         s = self.session
         sinks = self._sinks
         if sinks:
             for p in s.pending:
-                rec = Record(*p)
+                rec = SampleRecord(*p)
                 for offer in sinks:
                     offer(rec)
             if command_record is not None:
@@ -387,8 +405,9 @@ class LoopService:
         cycle = self.meter.poll()
         if cycle is not None:
             self.progress.last_cycle = cycle.as_dict()
-            if self.recorder is not None:
-                self.recorder.cycle(cycle.as_dict())
+            rec = CycleRecord(cycle.as_dict())
+            for offer in self._sinks:
+                offer(rec)
 
     def _update_progress(self, t_s: float, state: State, cmd: Command) -> None:
         p, s = self.progress, self.session
@@ -397,7 +416,7 @@ class LoopService:
         p.sample_gaps = s.sample_gaps
 
     # ---- the end -------------------------------------------------------------------------------
-    def _shutdown(self, on_trip: Callable[[SafetyEvent], None] | None) -> None:
+    def _shutdown(self) -> None:
         """PWM 0 now; after a trip also ESTOP, then watch a few samples confirm PWM off. Nothing to
         do on a device that was never configured (its CONFIGURE failed): it is not driving."""
         s, sup = self.session, self.supervisor
@@ -408,11 +427,12 @@ class LoopService:
         self._write(SAFE_COMMAND)
         if sup.tripped:
             self.progress.tripped = sup.events[0].reason
-            for ev in sup.events:
-                if self.recorder is not None:
-                    self.recorder.event(ev.t_s, ev.reason, ev.detail)
-                if on_trip is not None:
-                    on_trip(ev)
+            for ev in sup.events:  # to every sink: recorded, published on zenoh's .../safety, shown
+                rec = EventRecord(ev.t_s, ev.reason, ev.detail)
+                for offer in self._sinks:
+                    offer(rec)
+            for wake in self._wakes:
+                wake()
             if sup.events[0].reason not in ("link_loss",):
                 try:
                     self.hw.estop(timeout=0.5)
@@ -439,6 +459,10 @@ class LoopService:
         del self.supervisor.events[n_events:]
         self._hand_over()
 
+    def _sink_reports(self) -> dict[str, dict[str, Any]]:
+        names = _unique_names([x.name for x in self.sinks])
+        return {n: sink_report(x) for n, x in zip(names, self.sinks, strict=True)}
+
     def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
         s, sup = self.session, self.supervisor
         n = min(s.cycles, s.n_max)
@@ -450,14 +474,22 @@ class LoopService:
             reaction=s.reaction.summary(),
             tracking=metrics.tracking_metrics(refs[ok], angles[ok]) if ok.any() else {},
             link=self.hw.stats.as_dict(), events=list(sup.events),
-            recorder_dropped=self.recorder.dropped if self.recorder else 0,
-            telemetry_dropped=int(getattr(self.telemetry, "dropped", 0)),
-            twin_dropped=int(getattr(self.twin, "dropped", 0)), final_sample=s.final,
+            final_sample=s.final, sinks=self._sink_reports(),
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",
-            files=[str(self.recorder.csv_path), str(self.recorder.mcap_path)] if self.recorder else [],
+            files=[f for x in self.sinks if isinstance(x, Recorder) for f in x.files],
             session=self.meter.summary() if self.meter else {},
             session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
         )
+
+
+def _unique_names(names: list[str]) -> list[str]:
+    """``names`` with a second "foxglove" as "foxglove-2" (keys of ``RunResult.sinks``)."""
+    seen: dict[str, int] = {}
+    out = []
+    for n in names:
+        seen[n] = seen.get(n, 0) + 1
+        out.append(n if seen[n] == 1 else f"{n}-{seen[n]}")
+    return out
 
 
 def _speed(s: Session) -> dict[str, float]:

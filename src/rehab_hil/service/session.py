@@ -136,10 +136,9 @@ class RigSession:
         if isinstance(self.controller, ControllerRuntime):  # per-cycle figures of a session's open-close cycles
             self.loop.meter = assembly.build_meter(self.cfg, self.controller, duration_s)
         realtime = self.options.realtime if self.options.realtime is not None else not self.lockstep
-        tel = self.foxglove or self.telemetry
         result = self.loop.run(duration_s, pacing=self.options.pacing, realtime=realtime,
                                sample_timeout_s=LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None,
-                               lockstep=self.lockstep, on_trip=tel.on_trip if tel is not None else None)
+                               lockstep=self.lockstep)
         self.result = result
         self._finish(result)
         return result
@@ -193,15 +192,15 @@ class RigSession:
     def _loop(self) -> None:
         """The loop on the rig, with the sinks after its write."""
         supervisor = self.options.supervisor or assembly.build_supervisor(self.cfg, self.binding)
-        tel = self.foxglove or self.telemetry
+        views = [v for v in (self.telemetry, self.foxglove) if v is not None]
+        sinks = [self.recorder, *(v.sink for v in views), self.twin.live if self.twin is not None else None]
         self.loop = loop = LoopService(
             self.hw, self.configure, self.controller, assembly.build_estimator(self.cfg, self.binding), supervisor,
-            self.period_s, recorder=self.recorder, telemetry=tel.sink if tel is not None else None,
-            twin=self.twin.live if self.twin is not None else None)
+            self.period_s, sinks=[x for x in sinks if x is not None])
         if self.twin is not None:
             self.twin.on_stop = lambda text: loop.request_stop(text, "model_mismatch")
-        if tel is not None:
-            tel.watch(loop, self.hw)
+        for view in views:
+            view.watch(loop, self.hw)
 
     def _finish(self, result: RunResult) -> None:
         """The twin's summary and the recording's end: every queued row counted, metadata completed."""

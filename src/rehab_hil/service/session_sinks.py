@@ -57,7 +57,7 @@ def zenoh_telemetry(session: RigSession) -> Any:
 
 
 def foxglove_view(session: RigSession) -> Any:
-    """The Foxglove live view (``telemetry.foxglove.LiveView``), tee'd with zenoh telemetry when that is on."""
+    """The Foxglove live view (``telemetry.foxglove.LiveView``): the server and the rig's feed."""
     from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, LiveView
 
     opts = session.options.foxglove
@@ -66,7 +66,7 @@ def foxglove_view(session: RigSession) -> Any:
         live = FoxgloveLive(opts.host, opts.port)
     except FoxgloveError as e:
         raise SessionError("foxglove", str(e)) from None
-    return LiveView(live, live.add_rig(session.binding), session.telemetry)
+    return LiveView(live, live.add_rig(session.binding))
 
 
 def live_twin(session: RigSession) -> Any:
@@ -80,9 +80,12 @@ def live_twin(session: RigSession) -> Any:
     declared = getattr(session.controller, "controller", session.controller)  # a built controller's declaration
     ref = getattr(declared, "reference", None)
     cycle_s = ref.period_s if ref is not None and ref.kind == "session" else None
-    sink = session.foxglove or session.telemetry
+    # its predictions and model events go to the recording and Foxglove as records, to zenoh on .../twin
+    feed = session.foxglove.sink if session.foxglove is not None else None
+    outputs = [x for x in (session.recorder, feed) if x is not None]
+    publisher = session.telemetry.sink if session.telemetry is not None else None
     try:
-        twin = start_twin(cfg, session.binding, assembly.period_s(cfg), session.run_dir, session.recorder, sink,
+        twin = start_twin(cfg, session.binding, assembly.period_s(cfg), session.run_dir, outputs, publisher,
                           cycle_s, session.lockstep)
     except TwinSetupError as e:
         raise SessionError(None, f"{session.config_path}: [twin] {e}") from None

@@ -1,16 +1,16 @@
-"""The loop's telemetry hook: a sink the loop offers samples to without ever blocking.
+"""The loop's telemetry hook: a sink the loop offers records to without ever blocking.
 
-``TelemetrySink`` is the whole contract (the zenoh publisher, ``rehab_hil.telemetry``, is one); the
-loop offers after its command is out. ``QueueSink`` hands
-samples to a consumer callable on its own thread through a bounded queue and counts drops.
+``TelemetrySink`` is the minimal contract (offer, close) of a telemetry consumer; the loop's sinks
+follow ``service.sinks.Sink``. ``QueueSink`` hands records to a consumer callable on its own thread
+(a ``ThreadedSink``: bounded queue, drops counted). ``loop_stats`` is the 1 Hz stats source.
 """
 
 from __future__ import annotations
 
-import queue
-import threading
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
+
+from rehab_hil.service.sinks import ThreadedSink
 
 __all__ = ["NullSink", "QueueSink", "TelemetrySink", "loop_stats"]
 
@@ -39,39 +39,18 @@ class NullSink:
         pass
 
 
-class QueueSink:
-    """Bounded queue + consumer thread: ``consume(sample)`` runs off the loop thread."""
+class QueueSink(ThreadedSink):
+    """Bounded queue + consumer thread: ``consume(record)`` runs off the loop thread."""
 
-    def __init__(self, consume: Callable[[Any], None], maxsize: int = 1000) -> None:
+    def __init__(self, consume: Callable[[Any], None], maxsize: int = 1000, name: str = "telemetry") -> None:
+        super().__init__(name, maxsize)
         self._consume = consume
-        self._q: queue.Queue[Any] = queue.Queue(maxsize=maxsize)
-        self.dropped = 0
         self.delivered = 0
-        self._stop = object()
-        self._thread = threading.Thread(target=self._run, name="telemetry", daemon=True)
-        self._thread.start()
+        self.start()
 
-    def offer(self, sample: Any) -> bool:
-        try:
-            self._q.put_nowait(sample)
-            return True
-        except queue.Full:
-            self.dropped += 1
-            return False
-
-    def _run(self) -> None:
-        while True:
-            item = self._q.get()
-            if item is self._stop:
-                return
-            self._consume(item)
-            self.delivered += 1
-
-    def close(self) -> None:
-        """Deliver what is queued, then stop the thread; idempotent."""
-        if self._thread.is_alive():
-            self._q.put(self._stop)
-            self._thread.join()
+    def handle(self, record: Any) -> None:
+        self._consume(record)
+        self.delivered += 1
 
 
 def loop_stats(service: Any, hw: Any) -> Callable[[], dict[str, Any]]:

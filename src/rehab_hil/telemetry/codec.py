@@ -13,6 +13,8 @@ import struct
 from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
+from rehab_hil.service.records import CommandRecord, SampleRecord
+
 __all__ = [
     "JSON_KINDS",
     "JSON_VERSION",
@@ -121,8 +123,9 @@ def _get(obj: Any, name: str, default: Any) -> Any:
 def to_state_sample(obj: Any) -> StateSample:
     """Convert what the loop offers into a ``StateSample``.
 
-    Accepts a ``StateSample``; the recorder's ``Record`` (host_time_s, time_s, sample, state, command,
-    command_seq, temperature_c); a bare ``protocol.Sample``; or any object/mapping with those names.
+    Accepts a ``StateSample``; the loop's ``SampleRecord`` (host_time_s, time_s, sample, state, command,
+    command_seq, temperature_c) or ``CommandRecord``; a bare ``protocol.Sample``; or any object/mapping
+    with those names.
     A ``safety`` attribute (str or Enum) is carried when present."""
     if isinstance(obj, StateSample):
         return obj
@@ -160,15 +163,17 @@ _NO_RAW = (0,) * len(_RAW)
 _SAFETY_CODE = {name: i for i, name in enumerate(SAFETY_STATES)}
 
 
-def _record_values(r: Any) -> tuple[Any, ...]:
-    """Wire values of a loop ``Record`` (duck-typed) without building a ``StateSample``: the hot path."""
-    s, st, c = r.sample, r.state, r.command
-    flags = 0
-    if s is not None:
-        flags |= 1
-        raw = _RAW_GET(s)
+def _record_values(r: SampleRecord | CommandRecord) -> tuple[Any, ...]:
+    """Wire values of a loop record without building a ``StateSample``: the hot path."""
+    c = r.command
+    if type(r) is SampleRecord:
+        flags = 1
+        raw = _RAW_GET(r.sample)
+        st = r.state
     else:
+        flags = 0
         raw = _NO_RAW
+        st = None
     if st is not None:
         a = tuple(st.analog.values())
         n = len(a)
@@ -201,11 +206,11 @@ def _sample_values(r: StateSample) -> tuple[Any, ...]:
 def _values(obj: Any) -> tuple[Any, ...]:
     if type(obj) is StateSample:
         return _sample_values(obj)
-    if hasattr(obj, "command") and hasattr(obj, "state") and hasattr(obj, "command_seq"):
+    if type(obj) is SampleRecord or type(obj) is CommandRecord:
         try:
             return _record_values(obj)
         except (AttributeError, TypeError, IndexError):
-            pass  # not quite a Record: take the general path, which explains what is missing
+            pass  # not quite a loop record: take the general path, which explains what is missing
     return _sample_values(to_state_sample(obj))
 
 

@@ -1,11 +1,13 @@
 """Live view in Foxglove: a Foxglove WebSocket server (foxglove-sdk) fed with a rig's loop records.
 
-``FoxgloveLive`` owns one server (127.0.0.1 by default) and one worker thread; ``add_rig`` gives a
-``RigFeed`` per rig, which is a loop telemetry sink (``offer`` only appends to a bounded deque, a full
-one drops and counts). Channels per rig (``<prefix>`` is ``/rig`` for one rig, so the layout in
+``FoxgloveLive`` owns one server (127.0.0.1 by default); ``add_rig`` gives a ``RigFeed`` per rig,
+which is one of the loop's sinks ("foxglove", a ``service.sinks.ThreadedSink``: ``offer`` only
+appends to a bounded deque, a full one drops and counts; its thread logs). Channels per rig
+(``<prefix>`` is ``/rig`` for one rig, so the layout in
 ``docs/foxglove_layout.json`` and the MCAP recordings use the same topics): ``<prefix>/sample``,
 ``<prefix>/command``, ``<prefix>/event``, ``<prefix>/stats``, all JSON with JSON schemas. Sample and
-command messages are exactly the recorder's MCAP messages (``service.recorder``). docs/telemetry.md.
+command messages are exactly the recorder's MCAP messages (``service.recorder``); extra channels (the
+twin's ``/twin/prediction``) come as ``MessageRecord`` s. docs/telemetry.md.
 """
 
 from __future__ import annotations
@@ -24,11 +26,16 @@ import foxglove
 
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
+from rehab_hil.service.records import CommandRecord, EventRecord, MessageRecord, SampleRecord
+from rehab_hil.service.sinks import ThreadedSink
 from rehab_hil.service.telemetry import loop_stats
 from rehab_hil.telemetry.ws_subprotocol import SubprotocolFront
 
 __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "FoxgloveError", "FoxgloveLive", "LiveView", "RigFeed", "rig_prefix",
            "topics"]
+
+POLL_S = 0.005  # the longest records wait for the feed's thread when nobody wakes it (a zenoh bridge)
+STATS_S = 1.0
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -96,88 +103,97 @@ def schemas(binding: DeviceBinding) -> dict[str, foxglove.Schema]:
     }
 
 
-class RigFeed:
-    """One rig's channels on a ``FoxgloveLive`` server; a loop telemetry sink (``offer`` never blocks)."""
+class RigFeed(ThreadedSink):
+    """One rig's channels on a ``FoxgloveLive`` server; a loop sink ("foxglove": ``offer`` never blocks)."""
 
     def __init__(self, live: FoxgloveLive, binding: DeviceBinding, prefix: str, queue_size: int) -> None:
-        self.binding, self.prefix = binding, prefix
+        super().__init__("foxglove", queue_size, poll_s=POLL_S, tick_s=STATS_S)
+        self.binding, self.prefix, self.context = binding, prefix, live.context
         self.topics = topics(prefix)
         sch = schemas(binding)
         self.channels = {k: foxglove.Channel(self.topics[k], schema=sch[k], message_encoding="json",
                                              context=live.context) for k in KINDS}
-        self._cap = queue_size
-        self._queue: collections.deque[Any] = collections.deque()
-        self._events: collections.deque[tuple[str, dict[str, Any]]] = collections.deque(maxlen=1024)
+        self._extra: dict[str, foxglove.Channel] = {}  # topic -> channel of a ``MessageRecord``
+        self._stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=64)
         self._stats_source: Callable[[], Mapping[str, Any]] | None = None
         self._last_time_s = -math.inf
         self._anchor_ns: int | None = None
-        self.offered = self.dropped = self.sent = 0
-
-    # -- loop thread ------------------------------------------------------------------------------
-    def offer(self, record: Any) -> bool:
-        """Queue one loop ``Record``; False (counted in ``dropped``) when the queue is full."""
-        self.offered += 1
-        if len(self._queue) >= self._cap:
-            self.dropped += 1
-            return False
-        self._queue.append(record)
-        return True
-
-    def close(self) -> None:
-        """Nothing to do per rig: the server's owner closes ``FoxgloveLive``."""
+        self.sent = 0
+        self.start()
 
     # -- any thread -------------------------------------------------------------------------------
     def event(self, time_s: float, kind: str, detail: str = "") -> None:
         """Publish a safety or link event on ``<prefix>/event`` (as the recorder writes it)."""
-        self._events.append(("event", {"time_s": time_s if math.isfinite(time_s) else None, "kind": kind,
-                                       "detail": detail}))
+        self.offer(EventRecord(time_s, kind, detail))
 
     def stats(self, msg: Mapping[str, Any]) -> None:
         """Publish a stats message (the zenoh ``stats`` body) on ``<prefix>/stats``."""
-        self._events.append(("stats", dict(msg)))
+        self._stats.append(dict(msg))
 
     def set_stats_source(self, source: Callable[[], Mapping[str, Any]] | None) -> None:
-        """A callable the worker asks once per second for the loop and link figures."""
+        """A callable the feed's thread asks once per second for the loop and link figures."""
         self._stats_source = source
 
-    # -- worker thread ----------------------------------------------------------------------------
+    # -- the feed's thread ------------------------------------------------------------------------
     def _log_time(self, host_time_s: float) -> int:
         # anchored on the first record: keeps the rig's own spacing of records, on this machine's clock
         if self._anchor_ns is None:
             self._anchor_ns = time.time_ns() - int(host_time_s * 1e9)
         return self._anchor_ns + int(host_time_s * 1e9)
 
-    def _drain(self, ask_stats: bool) -> None:
-        q = self._queue
-        ch_sample, ch_cmd = self.channels["sample"], self.channels["command"]
-        watched = ch_sample.has_sinks() or ch_cmd.has_sinks()
-        while q:
-            rec = q.popleft()
-            if rec.sample is None:
-                if watched:
-                    ch_cmd.log(json.dumps(command_message(rec)).encode(), log_time=self._log_time(rec.host_time_s))
-                    self.sent += 1
-                continue
+    def handle(self, rec: Any) -> None:
+        t = type(rec)
+        if t is SampleRecord:
             if rec.state is None or rec.time_s <= self._last_time_s:
-                continue  # what the recorder skips too
+                return  # what the recorder skips too
             self._last_time_s = rec.time_s
-            if watched:
-                msg = sample_message(self.binding, rec)
-                ch_sample.log(json.dumps(msg).encode(), log_time=self._log_time(rec.host_time_s))
+            ch = self.channels["sample"]
+            if ch.has_sinks():
+                ch.log(json.dumps(sample_message(self.binding, rec)).encode(), log_time=self._log_time(rec.host_time_s))
                 self.sent += 1
             time.sleep(0)  # let the loop thread have the interpreter
-        if ask_stats and self._stats_source is not None:
+        elif t is CommandRecord:
+            ch = self.channels["command"]
+            if ch.has_sinks():
+                ch.log(json.dumps(command_message(rec)).encode(), log_time=self._log_time(rec.host_time_s))
+                self.sent += 1
+        elif t is EventRecord:
+            body = {"time_s": _clean(float(rec.time_s)), "kind": rec.kind, "detail": rec.detail}
+            with contextlib.suppress(Exception):
+                self.channels["event"].log(json.dumps(body, default=str).encode())
+        elif t is MessageRecord:
+            self._message(rec)
+
+    def _message(self, rec: MessageRecord) -> None:
+        """An extra channel's message (the twin's ``/twin/prediction``), under this rig's prefix."""
+        topic = rec.topic if self.prefix == "/rig" else f"{self.prefix}{rec.topic}"
+        ch = self._extra.get(topic)
+        if ch is None:
+            schema = _schema(rec.schema, {k: _NUMBER for k in rec.body})
+            ch = self._extra[topic] = foxglove.Channel(topic, schema=schema, message_encoding="json",
+                                                       context=self.context)
+        if ch.has_sinks():
+            ch.log(json.dumps({k: _clean(v) for k, v in rec.body.items()}).encode())
+
+    def tick(self) -> None:
+        """Once a second: the loop and link figures on ``<prefix>/stats``."""
+        if self._stats_source is not None:
             try:
                 body = dict(self._stats_source())
             except Exception as e:  # a stats bug must not stop the live view
                 body = {"error": f"{type(e).__name__}: {e}"}
-            self._events.append(("stats", {"time_s": time.time(), "loop": body,
-                                           "telemetry": {"offered": self.offered, "dropped": self.dropped,
-                                                         "sent": self.sent}}))
-        while self._events:
-            kind, body = self._events.popleft()
+            self._stats.append({"time_s": time.time(), "loop": body,
+                                "telemetry": {"offered": self.offered, "dropped": self.dropped, "sent": self.sent}})
+        self._log_stats()
+
+    def finish(self) -> None:
+        self._log_stats()
+
+    def _log_stats(self) -> None:
+        while self._stats:
+            body = self._stats.popleft()
             with contextlib.suppress(Exception):
-                self.channels[kind].log(json.dumps(body, default=str).encode())
+                self.channels["stats"].log(json.dumps(body, default=str).encode())
 
 
 class FoxgloveLive:
@@ -206,9 +222,7 @@ class FoxgloveLive:
         self.host, self.port = host, self.front.port
         self.feeds: list[RigFeed] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="foxglove", daemon=True)
-        self._thread.start()
+        self._closed = False
 
     @property
     def url(self) -> str:
@@ -221,28 +235,15 @@ class FoxgloveLive:
             self.feeds.append(feed)
         return feed
 
-    def _run(self) -> None:
-        next_stats = time.monotonic() + 1.0
-        while True:
-            stopping = self._stop.is_set()
-            now = time.monotonic()
-            ask = now >= next_stats
-            if ask:
-                next_stats = now + 1.0
-            with self._lock:
-                feeds = list(self.feeds)
-            for feed in feeds:
-                feed._drain(ask)
-            if stopping:
-                return
-            self._stop.wait(0.005)
-
     def close(self) -> None:
-        """Send what is queued, then stop the server; idempotent."""
-        if self._stop.is_set():
+        """Send what the feeds hold, then stop the server; idempotent."""
+        if self._closed:
             return
-        self._stop.set()
-        self._thread.join(5.0)
+        self._closed = True
+        with self._lock:
+            feeds = list(self.feeds)
+        for feed in feeds:
+            feed.close(timeout_s=5.0)
         self.front.close()
         with contextlib.suppress(Exception):
             self.server.stop()
@@ -255,54 +256,17 @@ class FoxgloveLive:
 
 
 class LiveView:
-    """What ``rehab-hil run --foxglove`` hands the loop: the Foxglove feed, tee'd with the zenoh
-    publisher when ``--telemetry`` is on too (same ``sink``/``watch``/``on_trip`` as ``RigTelemetry``)."""
+    """What ``rehab-hil run --foxglove`` adds to a session: the server and the rig's feed (``sink``,
+    one of the loop's sinks beside the recorder and zenoh telemetry)."""
 
-    def __init__(self, live: FoxgloveLive, feed: RigFeed, zenoh_telemetry: Any = None) -> None:
-        self.live, self.feed, self.zenoh = live, feed, zenoh_telemetry
-        self.sink: Any = feed if zenoh_telemetry is None else Tee(zenoh_telemetry.sink, feed)
+    def __init__(self, live: FoxgloveLive, feed: RigFeed) -> None:
+        self.live, self.feed = live, feed
+        self.sink = feed
 
     def watch(self, service: Any, hw: Any) -> None:
-        """Loop progress and link figures on ``/rig/stats`` once per second (and on zenoh, if on)."""
-        if self.zenoh is not None:
-            self.zenoh.watch(service, hw)
+        """Loop progress and link figures on ``/rig/stats`` once per second."""
         self.feed.set_stats_source(loop_stats(service, hw))
 
-    def on_trip(self, event: Any) -> None:
-        """``LoopService.run(on_trip=...)``: the supervisor's event on ``/rig/event`` (and zenoh)."""
-        if self.zenoh is not None:
-            self.zenoh.on_trip(event)
-        self.feed.event(float(getattr(event, "t_s", math.nan)), str(getattr(event, "reason", event)),
-                        str(getattr(event, "detail", "")))
-
     def close(self) -> None:
-        """Stop the Foxglove server (the zenoh side is closed by its own owner)."""
+        """Send what the feed holds, stop the Foxglove server."""
         self.live.close()
-
-
-class Tee:
-    """A telemetry sink that offers each record to several sinks; ``dropped`` adds theirs up."""
-
-    def __init__(self, *sinks: Any) -> None:
-        self.sinks = sinks
-
-    def offer(self, record: Any) -> bool:
-        ok = True
-        for s in self.sinks:
-            ok = s.offer(record) and ok
-        return ok
-
-    def wake(self) -> None:
-        """The loop's once-per-cycle wake, to each sink that takes one."""
-        for s in self.sinks:
-            wake = getattr(s, "wake", None)
-            if wake is not None:
-                wake()
-
-    @property
-    def dropped(self) -> int:
-        return sum(int(getattr(s, "dropped", 0)) for s in self.sinks)
-
-    def close(self) -> None:
-        for s in self.sinks:
-            s.close()

@@ -1,16 +1,18 @@
-"""``TelemetryPublisher``: the loop's telemetry sink. ``offer`` never blocks; a worker thread publishes.
+"""``TelemetryPublisher``: the loop's telemetry sink ("telemetry"). ``offer`` never blocks; a worker
+thread publishes.
 
-The loop thread only appends to a bounded queue (a full queue drops the sample and counts it) and,
-once per cycle after its command is out, calls ``wake``; the worker (woken so, or every 2 ms)
-batches samples into the binary state encoding, publishes stats at 1 Hz and safety events as
-they come, holds the rig's liveliness token and answers ``info`` queries.
+A ``service.sinks.ThreadedSink``: the loop thread only appends to a bounded queue (a full queue
+drops the record and counts it) and, once per cycle after its command is out, calls ``wake``; the
+worker (woken so, or every 2 ms) batches samples and commands into the binary state encoding,
+publishes the loop's safety events (``EventRecord``) on ``.../safety``, stats at 1 Hz, holds the
+rig's liveliness token and answers ``info`` queries.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
-import threading
+import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -18,6 +20,8 @@ from typing import Any
 import zenoh
 
 from rehab_hil.protocol import Sample
+from rehab_hil.service.records import CycleRecord, EventRecord, MessageRecord, SampleRecord
+from rehab_hil.service.sinks import ThreadedSink
 from rehab_hil.telemetry.codec import PayloadError, StateSample, decode_json, encode_json, join_records, pack_record
 from rehab_hil.telemetry.keys import RigKeys
 
@@ -27,18 +31,20 @@ CommandHandler = Callable[[dict[str, Any]], None]
 
 
 def _carries_sample(x: Any) -> bool:
-    """Whether an offered record holds a device SAMPLE (a loop ``Record`` with one, a bare
-    ``protocol.Sample``, a ``StateSample`` with ``has_sample``): what a recording counts."""
-    if getattr(x, "sample", None) is not None:
-        return True
+    """Whether an offered record holds a device SAMPLE (a ``SampleRecord``, a bare ``protocol.Sample``,
+    a ``StateSample`` with ``has_sample``): what a recording counts."""
     t = type(x)
-    return (t is StateSample and x.has_sample) or t is Sample
+    return t is SampleRecord or t is Sample or (t is StateSample and x.has_sample)
+
+
+_NOT_STATE = (EventRecord, CycleRecord, MessageRecord)  # records that are not packed into state batches
+TICK_S = 0.002  # the worker looks at its partial batch, side messages and stats this often
 
 
 COMMAND_OPS = ("setpoint", "start", "stop")
 
 
-class TelemetryPublisher:
+class TelemetryPublisher(ThreadedSink):
     """Publish one rig's telemetry on ``session`` (which the caller owns and closes).
 
     ``batch`` samples go in one put (a partial batch leaves after ``max_delay_s``); ``queue_size`` bounds
@@ -59,29 +65,30 @@ class TelemetryPublisher:
             raise ValueError("max_delay_s must be in (0, 1] s and stats_period_s in (0, 60] s")
         if commands_enabled and on_command is None:
             raise ValueError("commands_enabled needs an on_command handler")
+        super().__init__("telemetry", queue_size, poll_s=TICK_S, tick_s=TICK_S)
         self.keys = RigKeys(rig_id)
         self._session = session
-        self._batch, self._cap, self._max_delay = batch, queue_size, max_delay_s
+        self._batch, self._max_delay = batch, max_delay_s
         self._stats_period = stats_period_s
         self._info = dict(info or {})
-        self._queue: collections.deque[Any] = collections.deque()
-        # (key, kind, JSON body) for the worker to put: safety events, the twin's predictions and events
+        # (key, kind, JSON body) for the worker to put beside the records: ``offer_safety``, the twin's
+        # predictions and events (never counted with the samples' drops: those go into the batches)
         self._events: collections.deque[tuple[str, str, dict[str, Any]]] = collections.deque(maxlen=4096)
         self._loop_stats: dict[str, Any] = {}
         self._on_command = on_command
         self._stats_source = stats_source
-        self.offered = 0
-        self.samples_offered = 0  # offered records that carry a device SAMPLE (what a recording counts)
-        self.dropped = 0
+        self._samples_taken = 0  # records with a device SAMPLE the worker took from the queue
+        self._samples_refused = 0  # records with a device SAMPLE dropped at the full queue
         self.samples_dropped = 0  # of the dropped records, those that carry a device SAMPLE
         self.published_samples = 0
         self.published_batches = 0
         self.publish_errors = 0
         self.commands_accepted = 0
         self.commands_rejected = 0
-        self._closed = False
-        self._stop = threading.Event()
-        self._kick = threading.Event()
+        self._pending: list[bytes] = []  # packed records of the batch being filled
+        self._pending_samples = 0  # of those, records with a device SAMPLE
+        self._first_at = 0.0
+        self._next_stats = time.monotonic() + stats_period_s
         self._pub = self._token = self._queryable = self._cmd_sub = None
         try:
             # reliable and blocking: a subscriber (a recording) that falls behind slows the worker
@@ -95,25 +102,19 @@ class TelemetryPublisher:
         except zenoh.ZError:
             self._undeclare()
             raise
-        self._thread = threading.Thread(target=self._run, name=f"telemetry-{rig_id}", daemon=True)
-        self._thread.start()
+        self._thread.name = f"telemetry-{rig_id}"
+        self.start()
 
-    # -- called from the loop thread: O(1), never blocks ------------------------------------------
-    def offer(self, sample: Any) -> bool:
-        """Queue one sample for publishing; False (and counted in ``dropped``) when the queue is full."""
-        self.offered += 1
-        has_sample = _carries_sample(sample)
-        self.samples_offered += has_sample
-        if self._closed or len(self._queue) >= self._cap:
-            self.dropped += 1
-            self.samples_dropped += has_sample
-            return False
-        self._queue.append(sample)
-        return True
+    @property
+    def samples_offered(self) -> int:
+        """Offered records that carry a device SAMPLE (what a recording counts): those taken and those
+        dropped at the queue (exact once the queue is empty, as in the final stats)."""
+        return self._samples_taken + self._samples_refused
 
-    def wake(self) -> None:
-        """Let the worker take what is queued now (the loop: once per cycle, after its write)."""
-        self._kick.set()
+    def refused(self, record: Any) -> None:
+        if _carries_sample(record):
+            self._samples_refused += 1
+            self.samples_dropped += 1
 
     def offer_safety(self, event: Mapping[str, Any]) -> None:
         """Queue a safety event (e.g. ``{"state": "tripped", "reason": "force"}``) for ``.../safety``."""
@@ -136,14 +137,11 @@ class TelemetryPublisher:
         self._info = dict(info)
 
     # -- lifecycle ---------------------------------------------------------------------------------
-    def close(self, timeout_s: float = 2.0) -> None:
+    def close(self, timeout_s: float | None = 2.0) -> None:
         """Publish what is queued, then undeclare everything (the liveliness token goes last)."""
-        if self._closed:
-            return
-        self._closed = True
-        self._stop.set()
-        self._kick.set()
-        self._thread.join(timeout_s)
+        super().close(timeout_s)
+
+    def release(self) -> None:
         self._undeclare()
 
     def _undeclare(self) -> None:
@@ -166,62 +164,75 @@ class TelemetryPublisher:
     def counters(self) -> dict[str, int]:
         """Publisher counters as they appear under ``telemetry`` in the stats message."""
         return {"offered": self.offered, "samples_offered": self.samples_offered, "dropped": self.dropped,
-                "samples_dropped": self.samples_dropped, "queued": len(self._queue),
+                "samples_dropped": self.samples_dropped, "queued": len(self._q),
                 "published_samples": self.published_samples, "published_batches": self.published_batches,
                 "publish_errors": self.publish_errors, "commands_accepted": self.commands_accepted,
                 "commands_rejected": self.commands_rejected}
 
     # -- worker thread -----------------------------------------------------------------------------
-    def _run(self) -> None:
+    def handle(self, item: Any) -> None:
         # Records are packed one at a time as they are taken, with a GIL release after each, so the
         # loop thread never waits long for the interpreter while this thread works.
-        pending: list[bytes] = []
-        pending_samples = 0  # of the pending records, those with a device SAMPLE
-        first_at = 0.0
-        next_stats = time.monotonic() + self._stats_period
-        while True:
-            stopping = self._stop.is_set()
-            q = self._queue
-            while q:
-                item = q.popleft()
-                try:
-                    rec = pack_record(item)
-                except PayloadError:
-                    self.publish_errors += 1
-                    self.dropped += 1
-                    self.samples_dropped += _carries_sample(item)
-                    continue
-                if not pending:
-                    first_at = time.monotonic()
-                pending.append(rec)
-                pending_samples += _carries_sample(item)
-                if len(pending) == self._batch:
-                    self._put_batch(pending, pending_samples)
-                    pending, pending_samples = [], 0
-                time.sleep(0)
-            now = time.monotonic()
-            if pending and (stopping or now - first_at >= self._max_delay):
-                self._put_batch(pending, pending_samples)
-                pending, pending_samples = [], 0
-            while self._events:
-                key, kind, body = self._events.popleft()
-                self._put_json(key, kind, body)
-            if now >= next_stats or stopping:
-                next_stats = now + self._stats_period
-                if self._stats_source is not None:
-                    try:
-                        self._loop_stats = dict(self._stats_source())
-                    except Exception as e:  # a stats bug must not stop telemetry
-                        self._loop_stats = {"error": f"{type(e).__name__}: {e}"}
-                body = {"rig": self.keys.rig_id, "time_s": time.time(), "loop": self._loop_stats,
-                        "telemetry": self.counters()}
-                if stopping:  # the last word, after the last batch on the same path: a recording
-                    body["final"] = True  # knows from it how many samples it should have received
-                self._put_json(self.keys.stats, "stats", body, final=stopping)
-            if stopping:
-                return
-            self._kick.wait(0.002)
-            self._kick.clear()
+        if isinstance(item, _NOT_STATE):
+            if type(item) is EventRecord:  # the loop's safety events (``RigTelemetry.on_trip``'s body)
+                t = item.time_s if math.isfinite(item.time_s) else None
+                self._put_json(self.keys.safety, "safety", {"rig": self.keys.rig_id, "time_s": time.time(),
+                               "state": "tripped", "t_s": t, "reason": item.kind, "detail": item.detail})
+            return  # cycles reach zenoh in the stats; the twin's messages through ``offer_twin``
+        has_sample = _carries_sample(item)
+        self._samples_taken += has_sample
+        try:
+            rec = pack_record(item)
+        except PayloadError:
+            self.publish_errors += 1
+            self.dropped += 1
+            self.samples_dropped += has_sample
+            return
+        if not self._pending:
+            self._first_at = time.monotonic()
+        self._pending.append(rec)
+        self._pending_samples += has_sample
+        if len(self._pending) == self._batch:
+            self._put_pending()
+        time.sleep(0)
+
+    def tick(self) -> None:
+        """The partial batch once ``max_delay_s`` old, the side messages, the stats when due."""
+        now = time.monotonic()
+        if self._pending and now - self._first_at >= self._max_delay:
+            self._put_pending()
+        self._put_events()
+        if now >= self._next_stats:
+            self._next_stats = now + self._stats_period
+            self._put_stats(final=False)
+
+    def finish(self) -> None:
+        """The last batch, the side messages, then the final stats (a recording's last word)."""
+        if self._pending:
+            self._put_pending()
+        self._put_events()
+        self._put_stats(final=True)
+
+    def _put_pending(self) -> None:
+        self._put_batch(self._pending, self._pending_samples)
+        self._pending, self._pending_samples = [], 0
+
+    def _put_events(self) -> None:
+        while self._events:
+            key, kind, body = self._events.popleft()
+            self._put_json(key, kind, body)
+
+    def _put_stats(self, final: bool) -> None:
+        if self._stats_source is not None:
+            try:
+                self._loop_stats = dict(self._stats_source())
+            except Exception as e:  # a stats bug must not stop telemetry
+                self._loop_stats = {"error": f"{type(e).__name__}: {e}"}
+        body = {"rig": self.keys.rig_id, "time_s": time.time(), "loop": self._loop_stats,
+                "telemetry": self.counters()}
+        if final:  # the last word, after the last batch on the same path: a recording
+            body["final"] = True  # knows from it how many samples it should have received
+        self._put_json(self.keys.stats, "stats", body, final=final)
 
     def _put_batch(self, records: list[bytes], n_samples: int = 0) -> None:
         try:

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -16,6 +17,7 @@ import zenoh
 
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import PROTOCOL_VERSION
+from rehab_hil.service.records import EventRecord
 from rehab_hil.service.telemetry import loop_stats
 from rehab_hil.telemetry.codec import JSON_VERSION, STATE_VERSION
 from rehab_hil.telemetry.publisher import TelemetryPublisher
@@ -45,7 +47,7 @@ def rig_info(plant: str, config_path: str | Path, binding: DeviceBinding, period
 
 
 class RigTelemetry:
-    """Session + ``TelemetryPublisher`` for one rig; ``sink`` is what the loop offers records to.
+    """Session + ``TelemetryPublisher`` for one rig; ``sink`` (the publisher) is one of the loop's sinks.
 
     In loopback mode the rig first tries to be the hub (listen on 127.0.0.1:port) and becomes a
     client of an existing hub if the port is taken; ``role`` says which it got."""
@@ -74,9 +76,11 @@ class RigTelemetry:
         self.sink.set_stats_source(loop_stats(service, hw))
 
     def on_trip(self, event: Any) -> None:
-        """``LoopService.run(on_trip=...)`` hook: publish the supervisor's event on ``.../safety``."""
-        self.sink.offer_safety({"state": "tripped", "t_s": getattr(event, "t_s", None),
-                                "reason": getattr(event, "reason", str(event)), "detail": getattr(event, "detail", "")})
+        """Publish a supervisor's ``SafetyEvent`` on ``.../safety`` now (the loop itself offers its
+        events to the publisher as ``EventRecord`` s at the end of a session)."""
+        self.sink.offer(EventRecord(float(getattr(event, "t_s", math.nan)), str(getattr(event, "reason", event)),
+                                    str(getattr(event, "detail", ""))))
+        self.sink.wake()
 
     def close(self) -> None:
         """Flush and undeclare the publisher, then close the session; idempotent."""

@@ -1,7 +1,7 @@
 """Record a rig from zenoh into the same CSV and MCAP files a local recording writes.
 
-Decoded ``StateSample`` s are turned back into the loop's ``Record`` objects and handed to the
-loop engineer's ``Recorder`` unchanged, so both paths share one writer (docs/telemetry.md).
+Decoded ``StateSample`` s are turned back into the loop's records (``service.records``) and handed
+to the loop's ``Recorder`` unchanged, so both paths share one writer (docs/telemetry.md).
 
 Nothing is lost silently. The rig publishes reliably with congestion control BLOCK and the
 recorder's queue blocks instead of dropping, so a busy recorder slows the rig's publisher thread
@@ -26,7 +26,9 @@ from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.protocol import Sample
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import State
-from rehab_hil.service.recorder import Record, Recorder
+from rehab_hil.service.recorder import Recorder
+from rehab_hil.service.records import CommandRecord, EventRecord, SampleRecord
+from rehab_hil.service.sinks import Overflow
 from rehab_hil.telemetry.codec import StateSample
 from rehab_hil.telemetry.subscriber import Subscription, subscribe, watch_alive
 
@@ -36,16 +38,19 @@ _RAW = ("device_time_us", "sample_index", "encoder_count", "adc0", "adc1", "duty
         "direction", "status", "faults", "cmd_seq_echo", "rx_bad_frames")
 
 
-def to_record(s: StateSample, analog_names: list[str] | tuple[str, ...]) -> Record:
-    """The loop ``Record`` a ``StateSample`` was encoded from (exact: the wire carries f64 values)."""
-    sample = Sample(*(getattr(s, f) for f in _RAW)) if s.has_sample else None
+def to_record(s: StateSample, analog_names: list[str] | tuple[str, ...]) -> SampleRecord | CommandRecord:
+    """The loop record a ``StateSample`` was encoded from (exact: the wire carries f64 values): a
+    ``SampleRecord`` when it carries a device SAMPLE, else a ``CommandRecord``."""
+    cmd = Command((s.command_duty0, s.command_duty1), s.command_direction, s.command_enable, s.reference_deg)
+    if not s.has_sample:
+        return CommandRecord(s.host_time_s, s.time_s, cmd, s.command_seq, s.temperature_c)
+    sample = Sample(*(getattr(s, f) for f in _RAW))
     state = None
     if s.has_state:
         if len(s.analog) > len(analog_names):
             raise ValueError(f"sample has {len(s.analog)} analog values but only names {list(analog_names)}")
         state = State(s.state_t_s, s.angle_rad, s.velocity_rad_s, dict(zip(analog_names, s.analog, strict=False)))
-    cmd = Command((s.command_duty0, s.command_duty1), s.command_direction, s.command_enable, s.reference_deg)
-    return Record(s.host_time_s, s.time_s, sample, state, cmd, s.command_seq, s.temperature_c)
+    return SampleRecord(s.host_time_s, s.time_s, sample, state, cmd, s.command_seq, s.temperature_c)
 
 
 class ZenohRecorder:
@@ -57,7 +62,8 @@ class ZenohRecorder:
 
     def __init__(self, session: zenoh.Session, rig: str, out_dir: str | Path, binding: DeviceBinding,
                  name: str = "run", metadata: dict[str, Any] | None = None, period_s: float | None = None) -> None:
-        self.recorder = Recorder(out_dir, binding, name=name, metadata=metadata)
+        # a full queue waits: back-pressure to zenoh, and so to the rig's publisher, instead of loss
+        self.recorder = Recorder(out_dir, binding, name=name, metadata=metadata, overflow=Overflow.WAIT)
         self._names = [ch.signal for ch in binding.adc]
         self.period_s = period_s
         self.samples = 0  # records received and written (samples and commands)
@@ -90,7 +96,7 @@ class ZenohRecorder:
                 return
             if s.has_sample:
                 self._count(s)
-            self.recorder.offer(rec, block=True)  # back-pressure to zenoh, and so to the rig's publisher
+            self.recorder.offer(rec)
             self.samples += 1
 
     def _count(self, s: StateSample) -> None:
@@ -107,8 +113,9 @@ class ZenohRecorder:
         t = msg.get("t_s")
         with self._lock:
             if not self._closed:
-                self.recorder.event(float(t) if isinstance(t, (int, float)) else math.nan,
-                                    str(msg.get("reason", msg.get("state", "?"))), str(msg.get("detail", "")))
+                self.recorder.offer(EventRecord(float(t) if isinstance(t, (int, float)) else math.nan,
+                                                str(msg.get("reason", msg.get("state", "?"))),
+                                                str(msg.get("detail", ""))))
 
     def _on_stats(self, msg: dict[str, Any]) -> None:
         if msg.get("final") and isinstance(msg.get("telemetry"), dict):

@@ -1,24 +1,25 @@
 """The twin beside the loop: records in after the command is out, predictions, residuals and
 events out, on a thread of its own.
 
-``Twin`` is the whole computation and has no thread: ``feed`` takes the loop's records (the same
-``Record`` objects the recorder gets), turns each sample into the model's inputs (what the device
+``Twin`` is the whole computation and has no thread: ``feed`` takes the loop's sample records (the
+same ``SampleRecord`` s the recorder gets), turns each sample into the model's inputs (what the device
 says it applied) and measured channels, and every ``segment_s`` of samples runs the model
 (``TwinModel``), the residual test (``ResidualMonitor``), the online interaction estimate and,
-after a mismatch, the quick diagnosis. ``LiveTwin`` runs it off the hot path: the loop's ``offer``
-appends to a deque and ``wake`` sets an event, nothing more; the work happens while the loop waits
-for its next sample, and gives the interpreter back every few records. A twin that falls behind
-drops records from its queue (counted, reported) and never slows the loop.
+after a mismatch, the quick diagnosis. ``LiveTwin`` runs it off the hot path as one of the loop's
+sinks (``service.sinks.ThreadedSink``, named "twin"): the work happens while the loop waits for its
+next sample, and gives the interpreter back every few records. A twin that falls behind drops
+records from its queue (counted, reported) and never slows the loop; a twin that fails is reported
+and the session goes on.
 
-Outputs go to listeners (``TwinListener``): the recorder (``twin.csv`` beside ``run.csv``, MCAP
-``/twin/prediction`` and events on ``/rig/event``), zenoh (``rehab/<rig>/twin``) and Foxglove.
+Outputs go to listeners (``TwinListener``, ``twin.outputs``): ``twin.csv`` beside ``run.csv``, and
+the other sinks (MCAP and Foxglove ``/twin/prediction``, events on ``/rig/event``; zenoh
+``rehab/<rig>/twin``).
 """
 
 from __future__ import annotations
 
 import math
 import os
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -30,6 +31,8 @@ import numpy as np
 from rehab_hil.config import TwinSection
 from rehab_hil.interchange import Recording
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.service.records import SampleRecord
+from rehab_hil.service.sinks import Overflow, ThreadedSink
 from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
 from rehab_hil.twin.model import TwinModel, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
@@ -108,7 +111,8 @@ class Twin:
 
     # -- in ------------------------------------------------------------------------------------
     def feed(self, record: Any) -> None:
-        """One loop record: a sample's is buffered; a full segment is processed."""
+        """One sample record (a ``SampleRecord``, or a replayed row with its fields): buffered; a full
+        segment is processed."""
         smp, st = record.sample, record.state
         if smp is None or st is None or record.time_s <= self._last_t:
             return
@@ -293,63 +297,26 @@ class Twin:
                                     for ch in self.monitor.channels}}
 
 
-class LiveTwin:
-    """``Twin`` on its own thread, fed as a loop sink (``offer``/``wake``) after the write."""
+class LiveTwin(ThreadedSink):
+    """``Twin`` on its own thread, one of the loop's sinks ("twin"), fed after the write."""
 
     def __init__(self, twin: Twin, queue_size: int = 20_000, wait_when_full: bool = False) -> None:
         """``wait_when_full``: a full queue holds the loop up instead of dropping the record (a lockstep
         session, which runs as fast as it can and whose results must not depend on the machine)."""
+        super().__init__("twin", queue_size, Overflow.WAIT if wait_when_full else Overflow.DROP, poll_s=0.05)
         self.twin = twin
-        self._q: deque[Any] = deque()
-        self._cap = queue_size
-        self.wait_when_full = wait_when_full
-        self.dropped = 0
-        self._kick = threading.Event()
-        self._closing = False
-        self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="twin", daemon=True)
-        self._thread.start()
+        self._taken = 0
+        self.start()
 
-    def offer(self, record: Any) -> bool:
-        if len(self._q) >= self._cap:
-            if not self.wait_when_full:
-                self.dropped += 1
-                return False
-            self._kick.set()
-            while len(self._q) >= self._cap and self._thread.is_alive():
-                time.sleep(0.0005)
-        self._q.append(record)
-        return True
+    def handle(self, record: Any) -> None:
+        if type(record) is SampleRecord:  # commands, cycles, events and messages are not the twin's
+            self.twin.feed(record)
+            self._taken += 1
+            if self._taken % YIELD_EVERY == 0:
+                time.sleep(0)
 
-    def wake(self) -> None:
-        self._kick.set()
-
-    def _run(self) -> None:
-        q, twin = self._q, self.twin
-        while True:
-            self._kick.wait(0.05)
-            self._kick.clear()
-            closing = self._closing
-            k = 0
-            try:
-                while q:
-                    twin.feed(q.popleft())
-                    k += 1
-                    if k % YIELD_EVERY == 0:
-                        time.sleep(0)
-            except Exception as e:  # a twin bug must never stop the loop: it is reported at the end
-                self.error = e
-                return
-            if closing:
-                return
-
-    def close(self) -> None:
-        """Take what is queued, finish the twin; idempotent."""
-        if self._closing:
-            return
-        self._closing = True
-        self._kick.set()
-        self._thread.join()
+    def release(self) -> None:
+        """Finish the twin (its last segment, ``twin.csv``), unless it failed."""
         if self.error is None:
             self.twin.finish()
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,7 @@ from rehab_hil.plants.registry import get_plant
 from rehab_hil.twin.live import LiveTwin, Twin
 from rehab_hil.twin.model import TwinSetupError
 from rehab_hil.twin.monitor import MismatchEvent
-from rehab_hil.twin.outputs import FoxgloveOutput, RecordingOutput, ZenohOutput
+from rehab_hil.twin.outputs import SinkOutput, ZenohOutput
 
 __all__ = ["TwinRun", "start_twin"]
 
@@ -98,22 +98,18 @@ def model_event(ev: MismatchEvent) -> dict[str, Any]:
 
 
 def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str | Path | None = None,
-               recorder: Any = None, telemetry: Any = None, cycle_s: float | None = None,
+               sinks: Sequence[Any] = (), zenoh: Any = None, cycle_s: float | None = None,
                lockstep: bool = False) -> TwinRun:
-    """The twin for ``cfg`` (its ``[twin]`` table, or the defaults), writing ``twin.csv`` into ``run_dir``
-    and feeding the recorder, zenoh and Foxglove that are on; ``cycle_s``: the session's open-close
-    period (per-cycle interaction estimates); ``lockstep``: the loop waits for a twin that falls behind
-    instead of the twin dropping records, so a lockstep session's twin is as deterministic as the rest.
-    Raises ``TwinSetupError`` (one line)."""
+    """The twin for ``cfg`` (its ``[twin]`` table, or the defaults), writing ``twin.csv`` into ``run_dir``;
+    its predictions and model events are offered to ``sinks`` (the recorder, the Foxglove feed) and
+    published by ``zenoh`` (a ``TelemetryPublisher``) on ``rehab/<rig>/twin``. ``cycle_s``: the
+    session's open-close period (per-cycle interaction estimates); ``lockstep``: the loop waits for a
+    twin that falls behind instead of the twin dropping records, so a lockstep session's twin is as
+    deterministic as the rest. Raises ``TwinSetupError`` (one line)."""
     settings = cfg.twin or TwinSection()
-    listeners: list[Any] = []
-    if recorder is not None:
-        listeners.append(RecordingOutput(recorder))
-    zenoh = getattr(telemetry, "zenoh", None) if hasattr(telemetry, "feed") else telemetry
+    listeners: list[Any] = [SinkOutput(s) for s in sinks]
     if zenoh is not None:
-        listeners.append(ZenohOutput(zenoh.sink))
-    if hasattr(telemetry, "feed"):
-        listeners.append(FoxgloveOutput(telemetry.live, telemetry.feed))
+        listeners.append(ZenohOutput(zenoh))
     try:
         twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners)
     except ValueError as e:  # a TwinSetupError, or a model the twin cannot bind: one line either way
