@@ -10,10 +10,14 @@ import os
 import threading
 import time
 
+from rich.console import Console
+
+from rehab_hil.cli.run import summary_table
 from rehab_hil.interchange import read_csv
 from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.records import CommandRecord, EventRecord
+from rehab_hil.service.run_dir import result_metadata
 from rehab_hil.service.runner import LoopService
 from rehab_hil.service.sinks import Overflow, Sink, ThreadedSink
 from rehab_hil.service.telemetry import QueueSink
@@ -162,3 +166,8 @@ def test_a_failed_telemetry_sink_is_reported_and_the_session_runs_to_its_duratio
     assert res.sinks["recorder"] == {"dropped": 0, "error": None} and res.recorder_dropped == 0
     assert svc.sink_failures == ["telemetry: ConnectionError: router gone"]
     assert read_csv(tmp_path / "run.csv").t.size == res.samples
+    assert result_metadata(res, rec.rows)["sinks"] == res.sinks  # metadata.json names each sink's drops and error
+    console = Console(record=True, width=200)
+    console.print(summary_table(res))
+    text = console.export_text()
+    assert "recorder drops" in text and "telemetry failed" in text and "ConnectionError: router gone" in text

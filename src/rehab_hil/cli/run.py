@@ -118,7 +118,10 @@ def summary_table(r: RunResult) -> Table:
     t.add_row("link dropped samples", str(ln["dropped_samples"]))
     t.add_row("command->echo latency p50/p99",
               f"{1e6 * ln['latency_p50_s']:.0f} / {1e6 * ln['latency_p99_s']:.0f} us")
-    t.add_row("recorder / telemetry / twin drops", f"{r.recorder_dropped} / {r.telemetry_dropped} / {r.twin_dropped}")
+    for name, sink in r.sinks.items():  # each sink by name: its drops, and the error it stopped with
+        t.add_row(f"{name} drops", str(sink["dropped"]))
+        if sink["error"]:
+            t.add_row(f"[red]{name} failed", sink["error"])
     for ev in r.events:
         t.add_row(f"[red]safety {ev.reason}", f"t={ev.t_s:.3f} s {ev.detail}")
     if not r.events:

@@ -3,7 +3,7 @@
 ``<root>/<UTC start, YYYYmmddTHHMMSSZ>-<rig id>/`` holds ``run.csv``, ``run.mcap`` and
 ``metadata.json``: what a recording needs to be traced back to the model, firmware and rig it
 ran against (plant, config path, hash and full text, firmware and protocol versions, device,
-calibration, start time, duration, summary figures, safety events).
+calibration, start time, duration, summary figures, safety events, the sinks' drops and errors).
 """
 
 from __future__ import annotations
@@ -108,7 +108,8 @@ def session_metadata(*, plant: str, config_path: str | Path, device: str, rig_id
 
 
 def result_metadata(result: Any, rows: int) -> dict[str, Any]:
-    """What is known when it ends: duration, summary figures and the safety events."""
+    """What is known when it ends: duration, summary figures, the safety events and the sinks'
+    drops and errors."""
     return {
         "end_time_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
         "duration_s": result.duration_s, "stop_reason": result.stop_reason, "rows": rows,
@@ -116,5 +117,6 @@ def result_metadata(result: Any, rows: int) -> dict[str, Any]:
         "reboots": result.reboots, "tracking": result.tracking, "timing": result.timing, "link": result.link,
         "safety_events": [{"t_s": e.t_s, "reason": e.reason, "detail": e.detail} for e in result.events],
         "pwm_off_at_end": result.pwm_off_at_end,
+        "sinks": result.sinks,  # each sink's drops and error (None, or the one line it failed with)
         "session": result.session, "session_cycles": result.session_cycles,
     }
