@@ -151,3 +151,16 @@ def test_scheduled_changes_load_and_the_host_model_keeps_the_config_as_written(t
     assert binding.duty_inputs["motor_voltage_v"].scale == 24.0
     start = next(p for p in binding.parts if p.name == "effect_coulomb_friction")
     assert start.param_values[0] == 0.0 and [i.key for i in binding.schedule.items] == ["effects.0", "changes.0.key"]
+
+
+def test_the_host_limits_are_the_rig_limits_less_the_host_margins_with_at_least_one_period_of_heating():
+    rig = load_config(Path(__file__).resolve().parents[1] / "configs" / "finger_extensor.toml").rig
+    lim, m, host = rig.limits, rig.host, rig.host_limits()
+    assert (host.min_angle_deg, host.max_angle_deg) == (lim.min_angle_deg + m.angle_margin_deg,
+                                                        lim.max_angle_deg - m.angle_margin_deg)
+    assert host.max_force_n == lim.max_force_n - m.force_margin_n
+    assert host.max_heating_s == lim.max_heating_s - m.heating_margin_s
+    no_time_left = rig.model_copy(update={"host": m.model_copy(update={"heating_margin_s": lim.max_heating_s})})
+    assert no_time_left.host_limits().max_heating_s == 1.0 / rig.sample_rate_hz
+    no_margins = rig.model_copy(update={"host": None}).host_limits()
+    assert (no_margins.min_angle_deg, no_margins.max_heating_s) == (lim.min_angle_deg, lim.max_heating_s)

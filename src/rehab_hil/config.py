@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 __all__ = [
     "ConfigError",
     "Field",
+    "HostLimits",
     "MonitorSettings",
     "RigEstopSection",
     "RigHostSection",
@@ -154,6 +155,17 @@ class RigSessionSection(Section):
     step_deg: float = Field(ge=-360.0, le=360.0, description="target of --reference step")
 
 
+@dataclass(frozen=True)
+class HostLimits:
+    """What the host trips at: ``[rig.limits]`` less the ``[rig.host]`` margins, so the host acts
+    before the firmware (which keeps the limits as written). ``RigSection.host_limits`` makes it."""
+
+    min_angle_deg: float
+    max_angle_deg: float
+    max_force_n: float
+    max_heating_s: float  # at least one loop period: a margin never leaves no heating at all
+
+
 class RigSection(Section):
     """How the host reaches the device and how fast the loop runs."""
 
@@ -172,6 +184,16 @@ class RigSection(Section):
     force_calibration: str | None = Field(default=None, min_length=1,
                                           description="the force sensor's calibration file (rehab-hil calibrate "
                                                       "force), relative to this config file's directory")
+
+    def host_limits(self) -> HostLimits:
+        """The limits less the host's margins (none without ``[rig.host]``); the one place they are taken."""
+        lim, host = self.limits, self.host
+        am = host.angle_margin_deg if host else 0.0
+        fm = host.force_margin_n if host else 0.0
+        hm = host.heating_margin_s if host else 0.0
+        return HostLimits(min_angle_deg=lim.min_angle_deg + am, max_angle_deg=lim.max_angle_deg - am,
+                          max_force_n=max(lim.max_force_n - fm, 0.0),
+                          max_heating_s=max(lim.max_heating_s - hm, 1.0 / self.sample_rate_hz))
 
     def unreachable_temperature(self) -> str | None:
         """Why ``limits.max_temperature_c`` can never fire (the estimate levels off below it), or None."""

@@ -76,9 +76,8 @@ def apply_profile(cfg: Any, profile: Profile, config_path: str | Path, profile_p
             raise ConfigError(profile_path, "session", f"{config_path} has no [rig.session] to adjust")
         closed = ps.closed_deg if ps.closed_deg is not None else ses.closed_deg
         opened = closed + ps.amplitude_deg if ps.amplitude_deg is not None else ses.open_deg
-        host = cfg.rig.host
-        margin = host.angle_margin_deg if host is not None else 0.0
-        lo, hi = new_lim.min_angle_deg + margin, new_lim.max_angle_deg - margin
+        host = cfg.rig.model_copy(update={"limits": new_lim}).host_limits()  # the profile's limits less the margins
+        lo, hi = host.min_angle_deg, host.max_angle_deg
         for key, angle in (("session.closed_deg", closed), ("session.amplitude_deg", opened)):
             if not lo <= angle <= hi:
                 what = "closed" if key.endswith("closed_deg") else "open (closed + amplitude)"

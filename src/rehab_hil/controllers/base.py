@@ -124,9 +124,8 @@ class ControlContext:
     @property
     def angle_limits_deg(self) -> tuple[float, float]:
         """The host's range of motion (the rig's limits inside the host margin) [deg]."""
-        lim, host = self.cfg.rig.limits, self.cfg.rig.host
-        m = host.angle_margin_deg if host else 0.0
-        return lim.min_angle_deg + m, lim.max_angle_deg - m
+        host = self.cfg.rig.host_limits()
+        return host.min_angle_deg, host.max_angle_deg
 
 
 # --- references -----------------------------------------------------------------------------

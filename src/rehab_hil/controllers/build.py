@@ -80,7 +80,7 @@ def preflight(controller: Controller) -> None:
     """Run the controller on the model for one reference period and refuse it, naming the rig limit
     it would trip first and when, if it would trip one (the supervisor's checks, on the model)."""
     ctx = controller.ctx
-    lim, host = ctx.cfg.rig.limits, ctx.cfg.rig.host
+    lim = ctx.cfg.rig.limits
     duration = min(controller.reference.first_open_s + controller.reference.period_s, PREFLIGHT_MAX_S)
     res = closed_loop(controller, duration)
     t = res.t
@@ -93,7 +93,7 @@ def preflight(controller: Controller) -> None:
         trips.append((t[k], f"leaves the range of motion ({ctx.angle} {angle[k]:.1f} deg outside {lo:g}..{hi:g} deg)"))
     scale = ctx.ports.actuators[0].duty_scale
     duty = np.minimum(np.abs(res[ctx.effort]) / scale, lim.max_duty)
-    heating_limit = lim.max_heating_s - (host.heating_margin_s if host else 0.0)
+    heating_limit = ctx.cfg.rig.host_limits().max_heating_s  # as the supervisor has it: at least one period
     on = duty > 0.0
     run_start = None
     for k in range(len(t)):

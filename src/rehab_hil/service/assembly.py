@@ -85,14 +85,11 @@ def estop_enabled(cfg: Any) -> bool:
 
 
 def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
-    """Host limits = ``[rig.limits]`` tightened by the ``[rig.host]`` margins."""
-    lim, host, th = cfg.rig.limits, cfg.rig.host, cfg.rig.thermal
-    am = host.angle_margin_deg if host else 0.0
-    fm = host.force_margin_n if host else 0.0
-    hm = host.heating_margin_s if host else 0.0
+    """Host limits = ``[rig.limits]`` tightened by the ``[rig.host]`` margins (``RigSection.host_limits``)."""
+    lim, th, host = cfg.rig.limits, cfg.rig.thermal, cfg.rig.host_limits()
     limits = SupervisorLimits(
-        min_angle_deg=lim.min_angle_deg + am, max_angle_deg=lim.max_angle_deg - am,
-        max_force_n=max(lim.max_force_n - fm, 0.0), max_heating_s=max(lim.max_heating_s - hm, period_s(cfg)),
+        min_angle_deg=host.min_angle_deg, max_angle_deg=host.max_angle_deg,
+        max_force_n=host.max_force_n, max_heating_s=host.max_heating_s,
         max_temperature_c=lim.max_temperature_c, link_loss_periods=lim.link_loss_periods, max_duty=lim.max_duty,
         stuck_sensor_s=lim.stuck_sensor_s, stuck_min_duty=lim.stuck_min_duty,
         stuck_min_error_deg=lim.stuck_min_error_deg, stuck_min_motion_deg=lim.stuck_min_motion_deg,

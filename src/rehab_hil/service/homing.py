@@ -161,11 +161,10 @@ def home(mode: str, hw: HardwareInterface, cfg: Any, binding: DeviceBinding, ses
     if mode == "hard-stop":
         if enc is None or enc.hard_stop_deg is None:
             raise HardwareError("--home hard-stop needs [encoder] hard_stop_deg (the angle at the closed stop)")
-        lim = cfg.rig.limits
-        margin = cfg.rig.host.angle_margin_deg if cfg.rig.host is not None else 0.0
-        if not lim.min_angle_deg + margin < enc.hard_stop_deg < lim.max_angle_deg - margin:
+        lim, host = cfg.rig.limits, cfg.rig.host_limits()
+        if not host.min_angle_deg < enc.hard_stop_deg < host.max_angle_deg:
             raise HardwareError(f"[encoder] hard_stop_deg {enc.hard_stop_deg:g} is outside the range of motion "
-                                f"[{lim.min_angle_deg + margin:g}, {lim.max_angle_deg - margin:g}] deg "
+                                f"[{host.min_angle_deg:g}, {host.max_angle_deg:g}] deg "
                                 "([rig.limits] less the host margin): the session would trip at the stop")
         span = max(lim.max_angle_deg, enc.hard_stop_deg) - min(lim.min_angle_deg, enc.hard_stop_deg) + 5.0
         return home_hard_stop(hw, session, binding, enc.hard_stop_deg, enc.homing_duty, span)
