@@ -29,8 +29,8 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.selection import effective_fraction
 from rehab_hil.effects import Effect, EffectParam
 
-__all__ = ["MIN_MAGNITUDE_SHARE", "MIN_PARAMETER_ERROR", "Fit", "Term", "effect_term", "fit_joint", "fit_term",
-           "parameter_term"]
+__all__ = ["MIN_MAGNITUDE_SHARE", "MIN_PARAMETER_ERROR", "Fit", "Objective", "Term", "effect_term", "fit_joint",
+           "fit_term", "parameter_term", "regression_start"]
 
 # Finite-difference step on parameters scaled by their typical value: large enough to see through
 # encoder quantisation and stick-slip switching, which make the simulated error piecewise flat.
@@ -92,7 +92,10 @@ class Fit:
     kind: str = "effect"
 
 
-class _Objective:
+class Objective:
+    """The weighted scaled residual of a parameter vector on the fit part (what the fits minimise),
+    a diverged run clipped to ``BLOWUP``; ``count`` runs so far, ``tick`` called on each."""
+
     def __init__(self, replay: Replay, n_train: int, tick: Callable[[], None] | None) -> None:
         self.replay, self.n_train, self.tick, self.count = replay, n_train, tick, 0
 
@@ -109,9 +112,9 @@ class _Objective:
 def fit_term(replay: Replay, base: np.ndarray, term: Term, n_train: int,
              tick: Callable[[], None] | None = None, seeds: Mapping[str, Sequence[float]] | None = None) -> Fit:
     """Fit ``term`` alone on the first ``n_train`` samples, everything else as in ``base``."""
-    obj = _Objective(replay, n_train, tick)
+    obj = Objective(replay, n_train, tick)
     r0 = obj(base)
-    start = _regression_start(term, lambda v: obj(term.apply(base, v)), r0, seeds or {})
+    start = regression_start(term, lambda v: obj(term.apply(base, v)), r0, seeds or {})
     fits = _refine(replay, base, [term], [start], obj)
     fits[0].start = start
     return fits[0]
@@ -120,12 +123,12 @@ def fit_term(replay: Replay, base: np.ndarray, term: Term, n_train: int,
 def fit_joint(replay: Replay, base: np.ndarray, terms: Sequence[Term], values: Sequence[Mapping[str, float]],
               n_train: int, tick: Callable[[], None] | None = None) -> list[Fit]:
     """Refit several terms together, starting from ``values``; ``base`` has them switched off."""
-    obj = _Objective(replay, n_train, tick)
+    obj = Objective(replay, n_train, tick)
     return _refine(replay, base, list(terms), [dict(v) for v in values], obj)
 
 
 def _refine(replay: Replay, base: np.ndarray, terms: list[Term], starts: list[dict[str, float]],
-            obj: _Objective) -> list[Fit]:
+            obj: Objective) -> list[Fit]:
     layout = [(t, p) for t in terms for p in t.params]
     typ = np.array([p.typical for _, p in layout])
     lo = np.array([p.lower for _, p in layout]) / typ
@@ -153,7 +156,7 @@ def _refine(replay: Replay, base: np.ndarray, terms: list[Term], starts: list[di
     return out
 
 
-def _regression_start(term: Term, residual: Callable[[dict[str, float]], np.ndarray], r0: np.ndarray,
+def regression_start(term: Term, residual: Callable[[dict[str, float]], np.ndarray], r0: np.ndarray,
                       seeds: Mapping[str, Sequence[float]]) -> dict[str, float]:
     """Best start over the grid of shape parameters; linear ones by regression on the residual."""
     lin = [p for p in term.params if p.linear]

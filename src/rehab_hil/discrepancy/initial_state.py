@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from rehab_hil.discrepancy.replay import Replay
 
 __all__ = ["MATCH_SHARE", "MAX_MEMORY_SHARE", "RANGE_MARGIN", "WINDOW_S", "InitialState", "estimate_initial_state",
-           "matched_states"]
+           "matched_states", "state_scales"]
 
 MATCH_SHARE = 0.95  # a channel "is" a state when that state carries this share of its sensitivity
 WINDOW_S = 1.5  # nuisance states are fitted on this much of the record's start
@@ -73,7 +73,7 @@ class InitialState:
     _values: dict[str, float] = field(default_factory=dict, repr=False)
 
 
-def _state_scales(replay: Replay, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def state_scales(replay: Replay, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per state: a scale (its spread over the replay from rest under the record's drive) and the
     range it visits there, widened by ``RANGE_MARGIN`` of the spread. A start outside that range is
     not one this drive makes (a wire colder than ambient, 7 C fitted on an SMA record whose first
@@ -119,8 +119,36 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     s = replay.system
     names = s.diagram.state_names
     x, xd = s.x0.copy(), s.xd0.copy()
-    scales, lo, hi = _state_scales(replay, P)
-    h = FD_SHARE * scales
+    scales, lo, hi = state_scales(replay, P)
+    matched = _set_matched_states(replay, P, x, xd, FD_SHARE * scales)
+    states = sorted(set(matched.values()))
+    # nuisance: unmatched states and the nominal parts' discrete memory
+    free_x = [i for i in range(x.size) if i not in states and hi[i] > lo[i]]  # a state the drive never moves stays
+    dnames = s.diagram.discrete_state_names
+    # the candidates' memory starts from its input; a replayed controller's from the record (closed_loop)
+    free_xd = [i for i, n in enumerate(dnames) if not n.startswith((CANDIDATE_PREFIX + "_", LOOP_PREFIX + "_"))]
+    estimated: dict[str, float] = {}
+    if free_x or free_xd:
+        n_win = max(2, min(int(np.searchsorted(replay.t, WINDOW_S)), n_train))
+        _fit_nuisance(replay, P, x, xd, free_x, free_xd, (scales, lo, hi), n_win)
+        estimated = {names[i]: float(x[i]) for i in free_x}
+        estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
+    _settle_candidates(replay, P, x, xd)
+    replay.x0, replay.xd0 = x, xd
+    replay.fit_start = _memory(replay, P, n_train, x, xd, free_x, free_xd) if estimated else 0
+    from_data: dict[str, str] = {}
+    for c, st in sorted(matched.items()):
+        from_data[names[st]] = ", ".join(filter(None, [from_data.get(names[st], ""), replay.channels[c]]))
+    out = InitialState(x, xd, from_data, estimated,
+                       {names[i]: float(s.x0[i]) for i in range(x.size)})
+    out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
+    return out
+
+
+def _set_matched_states(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, h: np.ndarray) -> dict[int, int]:
+    """Solve the states the measured channels are (``matched_states``) so the model's outputs equal
+    the first samples (Gauss-Newton, in ``x``), and set ``replay.anchor_gain`` from them; returns
+    channel -> state."""
     C = _jacobian(replay, P, x, xd, h)
     target = replay.measured_grid[:, 0] / replay.scale
     # a replayed loop's effort is no state of the plant
@@ -137,46 +165,35 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
             x[states] += dx
         K[np.ix_(states, chans)] = np.linalg.pinv(C[np.ix_(chans, states)])
     replay.anchor_gain = K if states else None
-    # nuisance: unmatched states and the nominal parts' discrete memory
-    free_x = [i for i in range(x.size) if i not in states and hi[i] > lo[i]]  # a state the drive never moves stays
-    dnames = s.diagram.discrete_state_names
-    # the candidates' memory starts from its input; a replayed controller's from the record (closed_loop)
-    free_xd = [i for i, n in enumerate(dnames) if not n.startswith((CANDIDATE_PREFIX + "_", LOOP_PREFIX + "_"))]
-    n_win = max(2, min(int(np.searchsorted(replay.t, WINDOW_S)), n_train))
-    estimated: dict[str, float] = {}
-    if free_x or free_xd:
-        sc = np.concatenate([scales[free_x], np.ones(len(free_xd))])
-        base_x, base_xd = x.copy(), xd.copy()
+    return matched
 
-        def fun(z: np.ndarray) -> np.ndarray:
-            xx, dd = base_x.copy(), base_xd.copy()
-            xx[free_x] += z[:len(free_x)] * sc[:len(free_x)]
-            dd[free_xd] += z[len(free_x):] * sc[len(free_x):]
-            r = replay.residual(_sim(replay, P, n_win, xx, dd), slice(0, n_win), weighted=True).ravel()
-            return np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
 
-        z0 = np.zeros(sc.size)
-        r0 = fun(z0)
-        zlo = np.concatenate([(lo[free_x] - base_x[free_x]) / sc[:len(free_x)], np.full(len(free_xd), -np.inf)])
-        zhi = np.concatenate([(hi[free_x] - base_x[free_x]) / sc[:len(free_x)], np.full(len(free_xd), np.inf)])
-        z0 = np.clip(z0, np.minimum(zlo, -1e-9), np.maximum(zhi, 1e-9))
-        sol = least_squares(fun, z0, bounds=(np.minimum(zlo, -1e-9), np.maximum(zhi, 1e-9)), diff_step=FD_SHARE,
-                            max_nfev=12 * sc.size, xtol=1e-3, ftol=1e-4)
-        if float(np.mean(sol.fun**2)) < float(np.mean(r0**2)):
-            x[free_x] += sol.x[:len(free_x)] * sc[:len(free_x)]
-            xd[free_xd] += sol.x[len(free_x):] * sc[len(free_x):]
-        estimated = {names[i]: float(x[i]) for i in free_x}
-        estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
-    _settle_candidates(replay, P, x, xd)
-    replay.x0, replay.xd0 = x, xd
-    replay.fit_start = _memory(replay, P, n_train, x, xd, free_x, free_xd) if estimated else 0
-    from_data: dict[str, str] = {}
-    for c, st in sorted(matched.items()):
-        from_data[names[st]] = ", ".join(filter(None, [from_data.get(names[st], ""), replay.channels[c]]))
-    out = InitialState(x, xd, from_data, estimated,
-                       {names[i]: float(s.x0[i]) for i in range(x.size)})
-    out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
-    return out
+def _fit_nuisance(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, free_x: list[int],
+                  free_xd: list[int], ranges: tuple[np.ndarray, np.ndarray, np.ndarray], n_win: int) -> None:
+    """Fit the free states (within the range the drive visits, ``ranges`` = scale, low, high) and the
+    free discrete memory by least squares on the first ``n_win`` samples; ``x``/``xd`` are moved only
+    if the fit improves on them."""
+    scales, lo, hi = ranges
+    sc = np.concatenate([scales[free_x], np.ones(len(free_xd))])
+    base_x, base_xd = x.copy(), xd.copy()
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        xx, dd = base_x.copy(), base_xd.copy()
+        xx[free_x] += z[:len(free_x)] * sc[:len(free_x)]
+        dd[free_xd] += z[len(free_x):] * sc[len(free_x):]
+        r = replay.residual(replay.simulate_from(P, n_win, xx, dd), slice(0, n_win), weighted=True).ravel()
+        return np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
+
+    z0 = np.zeros(sc.size)
+    r0 = fun(z0)
+    zlo = np.concatenate([(lo[free_x] - base_x[free_x]) / sc[:len(free_x)], np.full(len(free_xd), -np.inf)])
+    zhi = np.concatenate([(hi[free_x] - base_x[free_x]) / sc[:len(free_x)], np.full(len(free_xd), np.inf)])
+    z0 = np.clip(z0, np.minimum(zlo, -1e-9), np.maximum(zhi, 1e-9))
+    sol = least_squares(fun, z0, bounds=(np.minimum(zlo, -1e-9), np.maximum(zhi, 1e-9)), diff_step=FD_SHARE,
+                        max_nfev=12 * sc.size, xtol=1e-3, ftol=1e-4)
+    if float(np.mean(sol.fun**2)) < float(np.mean(r0**2)):
+        x[free_x] += sol.x[:len(free_x)] * sc[:len(free_x)]
+        xd[free_xd] += sol.x[len(free_x):] * sc[len(free_x):]
 
 
 def _memory(replay: Replay, P: np.ndarray, n_train: int, x: np.ndarray, xd: np.ndarray, free_x: list[int],
@@ -193,8 +210,8 @@ def _memory(replay: Replay, P: np.ndarray, n_train: int, x: np.ndarray, xd: np.n
     xr, xdr = x.copy(), xd.copy()
     xr[free_x] = s.x0[free_x]
     xdr[free_xd] = s.xd0[free_xd]
-    a = _sim(replay, P, n_train, x.copy(), xd.copy())
-    b = _sim(replay, P, n_train, xr, xdr)
+    a = replay.simulate_from(P, n_train, x.copy(), xd.copy())
+    b = replay.simulate_from(P, n_train, xr, xdr)
     d = np.max(np.abs(np.vstack([(b[c] - a[c]) / sc for c, sc in zip(replay.channels, replay.scale, strict=True)])),
                axis=0)
     if not np.isfinite(d).all():
@@ -225,10 +242,3 @@ def _settle_candidates(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndar
         value = sum(w * known[sig] for sig, w in p.connections[p.inputs[0]])
         for st in p.discrete_states:
             xd[names.index(f"{p.name}.{st}")] = value
-
-
-def _sim(replay: Replay, P: np.ndarray, n_meas: int, x: np.ndarray, xd: np.ndarray) -> dict[str, np.ndarray]:
-    n = replay.steps_for(n_meas)
-    Y = replay.simulate_grid(P, n, "open", x, xd)
-    i, w = replay._idx[:n_meas], replay._w[:n_meas]
-    return {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(replay.channels)}

@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.signal import savgol_filter
 
-__all__ = ["regions", "signatures", "time_windows"]
+__all__ = ["delay_seeds", "regions", "signatures", "time_windows"]
 
 N_WINDOWS = 10
 REVERSAL_S = 0.15  # half-width of the window around a reversal of motion
@@ -120,3 +120,11 @@ def signatures(t: np.ndarray, measured: Mapping[str, np.ndarray], model: Mapping
             "dead_zone_ratio": inside / outside if rev.any() and (~rev).any() and outside > 0 else float("nan"),
         }
     return out
+
+
+def delay_seeds(t: np.ndarray, measured: Mapping[str, np.ndarray], model: Mapping[str, np.ndarray],
+                channels: Sequence[str], kinds: Mapping[str, str]) -> dict[str, list[float]]:
+    """Extra start values for a delay's fit (``fitting.regression_start``): the first channel's lag
+    behind the model, when the measurement lags at all."""
+    lag = signatures(t, measured, model, channels[:1], kinds)[channels[0]]
+    return {"delay_s": [lag["lag_s"]]} if lag["lag_s"] > 0 else {}

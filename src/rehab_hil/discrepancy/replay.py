@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from rehab_hil import metrics
 from rehab_hil.control.cascade import loop_parts
 from rehab_hil.discrepancy.closed_loop import describe_loop, recorded_loop
 from rehab_hil.discrepancy.verdict import noise_floor
@@ -260,14 +261,26 @@ class Replay:
         compared with a force ADC's floor is an error no sensor gain or effect should fit: measured
         on an SMA record, it turned a hidden +15 % Flexiforce gain into a fitted -12 %)."""
         n_meas = self.t.size if n_meas is None else n_meas
-        n = self.steps_for(n_meas)
-        Y = self.simulate_grid(P, n, mode)
-        i, w = self._idx[:n_meas], self._w[:n_meas]
-        out = {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(self.channels)}
+        out = self._at_samples(self.simulate_grid(P, self.steps_for(n_meas), mode), n_meas)
         for c, (offset, per_unit, full) in self.adc_range.items():
             counts = offset + per_unit * out[c]
             out[c] = (np.clip(np.round(counts) if sensed else counts, 0.0, full) - offset) / per_unit
         return out
+
+    def simulate_from(self, P: np.ndarray, n_meas: int, x0: np.ndarray, xd0: np.ndarray) -> dict[str, np.ndarray]:
+        """Open-loop model outputs at the first ``n_meas`` measured time stamps from the start state
+        ``x0``/``xd0`` (left unchanged), not read through the ADC: what a start-state fit compares."""
+        return self._at_samples(self.simulate_grid(P, self.steps_for(n_meas), "open", x0, xd0), n_meas)
+
+    def _at_samples(self, Y: np.ndarray, n_meas: int) -> dict[str, np.ndarray]:
+        """Grid outputs (steps x channels) interpolated onto the first ``n_meas`` measured time stamps."""
+        i, w = self._idx[:n_meas], self._w[:n_meas]
+        return {c: Y[i, j] * (1.0 - w) + Y[i + 1, j] * w for j, c in enumerate(self.channels)}
+
+    @property
+    def kinds(self) -> dict[str, str]:
+        """Channel -> what it measures (angle, force, temperature ...; "" when the ports do not say)."""
+        return {c: self.ports.measured_kind(c) or "" for c in self.channels}
 
     def residual(self, sim: Mapping[str, np.ndarray], sl: slice = slice(None), weighted: bool = False) -> np.ndarray:
         """Scaled residual (model - measured) / scale, shape (channels, samples); ``weighted``: times
@@ -291,7 +304,5 @@ def on_adc_grid(y: np.ndarray, offset_counts: float, counts_per_unit: float,
 
 def channel_metrics(measured: Sequence[float] | np.ndarray, model: Sequence[float] | np.ndarray) -> dict[str, float]:
     """RMSE, MAE and largest absolute error of one channel, in its own unit."""
-    from rehab_hil import metrics
-
     m, y = np.asarray(measured, float), np.asarray(model, float)
     return {"rmse": metrics.rmse(m, y), "mae": metrics.mae(m, y), "max_abs_error": metrics.max_abs_error(m, y)}

@@ -28,6 +28,11 @@ class Candidate:
     significant: bool
     sim: dict[str, np.ndarray] | None = field(default=None, repr=False)  # full-record outputs
 
+    @property
+    def kind(self) -> str:
+        """"effect" or "parameter"."""
+        return self.fit.kind
+
 
 @dataclass
 class Round:

@@ -19,12 +19,13 @@ of calling the model a fit.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Protocol, TypeVar
 
 import numpy as np
 
 __all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "experiment",
-           "is_alias", "noise_floor", "unexplained_channels"]
+           "is_alias", "noise_floor", "tied_parameter", "unexplained_channels"]
 
 ALIAS_DELTA_BIC = 10.0  # the significance margin (selection.MIN_DELTA_BIC): less is not "very strong"
 ALIAS_RMS_SHARE = 0.10  # held-out RMS on the decisive channel within 10 % of each other
@@ -94,3 +95,20 @@ def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndar
         if residual_rms[c] > thr:
             out[c] = {"rms": float(residual_rms[c]), "noise_floor": floor, "spread": spread, "threshold": thr}
     return out
+
+
+class _Kinded(Protocol):
+    @property
+    def kind(self) -> str: ...
+
+
+K = TypeVar("K", bound=_Kinded)
+
+
+def tied_parameter(best: K, others: Iterable[K], ties: Callable[[K], bool]) -> K | None:
+    """A known parameter before new structure: when ``best`` is an effect, the first parameter among
+    ``others`` that ``ties`` with it is named instead (None: ``best`` stays). The workflow's tie is a
+    held-out BIC within ``ALIAS_DELTA_BIC``, the twin's a leftover residual within a share of the best's."""
+    if best.kind != "effect":
+        return None
+    return next((c for c in others if c.kind == "parameter" and ties(c)), None)

@@ -19,7 +19,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,25 +28,19 @@ import numpy as np
 from rehab_hil.discrepancy import localise
 from rehab_hil.discrepancy.fitting import Fit, Term, effect_term, fit_joint, fit_term, parameter_term
 from rehab_hil.discrepancy.identify import identify_jointly
-from rehab_hil.discrepancy.initial_state import estimate_initial_state
+from rehab_hil.discrepancy.initial_state import InitialState, estimate_initial_state
 from rehab_hil.discrepancy.parameters import parameter_terms
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
-from rehab_hil.discrepancy.selection import (
-    MIN_IMPROVEMENT,
-    RESOLUTION_FLOOR,
-    bic,
-    effective_fraction,
-    improvement,
-    is_significant,
-)
+from rehab_hil.discrepancy.selection import Score, bic, effective_fraction, improvement
 from rehab_hil.discrepancy.shooting import choose_mode
-from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, unexplained_channels
+from rehab_hil.discrepancy.significance import demanding_channels, relevant, score, significant
+from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, tied_parameter, unexplained_channels
 from rehab_hil.effects import EFFECTS
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
-__all__ = ["JOINT_CANDIDATES", "Candidate", "Options", "Progress", "Result", "Round", "find_missing_effects"]
+__all__ = ["JOINT_CANDIDATES", "Candidate", "Options", "Progress", "Result", "Round", "Search", "find_missing_effects"]
 
 JOINT_CANDIDATES = 3  # from the second round, the best few candidates are refitted with the chosen terms
 
@@ -72,42 +66,174 @@ class Options:
     closed_loop: bool = True  # replay a record from its reference under the config's [recorded_controller]
 
 
-def _score(replay: Replay, sim: dict[str, np.ndarray], hold: slice, n_params: int, frac: float):
-    return bic(replay.residual(sim, hold), n_params, frac, replay.fit_weight)
+@dataclass(frozen=True)
+class Baseline:
+    """The current model at the start of a round: what every candidate of the round is judged against."""
+
+    score: Score  # held-out score
+    frac: float  # effective share of independent samples in its held-out residual
+    demanding: set[str]  # channels whose error the noise cannot account for
 
 
-def _relevant(replay: Replay, term: Term, fit: Fit, sim: dict[str, np.ndarray], hold: slice, base) -> bool:
-    """Is a fitted term more than a rounding of "off"? By its magnitude (``Term.relevant``) or, for
-    an effect, by what it does: switched off, some channel's held-out output moves by at least
-    ``MIN_IMPROVEMENT`` of that channel's current error (and more than the resolution floor). A
-    passive muscle fitted as a small scale with a steep shape (0.0005 N m x e^(6.5 q)) gives the
-    torque of the hidden 0.01 N m x e^(2 q) over the motion, though its scale alone looks like "off"."""
-    if term.relevant(fit.params):
+@dataclass
+class Search:
+    """The rounds of the search on one replay (module docstring, step 2).
+
+    Each round scores every open term fitted alone, rescores the best few jointly with the chosen
+    terms, picks the best significant one (a parameter before an effect it ties with; near-aliases
+    recorded), accepts it (new start state, replay mode, joint refit of every chosen term) and prunes
+    the chosen terms that refit switched off."""
+
+    replay: Replay
+    terms: list[Term]
+    n_train: int
+    P0: np.ndarray
+    current: dict[str, np.ndarray]  # outputs of the current model (the nominal one to begin with)
+    initial: InitialState
+    progress: Progress
+    seeds: dict[str, list[float]]  # extra starts of shape parameters (``localise.delay_seeds``)
+    remode: bool  # choose the replay mode again after each choice
+    P: np.ndarray = field(init=False)  # the current model's parameters
+    hold: slice = field(init=False)  # the held-out samples
+    n_params: int = 0
+    chosen_terms: list[Term] = field(default_factory=list)
+    chosen: list[Fit] = field(default_factory=list)
+    rounds: list[Round] = field(default_factory=list)
+    aliases: list[Alias] = field(default_factory=list)
+    dropped: set[str] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        self.P = self.P0
+        self.hold = slice(self.n_train, self.replay.t.size)
+
+    def run(self, max_rounds: int) -> None:
+        """Rounds until none names a term, at most ``max_rounds``."""
+        for _ in range(max_rounds):
+            if not self.round():
+                break
+
+    def round(self) -> bool:
+        """One round; False when no candidate is significant (the search is over)."""
+        baseline = self._baseline()
+        chosen = {t.name for t in self.chosen_terms}
+        cands = [self._fit_alone(t, baseline) for t in self.terms if t.name not in chosen | self.dropped]
+        joint = self._rescore_jointly(cands, baseline) if self.chosen_terms else {}
+        cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
+        pick = self._pick(cands, baseline.score)
+        self.rounds.append(Round(baseline.score, cands, pick.fit.effect if pick else None))
+        if pick is None:
+            return False
+        self._accept(pick, joint.get(pick.fit.effect))
+        self._prune(baseline.frac)
+        self.n_params = sum(len(t.params) for t in self.chosen_terms)
         return True
-    if term.kind != "effect":
-        return False
-    off = replay.simulate(term.apply(fit.P, term.off()))
-    moved = np.sqrt(np.mean((replay.residual(sim, hold) - replay.residual(off, hold)) ** 2, axis=1))
-    return any(m >= MIN_IMPROVEMENT * b and m > RESOLUTION_FLOOR for m, b in zip(moved, base.channel_rms, strict=True))
 
+    def forget_simulations(self) -> None:
+        """Drop the candidates' full-record outputs and the replay's cache (the result keeps neither)."""
+        for rd in self.rounds:
+            for c in rd.candidates:
+                c.sim = None
+        self.replay.drop_cache()
 
-def _demanding(replay: Replay, current: dict[str, np.ndarray], hold: slice) -> set[str]:
-    """Channels whose held-out error under the current model the noise cannot account for."""
-    rms = {c: float(np.sqrt(np.mean((current[c][hold] - replay.measured[c][hold]) ** 2))) for c in replay.channels}
-    return set(unexplained_channels(replay.channels, {c: replay.measured[c][hold] for c in replay.channels}, rms))
+    def _term(self, name: str) -> Term:
+        return next(t for t in self.terms if t.name == name)
 
+    def _baseline(self) -> Baseline:
+        r_cur = self.replay.residual(self.current, self.hold)
+        frac = effective_fraction(r_cur)
+        return Baseline(bic(r_cur, self.n_params, frac, self.replay.fit_weight), frac,
+                        demanding_channels(self.replay, self.current, self.hold))
 
-def _sensor_demanded(replay: Replay, term: Term, demanding: set[str]) -> bool:
-    """A sensor effect on a measured channel is named only when that channel itself demands it: its
-    held-out error is beyond its noise and 2 % of its spread under the current model. Otherwise a
-    sensor gain soaks up what a physical effect left on the force (an SMA record with a passive
-    stiffness only had a spurious Flexiforce gain of -13 % named beside it). A sensor on a recorded
-    input (the FE torque sensor) shows in other channels and is not restricted."""
-    if term.kind != "effect" or EFFECTS[term.name].needs != "adc":
-        return True
-    port = EFFECTS[term.name].port(replay.ports)
-    signal = getattr(port, "signal", None)
-    return signal not in replay.channels or signal in demanding
+    def _candidate(self, term: Term, fit: Fit, sim: dict[str, np.ndarray], sc: Score, baseline: Baseline) -> Candidate:
+        """A fitted term judged against the round's baseline (``significance.significant``)."""
+        base = baseline.score
+        sig = significant(self.replay, term, sc, base, baseline.demanding,
+                          lambda: relevant(self.replay, term, fit, sim, self.hold, base))
+        return Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim)
+
+    def _fit_alone(self, term: Term, baseline: Baseline) -> Candidate:
+        """``term`` fitted on its own on the current model."""
+        self.progress.start(f"round {len(self.rounds) + 1}: fitting {term.name}", None)
+        fit = fit_term(self.replay, self.P, term, self.n_train, self.progress.advance, self.seeds)
+        sim = self.replay.simulate(fit.P)
+        sc = score(self.replay, sim, self.hold, self.n_params + len(term.params), baseline.frac)
+        return self._candidate(term, fit, sim, sc, baseline)
+
+    def _rescore_jointly(self, cands: list[Candidate], baseline: Baseline) -> dict[str, list[Fit]]:
+        """The best ``JOINT_CANDIDATES`` refitted jointly with the chosen terms, replaced where that scores
+        better (an effect chosen first cannot hide the next by having absorbed part of it); returns
+        candidate -> its joint fit."""
+        joint: dict[str, list[Fit]] = {}
+        cands.sort(key=lambda c: c.score.bic)
+        for i, c in enumerate(cands[:JOINT_CANDIDATES]):
+            term = self._term(c.fit.effect)
+            self.progress.start(f"round {len(self.rounds) + 1}: {term.name} jointly with the chosen", None)
+            fits = fit_joint(self.replay, self.P0, [*self.chosen_terms, term],
+                             [*(f.params for f in self.chosen), c.fit.params], self.n_train, self.progress.advance)
+            sim = self.replay.simulate(fits[-1].P)
+            sc = score(self.replay, sim, self.hold, self.n_params + len(term.params), baseline.frac)
+            if sc.bic < c.score.bic:
+                fits[-1].start = c.fit.start
+                cands[i] = self._candidate(term, fits[-1], sim, sc, baseline)
+                joint[fits[-1].effect] = fits
+        return joint
+
+    def _pick(self, cands: list[Candidate], base: Score) -> Candidate | None:
+        """The first of the ranked candidates if significant, or a parameter it ties with
+        (``verdict.tied_parameter``); its near-aliases are recorded in ``aliases``."""
+        if not cands or not cands[0].significant:
+            return None
+        pick = cands[0]
+        j = int(np.argmax(np.array(base.channel_rms) - np.array(pick.score.channel_rms)))
+        near = [c for c in cands[1:] if c.significant
+                and is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j],
+                             pick.fit.train_cost, c.fit.train_cost)]
+        param = tied_parameter(pick, near, lambda c: abs(c.score.bic - pick.score.bic) < ALIAS_DELTA_BIC)
+        if param is not None:
+            pick, near = param, [pick, *[c for c in near if c is not param]]
+        descriptions = {e.name: e.description for e in EFFECTS.values()}
+        for c in near:
+            split = not is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])
+            self.aliases.append(Alias(len(self.rounds) + 1, pick.fit.effect, c.fit.effect,
+                                      c.score.bic - pick.score.bic,
+                                      experiment(pick.fit.effect, c.fit.effect, descriptions), split))
+        return pick
+
+    def _accept(self, pick: Candidate, joint_fits: list[Fit] | None) -> None:
+        """Add the pick to the chosen terms and refit them all jointly from the new start state."""
+        self.chosen_terms.append(self._term(pick.fit.effect))
+        chosen = joint_fits or [*self.chosen, pick.fit]
+        # the start under the augmented model
+        self.initial = estimate_initial_state(self.replay, chosen[-1].P, self.n_train)
+        if self.remode:  # drift may dominate once the largest discrepancy is explained
+            self.replay.mode = choose_mode(self.replay, chosen[-1].P, self.n_train)[0]
+        # every chosen term is refitted jointly, from the new start state: the terms were fitted from
+        # the previous one (the nominal model's, in the first round: a supply 8 % low makes it estimate
+        # a cold wire), and the next round must not see a residual the chosen terms would explain
+        self.progress.start(f"round {len(self.rounds)}: joint refit of the chosen terms from the new start state",
+                            None)
+        self.chosen = fit_joint(self.replay, self.P0, self.chosen_terms, [f.params for f in chosen], self.n_train,
+                                self.progress.advance)
+        self.P = self.chosen[-1].P
+        self.current = self.replay.simulate(self.P)
+
+    def _prune(self, frac: float) -> None:
+        """Drop the chosen terms the joint refit switched off: they are not part of the story."""
+        now = score(self.replay, self.current, self.hold, 0, frac)
+        keep = [i for i, (t, f) in enumerate(zip(self.chosen_terms, self.chosen, strict=True))
+                if relevant(self.replay, t, f, self.current, self.hold, now)]
+        if len(keep) == len(self.chosen):
+            return
+        self.dropped.update(self.chosen_terms[i].name for i in range(len(self.chosen)) if i not in keep)
+        self.chosen_terms, self.chosen = [self.chosen_terms[i] for i in keep], [self.chosen[i] for i in keep]
+        P = self.P0
+        for t, f in zip(self.chosen_terms, self.chosen, strict=True):
+            P = t.apply(P, f.params)
+        for f in self.chosen:
+            f.P = P
+        self.P = P
+        self.initial = estimate_initial_state(self.replay, P, self.n_train)
+        self.current = self.replay.simulate(P)
 
 
 def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<data>",
@@ -122,7 +248,6 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     N = replay.t.size
     n_train = max(2, min(round((1.0 - options.holdout_fraction) * N),
                          int(np.searchsorted(replay.t, options.fit_max_s))))
-    hold = slice(n_train, N)
     P0 = replay.nominal_params()
     initial = estimate_initial_state(replay, P0, n_train)
     mode, open_rms, shoot_rms = choose_mode(replay, P0, n_train)
@@ -131,116 +256,45 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     replay.mode = mode if options.mode == "auto" else options.mode
     nominal = replay.simulate(P0)
     progress.advance()
-    kinds = {c: replay.ports.measured_kind(c) or "" for c in replay.channels}
-    lag = localise.signatures(replay.t, replay.measured, nominal, replay.channels[:1], kinds)[replay.channels[0]]
-    seeds = {"delay_s": [lag["lag_s"]]} if lag["lag_s"] > 0 else {}
-    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates]
-    if options.parameters:
-        terms += [parameter_term(p) for p in parameter_terms(replay)]
-    descriptions = {e.name: e.description for e in EFFECTS.values()}
-    P, current, n_params = P0, nominal, 0
-    chosen_terms: list[Term] = []
-    chosen: list[Fit] = []
-    rounds: list[Round] = []
-    aliases: list[Alias] = []
-    dropped: set[str] = set()
-    for _ in range(options.max_effects):
-        r_cur = replay.residual(current, hold)
-        frac = effective_fraction(r_cur)
-        base = bic(r_cur, n_params, frac, replay.fit_weight)
-        demanding = _demanding(replay, current, hold)
-        cands: list[Candidate] = []
-        joint: dict[str, list[Fit]] = {}  # candidate -> its joint fit with the chosen terms
-        for term in [t for t in terms if t.name not in {c.name for c in chosen_terms} | dropped]:
-            progress.start(f"round {len(rounds) + 1}: fitting {term.name}", None)
-            fit = fit_term(replay, P, term, n_train, progress.advance, seeds)
-            sim = replay.simulate(fit.P)
-            sc = _score(replay, sim, hold, n_params + len(term.params), frac)
-            sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base) \
-                and _sensor_demanded(replay, term, demanding)
-            cands.append(Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim))
-        if chosen_terms:  # the best few again, refitted jointly with the chosen terms
-            cands.sort(key=lambda c: c.score.bic)
-            for i, c in enumerate(cands[:JOINT_CANDIDATES]):
-                term = next(t for t in terms if t.name == c.fit.effect)
-                progress.start(f"round {len(rounds) + 1}: {term.name} jointly with the chosen", None)
-                fits = fit_joint(replay, P0, [*chosen_terms, term], [*(f.params for f in chosen), c.fit.params],
-                                 n_train, progress.advance)
-                sim = replay.simulate(fits[-1].P)
-                sc = _score(replay, sim, hold, n_params + len(term.params), frac)
-                if sc.bic < c.score.bic:
-                    fit = fits[-1]
-                    fit.start = c.fit.start
-                    sig = is_significant(sc, base) and _relevant(replay, term, fit, sim, hold, base) \
-                        and _sensor_demanded(replay, term, demanding)
-                    cands[i] = Candidate(fit, sc, sc.bic - base.bic, improvement(sc, base), sig, sim)
-                    joint[fit.effect] = fits
-        cands.sort(key=lambda c: (not c.significant, c.score.bic))  # the best significant one first
-        pick = cands[0] if cands and cands[0].significant else None
-        if pick is not None:
-            j = int(np.argmax(np.array(base.channel_rms) - np.array(pick.score.channel_rms)))
-            near = [c for c in cands[1:] if c.significant
-                    and is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j],
-                                 pick.fit.train_cost, c.fit.train_cost)]
-            param = next((c for c in near if c.fit.kind == "parameter"
-                          and abs(c.score.bic - pick.score.bic) < ALIAS_DELTA_BIC), None)
-            if pick.fit.kind == "effect" and param is not None:  # a known parameter before new structure
-                pick, near = param, [pick, *[c for c in near if c is not param]]
-            for c in near:
-                split = not is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])
-                aliases.append(Alias(len(rounds) + 1, pick.fit.effect, c.fit.effect, c.score.bic - pick.score.bic,
-                                     experiment(pick.fit.effect, c.fit.effect, descriptions), split))
-        rounds.append(Round(base, cands, pick.fit.effect if pick else None))
-        if pick is None:
-            break
-        chosen_terms.append(next(t for t in terms if t.name == pick.fit.effect))
-        chosen = joint.get(pick.fit.effect) or [*chosen, pick.fit]
-        initial = estimate_initial_state(replay, chosen[-1].P, n_train)  # the start under the augmented model
-        if options.mode == "auto" and not replay.loop:  # drift may dominate once the largest discrepancy is explained
-            replay.mode = choose_mode(replay, chosen[-1].P, n_train)[0]
-        # every chosen term is refitted jointly, from the new start state: the terms were fitted from
-        # the previous one (the nominal model's, in the first round: a supply 8 % low makes it estimate
-        # a cold wire), and the next round must not see a residual the chosen terms would explain
-        progress.start(f"round {len(rounds)}: joint refit of the chosen terms from the new start state", None)
-        chosen = fit_joint(replay, P0, chosen_terms, [f.params for f in chosen], n_train, progress.advance)
-        P = chosen[-1].P
-        current = replay.simulate(P)
-        now = _score(replay, current, hold, 0, frac)
-        keep = [i for i, (t, f) in enumerate(zip(chosen_terms, chosen, strict=True))
-                if _relevant(replay, t, f, current, hold, now)]
-        if len(keep) < len(chosen):  # the joint refit switched a term off: it is not part of the story
-            dropped.update(chosen_terms[i].name for i in range(len(chosen)) if i not in keep)
-            chosen_terms, chosen = [chosen_terms[i] for i in keep], [chosen[i] for i in keep]
-            P = P0
-            for t, f in zip(chosen_terms, chosen, strict=True):
-                P = t.apply(P, f.params)
-            for f in chosen:
-                f.P = P
-            initial = estimate_initial_state(replay, P, n_train)
-            current = replay.simulate(P)
-        n_params = sum(len(t.params) for t in chosen_terms)
+    kinds = replay.kinds
+    search = Search(replay, _candidate_terms(replay, options), n_train, P0, nominal, initial, progress,
+                    localise.delay_seeds(replay.t, replay.measured, nominal, replay.channels, kinds),
+                    remode=options.mode == "auto" and not replay.loop)
+    search.run(options.max_effects)
     joint = None
     if options.joint and options.parameters:
         progress.start("joint identification of every parameter", None)
-        joint = identify_jointly(replay, P0, chosen_terms, chosen, n_train, progress.advance)
-    for rd in rounds:
-        for c in rd.candidates:
-            c.sim = None
-    replay.drop_cache()
+        joint = identify_jointly(replay, P0, search.chosen_terms, search.chosen, n_train, progress.advance)
+    search.forget_simulations()
     split_s = float(replay.t[n_train]) if n_train < N else float(replay.t[-1])
+    unexplained, where = _unexplained(replay, search.current, split_s, kinds)
+    return Result(spec.name, replay.channels, kinds, replay.t, replay.measured, nominal, search.current,
+                  search.chosen, search.rounds, split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
+                  time.perf_counter() - t_start, {"replay": replay, "P": search.P}, search.initial, replay.mode,
+                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexplained, where, joint=joint)
+
+
+def _candidate_terms(replay: Replay, options: Options) -> list[Term]:
+    """The library effects that attach to the plant, then (``options.parameters``) its declared parameters."""
+    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates]
+    if options.parameters:
+        terms += [parameter_term(p) for p in parameter_terms(replay)]
+    return terms
+
+
+def _unexplained(replay: Replay, current: dict[str, np.ndarray], split_s: float,
+                 kinds: dict[str, str]) -> tuple[dict[str, dict[str, float]], dict[str, Any]]:
+    """The channels whose held-out error the final model leaves beyond the noise (step 3), and where
+    the residual is largest: the time window and the state region."""
     hm = replay.t >= split_s
     rms = {c: float(np.sqrt(np.mean((current[c][hm] - replay.measured[c][hm]) ** 2))) for c in replay.channels}
     unexplained = unexplained_channels(replay.channels, {c: replay.measured[c] for c in replay.channels}, rms)
-    where: dict[str, Any] = {}
-    if unexplained:
-        r = replay.residual(current)
-        combined = np.sqrt(np.mean(r**2, axis=0))
-        win = max(localise.time_windows(replay.t, combined), key=lambda w: w["rms"])
-        regs = [g for g in localise.regions(replay.t, replay.measured, r, replay.channels, kinds)
-                if g["ratio"] == g["ratio"]]
-        top = max(regs, key=lambda g: float(g["ratio"])) if regs else {"region": "everywhere"}  # type: ignore[arg-type]
-        where = {"window_start_s": win["start_s"], "window_end_s": win["end_s"], "region": top["region"]}
-    return Result(spec.name, replay.channels, kinds, replay.t, replay.measured, nominal, current, chosen, rounds,
-                  split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
-                  time.perf_counter() - t_start, {"replay": replay, "P": P}, initial, replay.mode,
-                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, aliases, unexplained, where, joint=joint)
+    if not unexplained:
+        return unexplained, {}
+    r = replay.residual(current)
+    combined = np.sqrt(np.mean(r**2, axis=0))
+    win = max(localise.time_windows(replay.t, combined), key=lambda w: w["rms"])
+    regs = [g for g in localise.regions(replay.t, replay.measured, r, replay.channels, kinds)
+            if g["ratio"] == g["ratio"]]
+    top = max(regs, key=lambda g: float(g["ratio"])) if regs else {"region": "everywhere"}  # type: ignore[arg-type]
+    return unexplained, {"window_start_s": win["start_s"], "window_end_s": win["end_s"], "region": top["region"]}

@@ -1,62 +1,21 @@
 """The quick diagnosis of a model mismatch: which single library effect or plant parameter explains
-the recent window best (issue 23, item 4).
+the recent window best (issue 23, item 4; docs/twin.md, "The quick diagnosis").
 
-When the twin's residual monitor fires (``model_mismatch``: channel, start time), the window of
-the session since (a few seconds) is replayed with the discrepancy workflow's machinery, reduced to
-stay cheap beside a 1 kHz loop: one ``Replay.build`` (the augmented diagram the twin already runs,
-its kernels cached), the workflow's start-state estimate unless the twin gives its re-anchored
-state, and one single-term fit per candidate: every candidate gets the workflow's regression start
-(``fitting._regression_start``: the linear parameters by regression on the residual, shape
-parameters over their grid) and is screened by how much that start cuts the weighted residual; the
-best ``refine`` are refined by a short ``least_squares`` (``fitting.fit_joint`` from the start).
-Candidates are ranked by how much each single term cuts the weighted residual of the window
-(``Replay.residual(weighted=True)``, the quantity the workflow's fits minimise).
-
-The likeliest is named only when the window's residual is beyond the noise at all
-(``verdict.unexplained_channels``: 4 noise floors and 2 % of the spread on some channel), and the
-cause cuts some channel's RMS error by the workflow's 15 % (``selection.improvement``), is more
-than a rounding of "off" (``Term.relevant``), is a sensor effect only on a channel that is itself
-off (the workflow's ``_sensor_demanded``: from an estimated TCP start a force-sensor offset of 36
-counts was named for a passive muscle) and cuts the weighted residual by at least
-``MIN_REDUCTION``; otherwise the event says "no single effect explains it". The workflow's BIC
-margin is not used: on a few seconds of a smooth residual the effective sample count
-(``selection.effective_fraction``) is a handful, and no single term reaches a BIC 10 lower (a
-Coulomb friction cutting 74 % of a Finger Extensor window did not); the monitor's own sequential
-test has already said there is a mismatch. The full workflow (``discrepancy/workflow.py``) stays
-the offline tool: no held-out part here (a window of a few seconds has none to spare), no second
-round, no joint fit.
-
-Candidates beyond the workflow's (``Plant.fit_parameters``): the magnitude parameters of the
-config's own ``[[effects]]`` (a patient model's contact stiffness doubling is "+100 %" of the
-configured effect, named by its config path ``effects.<i>.params.<param>``), and the patient- and
-wire-side parameters a session can see change (``SESSION_PARAMETERS``: the SMA wire's prestrain,
-seed 000 Table 2 / eq 14; the SMA contact pad's stiffness, seed 000 eq 18-28 / Table 4; the TCP
-finger's joint springs, seed 001 Table 2), and a configured effect's magnitudes scaled together (a
-patient's contact stiffening as a whole). A parameter's relative error may reach -80 % .. +500 % here
-(``ERROR``; the workflow's own stops at -50 % .. +100 %, and a change of a session must not sit on
-the bound).
-
-Wording: candidates that change the same physical quantity share a ``family`` (a passive stiffness
-is the ``passive_muscle`` or ``contact_spring_damper`` effect, the FE iris spring, the SMA contact
-or muscle parameters), so the event reads "passive stiffness rising: passive_muscle, +40 %"
-whichever of them ranks first, and names the others of the family that explain it about as well.
-
-Measured (``bench/diagnosis.py``: 10 kinds of change and a clean case on the three plants, 5 seeds,
-4 s windows from the change at 800 Hz on the rig's columns, this 2-core machine shared with other
-work): with the twin's state, the likeliest cause was of the changed quantity in 28 of the 28
-windows that show the change (29 of 50 in all: a TCP Coulomb friction of 0.01 N m and a doubled
-SMA pad stiffness never move the rig's channels beyond the noise gate) and no clean window named a
-cause (15 of 15); from the workflow's start estimate instead, 14 of 28 (a TCP start guessed with a
-wrong coil temperature is named as a force-sensor offset). CPU per call (this thread, kernels
-loaded), a full diagnosis: Finger Extensor median 0.45 s (max 0.58), TCP finger 1.38 s (1.96), SMA
-exoskeleton 2.17 s (4.59); a window the model fits within the noise returns in 0.04-0.7 s. With 6 s
-windows: 33 of 34 shown changes, 15 of 15 clean, SMA median 2.5 s.
+When the twin's monitor fires (``model_mismatch``), the window since is replayed with the
+discrepancy workflow's machinery, cut down to stay cheap beside a 1 kHz loop: the twin's state (or
+the workflow's start estimate), every candidate screened from the workflow's regression start, the
+best ``REFINE`` refined by a short least squares, ranked by how much each cuts the window's weighted
+residual. The likeliest is named when it passes the workflow's rule (``significance.significant``)
+without its BIC margin, which a few seconds of smooth residual cannot reach, and cuts the residual by
+``MIN_REDUCTION``; a parameter goes before an effect it ties with, as in the workflow. Candidates
+include the session parameters a plant does not declare offline (``SESSION_PARAMETERS``) and the
+configured effects' magnitudes; the event's words come from the changed quantity (``FAMILY``).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,14 +23,14 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from rehab_hil.discrepancy import localise
-from rehab_hil.discrepancy.fitting import Term, _Objective, _regression_start, effect_term, fit_joint
-from rehab_hil.discrepancy.initial_state import _sim, _state_scales, estimate_initial_state
+from rehab_hil.discrepancy.fitting import Objective, Term, effect_term, fit_joint, regression_start
+from rehab_hil.discrepancy.initial_state import estimate_initial_state, state_scales
 from rehab_hil.discrepancy.parameters import ERROR_PARAM, ParameterTerm, parameter_terms
 from rehab_hil.discrepancy.replay import Replay
-from rehab_hil.discrepancy.selection import MIN_IMPROVEMENT, bic, effective_fraction, improvement
+from rehab_hil.discrepancy.selection import Score, bic, effective_fraction
 from rehab_hil.discrepancy.shooting import choose_mode
-from rehab_hil.discrepancy.verdict import unexplained_channels
-from rehab_hil.discrepancy.workflow import _demanding, _sensor_demanded
+from rehab_hil.discrepancy.significance import demanding_channels, score, significant
+from rehab_hil.discrepancy.verdict import tied_parameter
 from rehab_hil.effects import EFFECTS, EffectParam
 from rehab_hil.interchange import CsvError, Recording
 from rehab_hil.plants.experiments import FitParameter
@@ -276,7 +235,7 @@ def _refine_start(replay: Replay, P: np.ndarray) -> int:
     s = replay.system
     K = replay.anchor_gain
     matched = set(np.nonzero(np.any(K != 0.0, axis=1))[0]) if K is not None else set()
-    scales, lo, hi = _state_scales(replay, P)
+    scales, lo, hi = state_scales(replay, P)
     free = [i for i in range(s.x0.size) if i not in matched and hi[i] > lo[i]]
     if not free:
         return 1
@@ -288,7 +247,8 @@ def _refine_start(replay: Replay, P: np.ndarray) -> int:
         count[0] += 1
         x = base.copy()
         x[free] += (z - 1.0) * scales[free]
-        r = replay.residual(_sim(replay, P, n_win, x, replay.xd0.copy()), slice(0, n_win), weighted=True).ravel()
+        r = replay.residual(replay.simulate_from(P, n_win, x, replay.xd0.copy()), slice(0, n_win),
+                            weighted=True).ravel()
         return np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
 
     zlo = 1.0 + np.minimum((lo[free] - base[free]) / scales[free], -1e-9)
@@ -332,83 +292,161 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
     ``budget_s``: CPU seconds (this thread): the screen stops at 60 % of it, and a refinement starts
     only if one more as long as the previous fits in it."""
     t0 = time.thread_time()
+
+    def spent() -> float:
+        return time.thread_time() - t0
+
     try:
         replay = _build(spec, cfg, rec, steady_ok=x0 is not None)
     except CsvError as e:  # too short, or inputs constant with no state given: nothing to tell causes apart
-        return Diagnosis([], None, "no cause named: " + str(e).split(": ", 1)[-1], [], "", float("nan"),
-                         time.thread_time() - t0, 0)
-    N = replay.t.size
+        return Diagnosis([], None, "no cause named: " + str(e).split(": ", 1)[-1], [], "", float("nan"), spent(), 0)
+    sims = _start_state_and_mode(replay, x0, xd0)
+    window = _Window.of(replay)
+    if not window.demanding:  # no channel's residual is beyond the noise
+        return Diagnosis([], None, "no cause named: the model fits the window within the noise",
+                         list(replay.channels), replay.mode, window.baseline_rms, spent(),
+                         sims + window.objective.count + 1)
+    screened, skipped = window.screen(candidate_terms(replay), lambda: spent() > 0.6 * budget_s)
+    sims += window.objective.count
+    causes, refine_sims = window.refine(screened, refine, lambda last_fit_s: spent() + last_fit_s < budget_s)
+    _rank(causes)
+    likeliest, text = _event(causes)
+    return Diagnosis(causes, likeliest, text, list(replay.channels), replay.mode, window.baseline_rms, spent(),
+                     sims + refine_sims, skipped)
+
+
+def _start_state_and_mode(replay: Replay, x0: Any, xd0: Any) -> int:
+    """Set the window's start state (the twin's, else the workflow's estimate refined) and the replay
+    mode; returns the simulations used."""
     P0 = replay.nominal_params()
+    N = replay.t.size
     sims = 0
     estimate_initial_state(replay, P0, N)  # also the anchor gain shooting needs
     if x0 is not None or xd0 is not None:
         _set_start_state(replay, x0, xd0)
     else:
         sims += _refine_start(replay, P0)
-    mode = choose_mode(replay, P0, N)[0]
-    replay.mode = mode
-    obj = _Objective(replay, N, None)
-    r0 = obj(P0)
-    ss0 = float(np.mean(r0**2))
-    hold = slice(replay.fit_start, N)
-    nominal = replay.simulate(P0)
-    r_nom = replay.residual(nominal, hold)
-    frac = effective_fraction(r_nom)
-    base = bic(r_nom, 0, frac, replay.fit_weight)
-    rms = {c: float(np.sqrt(np.mean((nominal[c][hold] - replay.measured[c][hold]) ** 2))) for c in replay.channels}
-    if not unexplained_channels(replay.channels, {c: v[hold] for c, v in replay.measured.items()}, rms):
-        return Diagnosis([], None, "no cause named: the model fits the window within the noise",
-                         list(replay.channels), mode, float(np.sqrt(ss0)), time.thread_time() - t0,
-                         sims + obj.count + 1)
-    demanding = _demanding(replay, nominal, hold)  # a sensor effect only where its own channel is off
-    kinds = {c: replay.ports.measured_kind(c) or "" for c in replay.channels}
-    lag = localise.signatures(replay.t[hold], {c: v[hold] for c, v in replay.measured.items()},
-                              {c: v[hold] for c, v in nominal.items()}, replay.channels[:1], kinds)[replay.channels[0]]
-    seeds = {"delay_s": [lag["lag_s"]]} if lag["lag_s"] > 0 else {}
-    # the cheap terms first (one parameter, no grid): a budget that runs out skips the scans
-    terms = sorted(candidate_terms(replay), key=lambda t: (t.kind == "effect" and _scans(t), t.kind == "effect"))
-    screened: list[tuple[float, Term, dict[str, float]]] = []
-    skipped: list[str] = []
-    for term in terms:  # the screen: the workflow's regression start of each term, one run to score it
-        if time.thread_time() - t0 > 0.6 * budget_s:
-            skipped.append(term.name)
-            continue
-        start = _regression_start(term, lambda v, t=term: obj(t.apply(P0, v)), r0, seeds)
-        tries = [start] + ([{ERROR.name: g} for g in ERROR_GRID] if term.kind == "parameter" else [])
-        cost, start = min(((float(np.mean(obj(term.apply(P0, v)) ** 2)), v) for v in tries), key=lambda c: c[0])
-        screened.append((1.0 - cost / ss0 if ss0 > 0 else 0.0, term, start))
-    screened.sort(key=lambda s: -s[0])
-    sims += obj.count
-    causes: list[Cause] = []
-    last_fit_s = 0.0  # the previous refinement's cost: the next one starts only if it fits in the budget
-    for k, (red, term, start) in enumerate(screened):
-        values, P, refined = start, term.apply(P0, start), False
-        if k < refine and time.thread_time() - t0 + last_fit_s < budget_s:
-            t_fit = time.thread_time()
-            fit = fit_joint(replay, P0, [term], [start], N)[0]
-            last_fit_s = time.thread_time() - t_fit
-            sims += fit.n_simulations
-            red_fit = 1.0 - fit.train_cost / ss0 if ss0 > 0 else 0.0
-            if red_fit >= red:
-                values, P, red, refined = fit.params, fit.P, red_fit, True
-        sig = False
-        if refined:
-            sc = bic(replay.residual(replay.simulate(P), hold), len(term.params), frac, replay.fit_weight)
-            sims += 1
-            sig = improvement(sc, base) >= MIN_IMPROVEMENT and term.relevant(values) \
-                and _sensor_demanded(replay, term, demanding)
+    replay.mode = choose_mode(replay, P0, N)[0]
+    return sims
+
+
+# one candidate after the screen: reduction of the window's weighted residual, the term, its start values
+Screened = tuple[float, Term, dict[str, float]]
+
+
+@dataclass
+class _Window:
+    """The window bound for the candidates' fits: the objective the workflow's fits minimise, its
+    value for the nominal model, and the nominal model's score that significance is judged against."""
+
+    replay: Replay
+    P0: np.ndarray
+    objective: Objective
+    r0: np.ndarray  # the nominal model's weighted residual (the objective at P0)
+    ss0: float  # its mean square
+    nominal: dict[str, np.ndarray]
+    hold: slice  # the samples scored: from the end of the start state's memory
+    frac: float
+    base: Score
+    demanding: set[str]  # channels beyond the noise: a sensor effect is named only on one of them
+
+    @classmethod
+    def of(cls, replay: Replay) -> _Window:
+        N = replay.t.size
+        P0 = replay.nominal_params()
+        objective = Objective(replay, N, None)
+        r0 = objective(P0)
+        hold = slice(replay.fit_start, N)
+        nominal = replay.simulate(P0)
+        r_nom = replay.residual(nominal, hold)
+        frac = effective_fraction(r_nom)
+        return cls(replay, P0, objective, r0, float(np.mean(r0**2)), nominal, hold, frac,
+                   bic(r_nom, 0, frac, replay.fit_weight), demanding_channels(replay, nominal, hold))
+
+    @property
+    def baseline_rms(self) -> float:
+        return float(np.sqrt(self.ss0))
+
+    def reduction(self, cost: float) -> float:
+        """The share of the nominal model's mean-square residual a candidate's ``cost`` removes."""
+        return 1.0 - cost / self.ss0 if self.ss0 > 0 else 0.0
+
+    def screen(self, terms: Sequence[Term], over_budget: Callable[[], bool]) -> tuple[list[Screened], list[str]]:
+        """Each term's regression start (a parameter's also the ``ERROR_GRID``) scored by one run, best
+        first; the cheap terms first (one parameter, no grid), so a budget that runs out skips the scans
+        (returned second)."""
+        r, hold = self.replay, self.hold
+        seeds = localise.delay_seeds(r.t[hold], {c: v[hold] for c, v in r.measured.items()},
+                                     {c: v[hold] for c, v in self.nominal.items()}, r.channels, r.kinds)
+        screened: list[Screened] = []
+        skipped: list[str] = []
+        for term in sorted(terms, key=lambda t: (t.kind == "effect" and _scans(t), t.kind == "effect")):
+            if over_budget():
+                skipped.append(term.name)
+                continue
+            start = regression_start(term, lambda v, t=term: self.objective(t.apply(self.P0, v)), self.r0, seeds)
+            tries = [start] + ([{ERROR.name: g} for g in ERROR_GRID] if term.kind == "parameter" else [])
+            cost, start = min(((float(np.mean(self.objective(term.apply(self.P0, v)) ** 2)), v) for v in tries),
+                              key=lambda c: c[0])
+            screened.append((self.reduction(cost), term, start))
+        screened.sort(key=lambda s: -s[0])
+        return screened, skipped
+
+    def refine(self, screened: Sequence[Screened], refine: int,
+               affordable: Callable[[float], bool]) -> tuple[list[Cause], int]:
+        """Every screened candidate as a ``Cause``, the first ``refine`` refined by a short least squares
+        while ``affordable`` (one more fit as long as the previous); returns them and the simulations."""
+        causes: list[Cause] = []
+        sims = 0
+        last_fit_s = 0.0
+        for k, (red, term, start) in enumerate(screened):
+            values, P, refined = start, term.apply(self.P0, start), False
+            if k < refine and affordable(last_fit_s):
+                t_fit = time.thread_time()
+                fit = fit_joint(self.replay, self.P0, [term], [start], self.replay.t.size)[0]
+                last_fit_s = time.thread_time() - t_fit
+                sims += fit.n_simulations
+                red_fit = self.reduction(fit.train_cost)
+                if red_fit >= red:
+                    values, P, red, refined = fit.params, fit.P, red_fit, True
+            sig = False
+            if refined:
+                sig = self._significant(term, values, P)
+                sims += 1
+            causes.append(self._cause(term, values, red, sig, refined))
+        return causes, sims
+
+    def _significant(self, term: Term, values: Mapping[str, float], P: np.ndarray) -> bool:
+        """The workflow's rule (``significance.significant``) without its BIC margin: on a few seconds
+        the effective sample count is a handful (module docstring)."""
+        sc = score(self.replay, self.replay.simulate(P), self.hold, len(term.params), self.frac)
+        return significant(self.replay, term, sc, self.base, self.demanding, lambda: term.relevant(values),
+                           bic_margin=False)
+
+    def _cause(self, term: Term, values: Mapping[str, float], reduction: float, significant: bool,
+               refined: bool) -> Cause:
         relative = float(values[ERROR.name]) if term.kind == "parameter" else None
-        family = _family(replay, term.name)
-        causes.append(Cause(term.name, term.kind, family, dict(values), relative, red, sig, refined,
-                            _sentence_for(replay, term, family, values, relative)))
+        family = _family(self.replay, term.name)
+        return Cause(term.name, term.kind, family, dict(values), relative, reduction, significant, refined,
+                     _sentence_for(self.replay, term, family, values, relative))
+
+
+def _rank(causes: list[Cause]) -> None:
+    """Significant first, then refined, then by reduction; a significant parameter whose leftover
+    residual is within ``TIE_SHARE`` of the best effect's goes first (``verdict.tied_parameter``)."""
     causes.sort(key=lambda c: (not c.significant, not c.refined, -c.reduction))
-    if causes and causes[0].kind == "effect":  # a known parameter before new structure, as the workflow
-        left = 1.0 - causes[0].reduction
-        tie = next((c for c in causes[1:] if c.kind == "parameter" and c.significant
-                    and 1.0 - c.reduction <= TIE_SHARE * left), None)
-        if tie is not None:
-            causes.remove(tie)
-            causes.insert(0, tie)
+    if not causes:
+        return
+    left = 1.0 - causes[0].reduction
+    tie = tied_parameter(causes[0], [c for c in causes[1:] if c.significant],
+                         lambda c: 1.0 - c.reduction <= TIE_SHARE * left)
+    if tie is not None:
+        causes.remove(tie)
+        causes.insert(0, tie)
+
+
+def _event(causes: Sequence[Cause]) -> tuple[Cause | None, str]:
+    """The likeliest cause (significant and cutting ``MIN_REDUCTION``) and the event's line."""
     best = causes[0] if causes else None
     likeliest = best if best is not None and best.significant and best.reduction >= MIN_REDUCTION else None
     if likeliest is not None:
@@ -425,8 +463,7 @@ def diagnose(spec: type[Plant], cfg: Any, rec: Recording, x0: np.ndarray | Seque
                 f"{100.0 * max(best.reduction, 0.0):.0f} %)")
     else:
         text = "no single effect explains it (no candidate tested within the budget)"
-    return Diagnosis(causes, likeliest, text, list(replay.channels), mode, float(np.sqrt(ss0)),
-                     time.thread_time() - t0, sims, skipped)
+    return likeliest, text
 
 
 def _sentence_for(replay: Replay, term: Term, family: str, values: Mapping[str, float],
