@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy.fitting import DIFF_STEP, Fit, Term, fit_joint, parameter_term
-from rehab_hil.discrepancy.parameters import ERROR_PARAM, parameter_terms
+from rehab_hil.discrepancy.parameters import ERROR_PARAM, config_value, parameter_terms
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.selection import effective_fraction
 
@@ -118,16 +118,7 @@ def identify_jointly(replay: Replay, P0: np.ndarray, chosen_terms: Sequence[Term
                      n_train: int, tick: Callable[[], None] | None = None) -> JointIdentification:
     """Fit the chosen terms and every declared parameter (nominal value not zero) together; check
     what the record separates; hold inseparable declared parameters at their config values."""
-    have = {t.name for t in chosen_terms}
-    pts = parameter_terms(replay)
-    used = {i for p in pts if p.name in have for i in p.indices}
-    declared: list[Term] = []
-    for p in pts:  # a group that shares a parameter with one already in (k_t alone, the flux group) is left out
-        if p.name in have or not any(v != 0.0 for v in p.nominal) or used & set(p.indices):
-            continue
-        used |= set(p.indices)
-        declared.append(parameter_term(p))
-    terms: list[Term] = [*chosen_terms, *declared]
+    terms: list[Term] = [*chosen_terms, *_declared_terms(replay, chosen_terms)]
     starts = [dict(f.params) for f in chosen] + [{ERROR_PARAM.name: 0.0} for t in terms[len(chosen_terms):]]
     held: dict[str, list[str]] = {}
     groups: list[list[str]] = []
@@ -139,27 +130,12 @@ def identify_jointly(replay: Replay, P0: np.ndarray, chosen_terms: Sequence[Term
             return JointIdentification([], {}, {}, np.zeros((0, 0)), n_simulations=count)
         J, r0, labels, typ = _jacobian(replay, P0, terms, fits, n_train)
         count += 2 * len(labels) + 1
-        weak = _weak_direction(J)
-        if weak is None:
+        drop = _hold_one(J, labels, terms[len(chosen_terms):], held, groups)
+        if drop is None:
             break
-        members = [labels[i] for i in np.flatnonzero(np.abs(weak) >= MEMBER_WEIGHT * np.abs(weak).max())]
-        # hold the last declared parameter of the group (not a chosen term: the search's own story stays)
-        free = [t for t in terms[len(chosen_terms):] if t.name in members]
-        if not free:  # only chosen terms are collinear (an exponential's scale and shape): said, no intervals
-            groups.append(sorted(members))
-            break
-        merged = {*members, *[m for g in groups if set(g) & set(members) for m in g]}
-        groups = [g for g in groups if not set(g) & set(members)] + [sorted(merged)]
-        drop = free[-1]
-        held[drop.name] = members
         i = terms.index(drop)
         terms, starts = terms[:i] + terms[i + 1:], starts[:i] + starts[i + 1:]
-    n, k = r0.size, len(labels)
-    s2 = float(r0 @ r0) / max(n - k, 1)
-    frac = effective_fraction(r0.reshape(len(replay.channels), -1))
-    cov = np.linalg.pinv(J.T @ J) * s2 / frac * np.outer(typ, typ)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    corr = cov / np.where(np.outer(sd, sd) > 0, np.outer(sd, sd), 1.0)
+    sd, corr = _uncertainty(replay, J, r0, typ)
     values = {lab: f.params[p.name] for f, t in zip(fits, terms, strict=True) for p in t.params
               for lab in [_label(t, p.name)]}
     stderr = dict(zip(labels, sd.tolist(), strict=True))
@@ -167,9 +143,65 @@ def identify_jointly(replay: Replay, P0: np.ndarray, chosen_terms: Sequence[Term
         if not any(h in g for h in held):
             for m in g:
                 stderr[m] = float("nan")
-    corrected = {}
-    from rehab_hil.discrepancy.parameters import config_value
+    for h in held:
+        values[h] = 0.0
+        stderr[h] = float("nan")
+    names = [*labels, *held]
+    full = np.full((len(names), len(names)), np.nan)
+    full[:len(labels), :len(labels)] = corr
+    return JointIdentification(names, values, stderr, full, groups, held, _corrected(replay, terms, values, held),
+                               count)
 
+
+def _declared_terms(replay: Replay, chosen_terms: Sequence[Term]) -> list[Term]:
+    """The declared parameters not chosen, with a nominal value, sharing no model parameter with one
+    already in (k_t alone and the flux group: the first not already chosen takes part)."""
+    have = {t.name for t in chosen_terms}
+    pts = parameter_terms(replay)
+    used = {i for p in pts if p.name in have for i in p.indices}
+    declared: list[Term] = []
+    for p in pts:
+        if p.name in have or not any(v != 0.0 for v in p.nominal) or used & set(p.indices):
+            continue
+        used |= set(p.indices)
+        declared.append(parameter_term(p))
+    return declared
+
+
+def _hold_one(J: np.ndarray, labels: Sequence[str], declared: Sequence[Term], held: dict[str, list[str]],
+              groups: list[list[str]]) -> Term | None:
+    """The declared parameter to hold at its config value next, or None when the record sees every
+    direction (or only chosen terms are collinear); records the inseparable group in ``groups`` and
+    the held parameter in ``held``."""
+    weak = _weak_direction(J)
+    if weak is None:
+        return None
+    members = [labels[i] for i in np.flatnonzero(np.abs(weak) >= MEMBER_WEIGHT * np.abs(weak).max())]
+    # hold the last declared parameter of the group (not a chosen term: the search's own story stays)
+    free = [t for t in declared if t.name in members]
+    if not free:  # only chosen terms are collinear (an exponential's scale and shape): said, no intervals
+        groups.append(sorted(members))
+        return None
+    merged = {*members, *[m for g in groups if set(g) & set(members) for m in g]}
+    groups[:] = [g for g in groups if not set(g) & set(members)] + [sorted(merged)]
+    held[free[-1].name] = members
+    return free[-1]
+
+
+def _uncertainty(replay: Replay, J: np.ndarray, r0: np.ndarray, typ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Standard errors (SI) and correlations from the Jacobian, inflated for correlated residuals."""
+    n, k = r0.size, J.shape[1]
+    s2 = float(r0 @ r0) / max(n - k, 1)
+    frac = effective_fraction(r0.reshape(len(replay.channels), -1))
+    cov = np.linalg.pinv(J.T @ J) * s2 / frac * np.outer(typ, typ)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return sd, cov / np.where(np.outer(sd, sd) > 0, np.outer(sd, sd), 1.0)
+
+
+def _corrected(replay: Replay, terms: Sequence[Term], values: dict[str, float],
+               held: dict[str, list[str]]) -> dict[str, float]:
+    """Config key -> value after the fit: a fitted parameter's corrected, a held one's as configured."""
+    corrected = {}
     fps = {fp.name: fp for fp in replay.spec.fit_parameters}
     for t in terms:
         if t.kind == "parameter":
@@ -177,11 +209,6 @@ def identify_jointly(replay: Replay, P0: np.ndarray, chosen_terms: Sequence[Term
             for key in (fp.config_key, *fp.also):
                 corrected[key] = config_value(replay.cfg, key) * (1.0 + values[t.name])
     for h in held:
-        values[h] = 0.0
-        stderr[h] = float("nan")
         for key in (fps[h].config_key, *fps[h].also):
             corrected[key] = config_value(replay.cfg, key)
-    names = [*labels, *held]
-    full = np.full((len(names), len(names)), np.nan)
-    full[:k, :k] = corr
-    return JointIdentification(names, values, stderr, full, groups, held, corrected, count)
+    return corrected

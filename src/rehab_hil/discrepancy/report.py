@@ -47,19 +47,6 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
     combined0 = np.sqrt(np.mean(r0**2, axis=0))
     gap = {c: 100.0 * (1.0 - after[c]["rmse"] / before[c]["rmse"]) if before[c]["rmse"] > 0 else 0.0
            for c in res.channels}
-    rounds = []
-    for rd in res.rounds:
-        rounds.append({
-            "baseline": {"holdout_rms": rd.baseline.rms, "bic": rd.baseline.bic, "n_params": rd.baseline.n_params},
-            "chosen": rd.chosen,
-            "candidates": [{
-                "effect": c.fit.effect, "params": c.fit.params, "stderr": c.fit.stderr, "start": c.fit.start,
-                "holdout_rms": c.score.rms, "holdout_channel_rms": dict(zip(res.channels, c.score.channel_rms,
-                                                                            strict=True)),
-                "bic": c.score.bic, "delta_bic": c.delta_bic, "improvement": c.improvement,
-                "significant": c.significant, "n_params": c.score.n_params, "n_simulations": c.fit.n_simulations,
-            } for c in rd.candidates],
-        })
     init = res.initial_state
     return _clean({
         "schema": SCHEMA,
@@ -94,7 +81,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
             "augmented_holdout": res.metrics("augmented", "holdout"),
         },
         "gap_reduction_pct": gap,
-        "rounds": rounds,
+        "rounds": _rounds(res),
         "localisation": {
             "time_windows": localise.time_windows(res.t, combined0),
             "regions": localise.regions(res.t, res.measured, r0, res.channels, res.kinds),
@@ -104,6 +91,21 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         "wall_s": res.wall_s,
         "figures": figures,
     })
+
+
+def _rounds(res: Result) -> list[dict[str, Any]]:
+    """Each round of the search: its baseline, the term chosen and every candidate's fit and score."""
+    return [{
+        "baseline": {"holdout_rms": rd.baseline.rms, "bic": rd.baseline.bic, "n_params": rd.baseline.n_params},
+        "chosen": rd.chosen,
+        "candidates": [{
+            "effect": c.fit.effect, "params": c.fit.params, "stderr": c.fit.stderr, "start": c.fit.start,
+            "holdout_rms": c.score.rms, "holdout_channel_rms": dict(zip(res.channels, c.score.channel_rms,
+                                                                        strict=True)),
+            "bic": c.score.bic, "delta_bic": c.delta_bic, "improvement": c.improvement,
+            "significant": c.significant, "n_params": c.score.n_params, "n_simulations": c.fit.n_simulations,
+        } for c in rd.candidates],
+    } for rd in res.rounds]
 
 
 def augmented_toml(res: Result, config_path: Path) -> str:
@@ -141,10 +143,7 @@ def _figures(res: Result, out: Path) -> list[str]:
         ax.set_ylabel(c)
         ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time_s (grey: held out from the fit)")
-    fig.tight_layout()
-    fig.savefig(out / "overlay.png", dpi=110)
-    plt.close(fig)
-    names.append("overlay.png")
+    names.append(_save(plt, fig, out, "overlay.png"))
 
     fig, axes = plt.subplots(n, 1, figsize=(10, 2.5 * n), sharex=True, squeeze=False)
     for ax, c in zip(axes[:, 0], res.channels, strict=True):
@@ -154,10 +153,7 @@ def _figures(res: Result, out: Path) -> list[str]:
         ax.set_ylabel(f"{c} residual")
         ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time_s")
-    fig.tight_layout()
-    fig.savefig(out / "residual.png", dpi=110)
-    plt.close(fig)
-    names.append("residual.png")
+    names.append(_save(plt, fig, out, "residual.png"))
 
     r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
     reg0 = localise.regions(res.t, res.measured, r0, res.channels, res.kinds)
@@ -170,11 +166,16 @@ def _figures(res: Result, out: Path) -> list[str]:
     ax.set_ylabel("RMS scaled residual")
     ax.set_title("where the residual concentrates")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "regions.png", dpi=110)
-    plt.close(fig)
-    names.append("regions.png")
+    names.append(_save(plt, fig, out, "regions.png"))
     return names
+
+
+def _save(plt: Any, fig: Any, out: Path, name: str) -> str:
+    """Lay out, write ``out/name`` (PNG, 110 dpi) and close ``fig``; returns ``name``."""
+    fig.tight_layout()
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
 
 
 def _markdown(rep: dict[str, Any]) -> str:

@@ -194,26 +194,53 @@ class InteractionEstimator:
         at = at[keep]
         z = measured[keep] / m.resolution
         pinned = np.any(m.anchor_gain != 0.0, axis=0)  # channels whose states the anchoring sets
-        theta, y = self.theta.copy(), y_all[keep] / m.resolution
+        prior, y = self.theta.copy(), y_all[keep] / m.resolution
         if self.updates and float(np.mean((z - y) ** 2)) > RESTART_SIGMAS**2 * self.sigma2:
             self.restart(float(index[0] * m.period_s))
-        prior, C, lam = theta.copy(), self.cov, self.lam
         x_end = m.x - m.anchor_gain @ m.last_correction  # the segment's end before its anchoring
         # an iterated update (as the iterated extended Kalman filter's) where the segment is far from the
         # estimate's prediction: re-linearised at each new estimate while it moves, so a large change (a
         # stiffness doubling) is not read off a slope taken far from it; near it, one step
         far = not self.updates or float(np.mean((z - y) ** 2)) > ITERATE_SIGMAS**2 * self.sigma2
+        step = self._rls_step(prior, (x0, xd0, steps, at), z, y, x_end, far)
+        if step is None:
+            return
+        theta, cov, dx, r = step
+        # anchoring sets the states a channel is to its measurement: those no longer depend on the estimate
+        if np.any(pinned):
+            dx -= m.anchor_gain[:, pinned] @ (self._out_jac[pinned] @ dx)
+        # the start state depends on the estimate too (an unmeasured pad deformation follows the contact's
+        # stiffness): kept with its sensitivity, so the session's fit starts each segment where the
+        # estimate it tries would have put it
+        self._remember((x0, xd0, steps, at, z, prior, self._dx_start))
+        self._dx_start = dx
+        m.x += dx @ (theta - prior)  # the estimator's model carries on as if it had run on the new estimate
+        self.theta = theta
+        self.cov = 0.5 * (cov + cov.T)
+        self.sigma2 = self.lam * self.sigma2 + (1 - self.lam) * float(np.mean(r**2)) if self.updates \
+            else float(np.mean(r**2))
+        self.updates += 1
+        self._apply(self.P, self.theta)
+
+    def _rls_step(self, prior: np.ndarray, segment: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                  z: np.ndarray, y: np.ndarray, x_end: np.ndarray, far: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The RLS update of the estimate ``prior`` on one segment (``segment`` = start state, discrete
+        start state, steps, sample positions; ``z`` measured, ``y`` predicted), iterated while ``far``:
+        (estimate, covariance, d end state / d estimate, residual), or None when it cannot be taken."""
+        x0, xd0, steps, at = segment
+        theta, C, lam = prior.copy(), self.cov, self.lam
         for it in range(MAX_ITER if far else 1):
             phi, dx = self._sensitivity(theta, x0, xd0, steps, at, y, x_end)
             if not np.all(np.isfinite(phi)):
-                return
+                return None
             e = (z - y).ravel()
             # RLS with forgetting in information form: cov = (lam cov^-1 + phi' phi)^-1, gain = cov phi'
             # (the same as C phi' (lam I + phi C phi')^-1, with a parameters x parameters inverse)
             try:
                 cov = np.linalg.inv(lam * np.linalg.inv(C) + phi.T @ phi)
             except np.linalg.LinAlgError:
-                return
+                return None
             K = cov @ phi.T
             new = np.clip(prior + K @ (e + phi @ (theta - prior)), *BOUNDS)
             moved = float(np.max(np.abs(new - theta)))
@@ -222,25 +249,17 @@ class InteractionEstimator:
             if moved < ITER_TOL or not far or it == MAX_ITER - 1:
                 break
             y, x_end = self._predict(theta, x0, xd0, steps, at)
-        # anchoring sets the states a channel is to its measurement: those no longer depend on the estimate
-        if np.any(pinned):
-            dx -= m.anchor_gain[:, pinned] @ (self._out_jac[pinned] @ dx)
-        # the start state depends on the estimate too (an unmeasured pad deformation follows the contact's
-        # stiffness): kept with its sensitivity, so the session's fit starts each segment where the
-        # estimate it tries would have put it
+        return theta, cov, dx, r
+
+    def _remember(self, segment: tuple[np.ndarray, ...]) -> None:
+        """Keep every ``_stride``-th whole segment for the session's fit; a long session keeps every
+        other one of them, spread over all of it."""
         self._seen += 1
         if self._seen % self._stride == 0:
-            self._segments.append((x0, xd0, steps, at, z, prior, self._dx_start))
-            if len(self._segments) > SESSION_SEGMENTS:  # a long session: every other one, spread over all of it
+            self._segments.append(segment)
+            if len(self._segments) > SESSION_SEGMENTS:
                 del self._segments[::2]
                 self._stride *= 2
-        self._dx_start = dx
-        m.x += dx @ (theta - prior)  # the estimator's model carries on as if it had run on the new estimate
-        self.theta = theta
-        self.cov = 0.5 * (cov + cov.T)
-        self.sigma2 = lam * self.sigma2 + (1 - lam) * float(np.mean(r**2)) if self.updates else float(np.mean(r**2))
-        self.updates += 1
-        self._apply(self.P, self.theta)
 
     def _predict(self, theta: np.ndarray, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray, at: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
