@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rehab_hil.discrepancy.workflow import Options, Progress
+
+if TYPE_CHECKING:
+    from rehab_hil.discrepancy.result import Result
+    from rehab_hil.interchange import Recording
 
 
 class RichProgress(Progress):
@@ -47,20 +51,45 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from rehab_hil.cli import UserError, writable_folder
-    from rehab_hil.cli.data_path import missing_channels, resolve_data
-    from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
-    from rehab_hil.loading import load_config
-    from rehab_hil.plants import get_plant
     from rehab_hil.report.discrepancy import discrepancy_page
-    from rehab_hil.rig_recording import load_recording
 
     if not 1 <= args.max_effects <= 5:
         raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
     if not 0.1 <= args.holdout <= 0.9:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
     # check the inputs before the progress display starts, so a user error prints one line only
+    cfg, rec, source, val_rec = _load_records(args)
+    writable_folder(Path(args.out), "--out", "the report is several files")  # before the fit: nothing lost
+    console = Console(stderr=True)
+    cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("simulations"), TimeElapsedColumn())
+    with Progress(*cols, console=console, transient=False) as bar:
+        progress = RichProgress(bar)
+        res = find_missing_effects(cfg, rec, source, progress,
+                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+        if val_rec is not None:
+            from rehab_hil.discrepancy.validation import validate
+
+            progress.start("validating on the second record", None)
+            res.validation = validate(res, cfg, val_rec, args.validate)
+        progress.start("writing report", None)
+        rep = write_report(res, Path(args.config), Path(args.data), Path(args.out))
+        discrepancy_page(res, rep).write(Path(args.out) / "report.html")
+    _print_summary(res, args.out)
+    return 0
+
+
+def _load_records(args: argparse.Namespace) -> tuple[Any, Recording, Path, Recording | None]:
+    """The config, the record (``args.data`` resolved in place), its source name and the validation
+    record (or None), each checked replayable; warnings on stderr."""
+    from rehab_hil.cli.data_path import missing_channels, resolve_data
+    from rehab_hil.discrepancy.replay import check_recording
+    from rehab_hil.loading import load_config
+    from rehab_hil.plants import get_plant
+    from rehab_hil.rig_recording import load_recording
+
     cfg = load_config(args.config)
     plant = get_plant(cfg.plant)
     args.data = resolve_data(Path(args.data), "discrepancy")
@@ -79,22 +108,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
         check_recording(plant, val_loaded.recording, val_loaded.source)
         val_rec = val_loaded.recording
-    writable_folder(Path(args.out), "--out", "the report is several files")  # before the fit: nothing lost
-    console = Console(stderr=True)
-    cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("simulations"), TimeElapsedColumn())
-    with Progress(*cols, console=console, transient=False) as bar:
-        progress = RichProgress(bar)
-        res = find_missing_effects(cfg, rec, loaded.source, progress,
-                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
-        if val_rec is not None:
-            from rehab_hil.discrepancy.validation import validate
+    return cfg, rec, loaded.source, val_rec
 
-            progress.start("validating on the second record", None)
-            res.validation = validate(res, cfg, val_rec, args.validate)
-        progress.start("writing report", None)
-        rep = write_report(res, Path(args.config), Path(args.data), Path(args.out))
-        discrepancy_page(res, rep).write(Path(args.out) / "report.html")
+
+def _print_summary(res: Result, out: Path) -> None:
+    """The conclusion, the fitted terms, each channel's RMSE before and after, and the validation."""
     print(f"{res.plant}: {res.conclusion} ({res.wall_s:.1f} s)")
     for f in res.chosen:
         print("  " + f.effect + ": " + ", ".join(f"{k} = {v:.4g} ± {f.stderr[k]:.2g}" for k, v in f.params.items()))
@@ -103,5 +121,4 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {c:24s} RMSE {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g}")
     for line in res.validation.lines() if res.validation is not None else []:
         print(line)
-    print(f"wrote {args.out}/report.json, report.md, report.html, *.png, augmented.toml")
-    return 0
+    print(f"wrote {out}/report.json, report.md, report.html, *.png, augmented.toml")

@@ -130,38 +130,70 @@ def _fault_names(bits: int) -> str:
 def run_checks(hw: HardwareInterface, cfg: Any, binding: Any, hand: Hand, *, seconds: float = 2.0,
                timeout_s: float = 15.0, expected_fw: tuple[int, int, int] | None = None) -> list[Check]:
     """Every check on a connected rig (``hw`` INACTIVE, HELLO known); never sends a COMMAND."""
-    from rehab_hil.calibration import ForceLimitError, calibration_for
-    from rehab_hil.service.assembly import firmware_configure
-
-    rows: list[Check] = []
     info = hw.info
     assert info is not None
+    rows = _handshake_rows(info, binding, expected_fw)
+    limits, real = _try_limits(hw, cfg, binding)
+    rows.append(limits)
+    stale, rest, link = _listen_locked(hw, cfg, real or firmware_configure_fallback(cfg, binding), seconds)
+    rows.append(link)
+    if not rest:
+        return [*rows, Check("sensors", "FAIL", "no samples: nothing else can be checked")]
+    rows += _at_rest_rows(rest, stale)
+    a0 = _ForceSensor.of(cfg, binding)
+    row, mean0 = a0.rest_row(rest)
+    rows.append(row)
+    rows.append(_manual(hw, hand, "move", "encoder moves",
+                        "move the finger (or back-drive the actuator by hand) through part of its range",
+                        lambda s: abs(s.encoder_count - rest[-1].encoder_count) >= _motion_counts(binding),
+                        lambda s: _moved(s.encoder_count - rest[-1].encoder_count, binding.encoder_counts_per_rev),
+                        "did not move (check A/B wiring, pull-ups, 5 V to the encoder)", timeout_s))
+    rows.append(_manual(hw, hand, "press", f"{a0.label} under a press", "press the force sensor firmly with a finger",
+                        lambda s: s.adc0 - mean0 >= PRESS_RISE_COUNTS,
+                        lambda s: f"rose {s.adc0 - mean0:+.0f} counts to {s.adc0} = {a0.in_units(s.adc0)}",
+                        f"did not rise {PRESS_RISE_COUNTS} counts above rest (sensor, gain R_f or wiring)", timeout_s))
+    return rows
+
+
+def _handshake_rows(info: Any, binding: Any, expected_fw: tuple[int, int, int] | None) -> list[Check]:
+    """The protocol and firmware versions the HELLO reported, and a counts/rev that disagrees with the config."""
     fw = (info.fw_major, info.fw_minor, info.fw_patch)
     fw_ok = info.protocol_version == PROTOCOL_VERSION and (expected_fw is None or fw == expected_fw)
-    rows.append(Check("handshake", "PASS" if fw_ok else "FAIL",
-                      f"protocol v{info.protocol_version} (host v{PROTOCOL_VERSION}), firmware "
-                      f"{'.'.join(map(str, fw))}" + (f" (expected {'.'.join(map(str, expected_fw))})" if expected_fw
-                                                     else "") + f", reset cause {info.reset_cause:#x}"))
+    rows = [Check("handshake", "PASS" if fw_ok else "FAIL",
+                  f"protocol v{info.protocol_version} (host v{PROTOCOL_VERSION}), firmware "
+                  f"{'.'.join(map(str, fw))}" + (f" (expected {'.'.join(map(str, expected_fw))})" if expected_fw
+                                                 else "") + f", reset cause {info.reset_cause:#x}")]
     # 0: the device has not been told yet (it adopts CONFIGURE's counts/rev, protocol.md)
     if binding.encoder_counts_per_rev and info.encoder_counts_per_rev not in (0, binding.encoder_counts_per_rev):
         rows.append(Check("encoder counts/rev", "WARN", f"device reports {info.encoder_counts_per_rev}, config "
                           f"{binding.encoder_counts_per_rev}: angles will be scaled wrongly"))
+    return rows
+
+
+def _try_limits(hw: HardwareInterface, cfg: Any, binding: Any) -> tuple[Check, Configure | None]:
+    """Send the session's real CONFIGURE: does the firmware accept its limits? Returns the row and the
+    CONFIGURE (None when the config's limits cannot be built)."""
+    from rehab_hil.calibration import ForceLimitError
+    from rehab_hil.service.assembly import firmware_configure
+
     try:
         real = firmware_configure(cfg, binding)
     except ForceLimitError as e:
-        rows.append(Check("limits accepted", "FAIL", str(e)))
-        real = None
-    if real is not None:
-        try:
-            hw.configure(real)
-            rows.append(Check("limits accepted", "PASS",
-                              f"rate {real.sample_rate_hz} Hz, watchdog {real.watchdog_ms} ms, max duty "
-                              f"{real.max_duty / 100:.0f} %, heating {real.max_heating_ms} ms, force limit "
-                              f"{real.force_limit_counts} counts{' (off)' if real.force_limit_counts >= 1023 else ''}, "
-                              f"encoder {real.enc_min}..{real.enc_max}"))
-        except HardwareError as e:
-            rows.append(Check("limits accepted", "FAIL", str(e)))
-    base = real or firmware_configure_fallback(cfg, binding)
+        return Check("limits accepted", "FAIL", str(e)), None
+    try:
+        hw.configure(real)
+    except HardwareError as e:
+        return Check("limits accepted", "FAIL", str(e)), real
+    return Check("limits accepted", "PASS",
+                 f"rate {real.sample_rate_hz} Hz, watchdog {real.watchdog_ms} ms, max duty "
+                 f"{real.max_duty / 100:.0f} %, heating {real.max_heating_ms} ms, force limit "
+                 f"{real.force_limit_counts} counts{' (off)' if real.force_limit_counts >= 1023 else ''}, "
+                 f"encoder {real.enc_min}..{real.enc_max}"), real
+
+
+def _listen_locked(hw: HardwareInterface, cfg: Any, base: Configure, seconds: float) -> tuple[int, list[Sample], Check]:
+    """Lock the PWM (``base`` with max_duty 0), clear stale faults, time a heartbeat and collect
+    ``seconds`` of samples at rest: (the faults found latched, the samples, the link's row)."""
     hw.configure(locked_configure(base))  # from here the firmware clamps every duty to 0
     first = hw.read_sample(timeout=1.0)
     stale = first.faults if first is not None else 0
@@ -177,54 +209,67 @@ def run_checks(hw: HardwareInterface, cfg: Any, binding: Any, hand: Hand, *, sec
     hw.discard_pending()
     bad0 = sum(hw.stats.bad_frames.values())
     rest = collect(hw, seconds)
-    rows.append(_link_row(rest, cfg, rtt_ms, sum(hw.stats.bad_frames.values()) - bad0))
-    if not rest:
-        return [*rows, Check("sensors", "FAIL", "no samples: nothing else can be checked")]
+    return stale, rest, _link_row(rest, cfg, rtt_ms, sum(hw.stats.bad_frames.values()) - bad0)
+
+
+def _at_rest_rows(rest: list[Sample], stale: int) -> list[Check]:
+    """PWM off in every sample, the e-stop loop closed, no fault latched at the end."""
     pwm_on = [s for s in rest if s.duty0 or s.duty1 or s.status & Status.PWM_ENABLED]
-    rows.append(Check("PWM off", "FAIL" if pwm_on else "PASS",
-                      f"{len(pwm_on)} of {len(rest)} samples with PWM on" if pwm_on
-                      else f"duty 0 in all {len(rest)} samples (max_duty 0 configured)"))
     estop = [s for s in rest if s.status & Status.ESTOP_INPUT_ACTIVE]
-    rows.append(Check("e-stop loop", "FAIL" if estop else "PASS",
-                      "e-stop input active: button pressed or loop open (check the NC loop, docs/wiring.md)"
-                      if estop else "closed (e-stop input inactive)"))
     faults = rest[-1].faults
     cleared = stale & ~faults
-    rows.append(Check("faults at rest", "FAIL" if faults else "PASS", _fault_names(faults)
-                      + (f" (cleared at start: {_fault_names(cleared)})" if cleared else "")))
-    cal = calibration_for(cfg)
-    ch = binding.adc[0] if binding.adc else None
-    a0 = [s.adc0 for s in rest]
-    mean0, sd0 = statistics.fmean(a0), statistics.pstdev(a0)
-    label = f"A0 ({ch.signal})" if ch else "A0"
+    return [
+        Check("PWM off", "FAIL" if pwm_on else "PASS",
+              f"{len(pwm_on)} of {len(rest)} samples with PWM on" if pwm_on
+              else f"duty 0 in all {len(rest)} samples (max_duty 0 configured)"),
+        Check("e-stop loop", "FAIL" if estop else "PASS",
+              "e-stop input active: button pressed or loop open (check the NC loop, docs/wiring.md)"
+              if estop else "closed (e-stop input inactive)"),
+        Check("faults at rest", "FAIL" if faults else "PASS", _fault_names(faults)
+              + (f" (cleared at start: {_fault_names(cleared)})" if cleared else "")),
+    ]
 
-    def in_units(counts: float) -> str:
-        if cal is not None:
-            return f"{float(cal.force_n(counts)):.2f} N"
-        if ch is not None:
-            return f"{(counts - ch.offset_counts) / ch.counts_per_unit:.3g} {ch.unit}"
+
+@dataclass(frozen=True)
+class _ForceSensor:
+    """The sensor on A0 as the checks read it: its calibration (``calibration_for``) or the config's
+    ADC channel, either of which may be missing."""
+
+    cal: Any
+    channel: Any
+
+    @classmethod
+    def of(cls, cfg: Any, binding: Any) -> _ForceSensor:
+        from rehab_hil.calibration import calibration_for
+
+        return cls(calibration_for(cfg), binding.adc[0] if binding.adc else None)
+
+    @property
+    def label(self) -> str:
+        return f"A0 ({self.channel.signal})" if self.channel else "A0"
+
+    def in_units(self, counts: float) -> str:
+        if self.cal is not None:
+            return f"{float(self.cal.force_n(counts)):.2f} N"
+        if self.channel is not None:
+            return f"{(counts - self.channel.offset_counts) / self.channel.counts_per_unit:.3g} {self.channel.unit}"
         return ""
 
-    rest_expected = cal.data.tare_counts if cal is not None else (ch.offset_counts if ch is not None else 0.0)
-    low_rail_is_fault = rest_expected > 5 * RAIL_COUNTS  # an op-amp Flexiforce reads ~0 unloaded: normal
-    if max(a0) >= 1023 - RAIL_COUNTS or (low_rail_is_fault and min(a0) <= RAIL_COUNTS):
-        rows.append(Check(f"{label} at rest", "FAIL", f"railed at {mean0:.0f} counts (open circuit, short or a "
-                          "saturated amplifier; check the op-amp circuit, docs/wiring.md)"))
-    elif sd0 > MAX_REST_NOISE_COUNTS:
-        rows.append(Check(f"{label} at rest", "FAIL", f"noisy: {mean0:.1f} +- {sd0:.1f} counts (loose wire? "
-                          "the ADC needs a low-impedance source)"))
-    else:
-        rows.append(Check(f"{label} at rest", "PASS", f"{mean0:.1f} +- {sd0:.2f} counts = {in_units(mean0)}"))
-    rows.append(_manual(hw, hand, "move", "encoder moves",
-                        "move the finger (or back-drive the actuator by hand) through part of its range",
-                        lambda s: abs(s.encoder_count - rest[-1].encoder_count) >= _motion_counts(binding),
-                        lambda s: _moved(s.encoder_count - rest[-1].encoder_count, binding.encoder_counts_per_rev),
-                        "did not move (check A/B wiring, pull-ups, 5 V to the encoder)", timeout_s))
-    rows.append(_manual(hw, hand, "press", f"{label} under a press", "press the force sensor firmly with a finger",
-                        lambda s: s.adc0 - mean0 >= PRESS_RISE_COUNTS,
-                        lambda s: f"rose {s.adc0 - mean0:+.0f} counts to {s.adc0} = {in_units(s.adc0)}",
-                        f"did not rise {PRESS_RISE_COUNTS} counts above rest (sensor, gain R_f or wiring)", timeout_s))
-    return rows
+    def rest_row(self, rest: list[Sample]) -> tuple[Check, float]:
+        """A0 at rest: railed, noisy or fine; returns the row and the rest level (counts)."""
+        a0 = [s.adc0 for s in rest]
+        mean0, sd0 = statistics.fmean(a0), statistics.pstdev(a0)
+        ch, cal = self.channel, self.cal
+        rest_expected = cal.data.tare_counts if cal is not None else (ch.offset_counts if ch is not None else 0.0)
+        low_rail_is_fault = rest_expected > 5 * RAIL_COUNTS  # an op-amp Flexiforce reads ~0 unloaded: normal
+        name = f"{self.label} at rest"
+        if max(a0) >= 1023 - RAIL_COUNTS or (low_rail_is_fault and min(a0) <= RAIL_COUNTS):
+            return Check(name, "FAIL", f"railed at {mean0:.0f} counts (open circuit, short or a saturated "
+                         "amplifier; check the op-amp circuit, docs/wiring.md)"), mean0
+        if sd0 > MAX_REST_NOISE_COUNTS:
+            return Check(name, "FAIL", f"noisy: {mean0:.1f} +- {sd0:.1f} counts (loose wire? the ADC needs a "
+                         "low-impedance source)"), mean0
+        return Check(name, "PASS", f"{mean0:.1f} +- {sd0:.2f} counts = {self.in_units(mean0)}"), mean0
 
 
 def firmware_configure_fallback(cfg: Any, binding: Any) -> Configure:

@@ -209,54 +209,23 @@ class _Relay:
         return not any(ev & select.POLLHUP for _, ev in p.poll(0))
 
     def run(self) -> None:
+        """Relay bytes between the host's pty and the device's, delayed as the USB chip delays them,
+        and the control channel between stdin/stdout and the device process, until either ends."""
         assert self.child.stdout is not None
         cfd = self.child.stdout.fileno()
         pending = b""
         while self.child.poll() is None:
             now = time.perf_counter()
-            is_open = self._host_is_open()
-            if is_open and not self.host_open and self.p.auto_reset:
-                self._reset_device(now)
-            self.host_open = is_open
-            if self.rebooting and now >= self.silent_until:  # optiboot times out: the sketch starts
-                self.rebooting = False
-                self._to_child("reboot external")
-                self.internal_replies += 1
-                self.up.clear()
-            times = [t for t in (self.up.next_time(), self.down.next_time()) if t is not None]
-            if self.rebooting:
-                times.append(self.silent_until)
-            wait = min(times) - now if times else (0.01 if is_open else 0.002)
-            fds = [self.dev, cfd, 0] + ([self.master] if is_open else [])
-            readable, _, _ = select.select(fds, [], [], max(0.0, min(wait, 0.01)))
+            is_open = self._follow_host(now)
+            readable = self._wait_readable(cfd, is_open, now)
             now = time.perf_counter()
-            if self.master in readable:
-                data = _read(self.master)
-                if data and not self.rebooting:
-                    self.down.push(now, data)
-            if self.dev in readable:
-                data = _read(self.dev)
-                if data and not self.rebooting and not self.resetting:
-                    self.up.push(now, data)
+            self._read_links(readable, now)
             if cfd in readable:
                 chunk = os.read(cfd, 4096)
                 if not chunk:
                     break
                 self._child_out += chunk
-                while b"\n" in self._child_out:
-                    line, self._child_out = self._child_out.split(b"\n", 1)
-                    if self.internal_replies:
-                        self.internal_replies -= 1
-                        if self.resetting:
-                            self.resetting -= 1
-                            # what the device sent before the reset: every byte written before this reply,
-                            # also those still in the pty's flip buffer (a read here missed them under load,
-                            # and a stale power-up HELLO reached the host before optiboot had run)
-                            termios.tcflush(self.dev, termios.TCIFLUSH)
-                            self.up.clear()
-                    else:
-                        sys.stdout.buffer.write(line + b"\n")
-                        sys.stdout.flush()
+                self._relay_child_lines()
             if 0 in readable:
                 chunk = os.read(0, 4096)
                 if not chunk:
@@ -272,6 +241,59 @@ class _Relay:
             if out and self.host_open:
                 _write(self.master, out)
         self.close()
+
+    def _follow_host(self, now: float) -> bool:
+        """Is the host's port open? Opening it resets the device (DTR, with ``auto_reset``); the
+        emulated bootloader's silence ends in the sketch's start."""
+        is_open = self._host_is_open()
+        if is_open and not self.host_open and self.p.auto_reset:
+            self._reset_device(now)
+        self.host_open = is_open
+        if self.rebooting and now >= self.silent_until:  # optiboot times out: the sketch starts
+            self.rebooting = False
+            self._to_child("reboot external")
+            self.internal_replies += 1
+            self.up.clear()
+        return is_open
+
+    def _wait_readable(self, cfd: int, is_open: bool, now: float) -> list[int]:
+        """The descriptors readable within the time to the next due delivery (at most 10 ms)."""
+        times = [t for t in (self.up.next_time(), self.down.next_time()) if t is not None]
+        if self.rebooting:
+            times.append(self.silent_until)
+        wait = min(times) - now if times else (0.01 if is_open else 0.002)
+        fds = [self.dev, cfd, 0] + ([self.master] if is_open else [])
+        readable, _, _ = select.select(fds, [], [], max(0.0, min(wait, 0.01)))
+        return readable
+
+    def _read_links(self, readable: list[int], now: float) -> None:
+        """Queue what the host and the device wrote (nothing while the device reboots or resets)."""
+        if self.master in readable:
+            data = _read(self.master)
+            if data and not self.rebooting:
+                self.down.push(now, data)
+        if self.dev in readable:
+            data = _read(self.dev)
+            if data and not self.rebooting and not self.resetting:
+                self.up.push(now, data)
+
+    def _relay_child_lines(self) -> None:
+        """The device process's whole output lines: replies to the bridge's own requests are consumed
+        (a reset's reply flushes what the device sent before it), the others go to stdout."""
+        while b"\n" in self._child_out:
+            line, self._child_out = self._child_out.split(b"\n", 1)
+            if self.internal_replies:
+                self.internal_replies -= 1
+                if self.resetting:
+                    self.resetting -= 1
+                    # what the device sent before the reset: every byte written before this reply,
+                    # also those still in the pty's flip buffer (a read here missed them under load,
+                    # and a stale power-up HELLO reached the host before optiboot had run)
+                    termios.tcflush(self.dev, termios.TCIFLUSH)
+                    self.up.clear()
+            else:
+                sys.stdout.buffer.write(line + b"\n")
+                sys.stdout.flush()
 
     def close(self) -> None:
         if self.child.poll() is None:
