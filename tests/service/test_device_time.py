@@ -47,7 +47,7 @@ def run_bursty(sup: Supervisor, duty: float, seconds: float, seed: int = 1, **an
             continue
         for k in burst:
             sup.observe(k * DT, state(k * DT, **analog), 0, 0, arrival_s=None)
-        sup.filter(burst[-1] * DT, Command((duty, 0.0), 0, True))
+        sup.admit(burst[-1] * DT, Command((duty, 0.0), 0, True))
         if sup.tripped:
             return sup.events[0].t_s
         if burst[-1] * DT > seconds:
@@ -100,7 +100,7 @@ def test_the_estop_status_bit_trips_estop_input_only_when_enabled() -> None:
     on.observe(0.001, state(0.001), 0, Status.STREAMING | Status.ESTOP_INPUT_ACTIVE)
     assert [e.reason for e in on.events] == ["estop_input"]
     on.observe(0.002, state(0.002), 0, Status.STREAMING)  # released: still latched
-    assert on.tripped and on.filter(0.002, Command((0.5, 0.0), 0, True)).duty == (0.0, 0.0)
+    assert on.tripped and on.admit(0.002, Command((0.5, 0.0), 0, True)).duty == (0.0, 0.0)
 
 
 def test_a_thermistor_trips_on_its_reading_and_on_a_lasting_disagreement_with_the_estimate() -> None:

@@ -121,11 +121,11 @@ def test_a_session_reference_runs_five_cycles_per_minute_from_a_rest_at_closed()
 
 def test_supervisor_clamps_duty_and_latches_pwm_off_after_a_trip():
     sup = Supervisor(limits(), 0.001, ("contact_force_n",))
-    assert sup.filter(0.0, Command((1.0, 0.0), 0, True)).duty == (0.8, 0.0)
+    assert sup.admit(0.0, Command((1.0, 0.0), 0, True)).duty == (0.8, 0.0)
     sup.observe(0.0, state(10.0, contact_force_n=12.0), 0)
     assert sup.events[0].reason == "contact_force"
     sup.observe(0.0, state(10.0, contact_force_n=0.0), 0)  # cause gone: still latched
-    out = sup.filter(0.001, Command((0.5, 0.0), 0, True))
+    out = sup.admit(0.001, Command((0.5, 0.0), 0, True))
     assert out.duty == (0.0, 0.0) and not out.enable
 
 
@@ -133,7 +133,7 @@ def test_supervisor_clamps_duty_and_latches_pwm_off_after_a_trip():
     ("range_of_motion", lambda s: s.observe(0.0, state(121.0), 0)),
     ("device_fault", lambda s: s.observe(0.0, state(0.0), Fault.WATCHDOG)),
     ("link_loss", lambda s: [s.no_sample(0.0) for _ in range(5)]),
-    ("heating_time", lambda s: [s.filter(k * 0.001, Command((0.1, 0.0), 0, True)) for k in range(1001)]),
+    ("heating_time", lambda s: [s.admit(k * 0.001, Command((0.1, 0.0), 0, True)) for k in range(1001)]),
 ])
 def test_supervisor_trips_on_each_check(reason, act):
     sup = Supervisor(limits(), 0.001)
@@ -216,7 +216,7 @@ def _drive(sup: Supervisor, duty: float, reference_deg: float, angle_deg: float,
     from rehab_hil.service.controllers import Command
 
     for _ in range(round(seconds / 0.001)):
-        sup.filter(t, Command((duty, 0.0), 0, True, reference_deg))
+        sup.admit(t, Command((duty, 0.0), 0, True, reference_deg))
         sup.observe(t, state(angle_deg), 0)
         t += 0.001
     return t
@@ -248,6 +248,6 @@ def test_a_moving_encoder_keeps_resetting_the_stuck_timer():
                             stuck_min_motion_deg=1.0), 0.001)
     for k in range(2000):  # 2 s rising at 5 deg/s, always > 10 deg from the reference
         t = k * 0.001
-        sup.filter(t, Command((0.8, 0.0), 0, True, 60.0))
+        sup.admit(t, Command((0.8, 0.0), 0, True, 60.0))
         sup.observe(t, state(5.0 + 5.0 * t), 0)
     assert not sup.tripped

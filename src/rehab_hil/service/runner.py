@@ -15,6 +15,7 @@ threads are woken after it and do their work while the loop waits for the next s
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Sequence
@@ -24,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from rehab_hil import metrics
-from rehab_hil.hardware.interface import HardwareError, HardwareInterface, LifecycleState
+from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState
 from rehab_hil.protocol import Configure, Sample, Status
-from rehab_hil.service.controllers import SAFE_COMMAND, Command, Controller
+from rehab_hil.service.controllers import SAFE_COMMAND, Command, LoopController
 from rehab_hil.service.estimation import Estimator, State
 from rehab_hil.service.loop import DeadlineTimer, RealtimeReport, TimingStats, realtime_setup, realtime_teardown
 from rehab_hil.service.recorder import Recorder
@@ -35,7 +36,12 @@ from rehab_hil.service.sinks import Sink, sink_report
 from rehab_hil.service.supervisor import SafetyEvent, Supervisor
 from rehab_hil.session_metrics import SessionMeter
 
-__all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "Session"]
+__all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "RunState"]
+
+log = logging.getLogger(__name__)
+# tuple.__new__ builds a record NamedTuple without its generated Python-level __new__ (as its _make
+# does): half the cost, once per sample and per command on the loop thread
+_new_record = tuple.__new__
 
 CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
 PROGRESS_EVERY = 50  # cycles between updates of the live figures
@@ -100,7 +106,7 @@ class RunResult:
         return s is not None and s.duty0 == 0 and s.duty1 == 0 and not (s.status & Status.PWM_ENABLED)
 
 
-class Session:
+class RunState:
     """One run's state, in one place: the device-time axis, the counts, what is in force, the
     records waiting for the write and the per-cycle figures (preallocated)."""
 
@@ -117,8 +123,9 @@ class Session:
         self.final: Sample | None = None  # the newest sample
         self.command: Command = SAFE_COMMAND  # the last command written
         self.command_seq = -1  # its COMMAND seq
-        self.pending: list[tuple[Any, ...]] = []  # records of the samples taken, handed over after the write
+        self.pending: list[SampleRecord] = []  # records of the samples taken, handed over after the write
         self.reaction = TimingStats(n_max)  # sample arrival -> command written
+        self.arrival_s = 0.0  # host clock when the newest sample arrived (perf_counter)
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
         self.references = np.full(n_max, np.nan)
         self.angles = np.full(n_max, np.nan)
@@ -136,33 +143,31 @@ class DevicePacing:
 
     name = "device"
 
-    def __init__(self, loop: LoopService, session: Session, timeout_s: float) -> None:
-        self.loop, self.session, self.timeout_s = loop, session, timeout_s
+    def __init__(self, run_state: RunState, timeout_s: float) -> None:
+        self.run_state, self.timeout_s = run_state, timeout_s
         self.k = 0  # cycles of the session's length used up
 
     def start(self) -> None:
         pass
 
-    def wait(self) -> int | None:
-        """Samples taken for this cycle, or None when the session's length is reached."""
-        if self.k >= self.session.n_max:
-            return None
-        return self.loop.take_arrived(self.timeout_s)
+    def wait(self) -> float | None:
+        """How long this cycle may wait for its first sample, or None when the session's length is reached."""
+        return self.timeout_s if self.k < self.run_state.n_max else None
 
     def t_s(self) -> float:
-        s = self.session
+        s = self.run_state
         return (s.index if s.index >= 0 else self.k) * s.period_s
 
     def controlled(self, taken: int) -> None:
-        self.session.coalesced += taken - 1
-        self.k = self.session.index + 1
+        self.run_state.coalesced += taken - 1
+        self.k = self.run_state.index + 1
 
     def empty(self) -> None:
         self.k += 1
 
     def timing(self) -> dict[str, float]:
         """Reaction percentiles; missed cycles are the samples not controlled: coalesced or lost."""
-        s = self.session
+        s = self.run_state
         out = s.reaction.summary()
         missed = s.coalesced + s.sample_gaps
         out["missed_cycles"] = float(missed)
@@ -177,25 +182,24 @@ class HostPacing:
 
     name = "host"
 
-    def __init__(self, loop: LoopService, session: Session) -> None:
-        self.loop, self.session = loop, session
-        self.timer = DeadlineTimer(session.period_s, session.n_max)
+    def __init__(self, run_state: RunState) -> None:
+        self.run_state = run_state
+        self.timer = DeadlineTimer(run_state.period_s, run_state.n_max)
         self.k = 0
 
     def start(self) -> None:
         self.timer.start()
 
-    def wait(self) -> int | None:
+    def wait(self) -> float | None:
+        """Sleep to this cycle's deadline; then take what arrived without waiting (0), or None at the end."""
         self.k = self.timer.wait()
-        if self.k >= self.session.n_max:
-            return None
-        return self.loop.take_arrived(0.0)
+        return 0.0 if self.k < self.run_state.n_max else None
 
     def t_s(self) -> float:
-        return self.k * self.session.period_s
+        return self.k * self.run_state.period_s
 
     def controlled(self, taken: int) -> None:
-        self.session.coalesced += taken - 1
+        self.run_state.coalesced += taken - 1
 
     def empty(self) -> None:
         pass
@@ -210,7 +214,7 @@ PACINGS = ("device", "host")
 class LoopService:
     """Runs one session on a connected ``HardwareInterface``; see the module docstring."""
 
-    def __init__(self, hw: HardwareInterface, configure: Configure, controller: Controller, estimator: Estimator,
+    def __init__(self, hw: HardwareInterface, configure: Configure, controller: LoopController, estimator: Estimator,
                  supervisor: Supervisor, period_s: float, sinks: Sequence[Sink] = (),
                  meter: SessionMeter | None = None) -> None:
         self.hw, self.configure_msg, self.controller = hw, configure, controller
@@ -230,7 +234,7 @@ class LoopService:
         self._stop_reason = ""
         self._stop_kind = "stop_request"
         self._host_clock = True  # link loss judged on the host's clock (run(lockstep=True): empty waits)
-        self.session = Session(period_s, 1, 0)
+        self.run_state = RunState(period_s, 1, 0)
 
     def request_stop(self, reason: str, kind: str = "stop_request") -> None:
         """From a signal handler (or the twin, ``kind`` "model_mismatch"): the loop trips into the
@@ -256,9 +260,8 @@ class LoopService:
             raise ValueError(f"pacing must be 'device' or 'host', got {pacing!r}")
         n_max = max(1, round(duration_s / self.period_s))
         self.progress.duration_s = duration_s
-        s = self.session = Session(self.period_s, n_max, self.hw.stats.reboots)
-        pace = (DevicePacing(self, s, sample_timeout_s or self.period_s) if pacing == "device"
-                else HostPacing(self, s))
+        s = self.run_state = RunState(self.period_s, n_max, self.hw.stats.reboots)
+        pace = (DevicePacing(s, sample_timeout_s or self.period_s) if pacing == "device" else HostPacing(s))
         for t in (0.0, self.period_s):  # warm up: numba kernels (sample, integrate) load before the watchdog runs
             self.controller(t, State(t, 0.0, 0.0, {}))
         self.controller.reset()
@@ -273,6 +276,9 @@ class LoopService:
             t0 = time.perf_counter()
             try:
                 self._cycles(pace)
+            except Exception as e:  # a controller, estimator or sink bug: the safe state and ESTOP, said so
+                log.exception("the loop failed at t=%.3f s", s.t_s)
+                self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
             finally:
                 s.wall_s = time.perf_counter() - t0
         finally:
@@ -282,70 +288,69 @@ class LoopService:
         return self._result(pace, rt, duration_s)
 
     def _cycles(self, pace: DevicePacing | HostPacing) -> None:
-        """The loop: wait, take, judge, control, write; the rest after the write."""
-        s, sup = self.session, self.supervisor
-        while (taken := pace.wait()) is not None:
+        """The loop: wait and take, judge, control, write; the rest after the write. Each check once."""
+        s, sup = self.run_state, self.supervisor
+        while (timeout := pace.wait()) is not None:
+            taken = self._take_arrived(timeout)
             t_s = pace.t_s()
             if self._stop_reason:
                 sup.trip(t_s, self._stop_kind, self._stop_reason)
-            self._check_reboot()  # an unsolicited HELLO without a sample after it
             if taken == 0:  # real time: silence on the host clock; virtual time: empty waits in a row
+                self._check_reboot()  # an unsolicited HELLO without a sample after it
                 sup.no_sample(t_s, time.perf_counter() if self._host_clock else None)
+                if sup.tripped:
+                    return
+                self._write(s.command)  # nothing new: repeat the last command (a lockstep device needs a
+                pace.empty()  # COMMAND to produce a SAMPLE; the link-loss count guards this)
+                continue
             if sup.tripped:
                 return
-            if taken == 0:  # nothing new: repeat the last command (a lockstep device needs a COMMAND
-                self._write(s.command)  # to produce a SAMPLE; the link-loss count guards this)
-                pace.empty()
-                continue
             state = s.state
             assert state is not None
-            cmd = self.step(t_s, state)
+            cmd = sup.admit(t_s, self.controller(t_s, state))  # clamped, or the safe command once tripped
             self._write(cmd)
-            if sup.tripped:  # the filter itself tripped (heating, temperature), or the write failed
+            if sup.tripped:  # admitting it tripped (heating, temperature), or the write failed
                 return
             self._after_write(t_s, state, cmd)
             pace.controlled(taken)
 
-    def step(self, t_s: float, state: State) -> Command:
-        """From the newest sample's estimate to the command to send: the controller's command
-        through the supervisor (clamped, or the safe command once tripped). No I/O."""
-        return self.supervisor.filter(t_s, self.controller(t_s, state))
-
     # ---- before the write: the samples ---------------------------------------------------------
-    def take_arrived(self, first_timeout: float) -> int:
+    def _take_arrived(self, first_timeout: float) -> int:
         """Take every sample that has arrived (waiting up to ``first_timeout`` for the first one);
         each is estimated and supervised, its record waits for the write. Returns how many."""
         hw = self.hw
         n = 0
         try:
-            smp = hw.read_sample(first_timeout)
-            while smp is not None:
-                self._take(smp)
+            arrival = hw.read(first_timeout)
+            while arrival is not None:
+                self._take(arrival)
                 n += 1
-                smp = hw.read_sample(0.0) if hw.pending_samples() else None
+                arrival = hw.read(0.0) if hw.pending_samples() else None
         except HardwareError as e:
-            self.supervisor.trip(self.session.t_s, "link_loss", str(e))
+            self.supervisor.trip(self.run_state.t_s, "link_loss", str(e))
         return n
 
-    def _take(self, smp: Sample) -> None:
-        s, hw, sup = self.session, self.hw, self.supervisor
-        if hw.stats.reboots != s.reboots_seen:
+    def _take(self, arrival: Arrival) -> None:
+        """One sample: its place on the device-time axis, its estimate, the supervisor's look at it."""
+        s, sup = self.run_state, self.supervisor
+        host_time_s, smp, gap = arrival
+        if self.hw.stats.reboots != s.reboots_seen:
             self._check_reboot()
-        gap = hw.last_sample_gap
         s.sample_gaps += gap
         s.index += gap + 1
         s.samples += 1
         s.final = smp
+        s.arrival_s = host_time_s
         t_s = s.index * s.period_s
         state = s.state = self.estimator.update(smp.encoder_count, smp.device_time_us, (smp.adc0, smp.adc1))
-        arrival = hw.last_sample_time
-        sup.observe(t_s, state, smp.faults, smp.status, arrival)
-        s.pending.append((arrival, t_s, smp, state, SAFE_COMMAND if sup.tripped else s.command, s.command_seq,
-                          sup.temperature_c))
+        sup.observe(t_s, state, smp.faults, smp.status, host_time_s)
+        s.pending.append(_new_record(SampleRecord, (host_time_s, t_s, smp, state,
+                                                    SAFE_COMMAND if sup.tripped else s.command, s.command_seq,
+                                                    sup.temperature_c)))
 
     def _check_reboot(self) -> None:
         """React once to each device restart the hardware interface counted (it alone judges them)."""
-        s, n = self.session, self.hw.stats.reboots
+        s, n = self.run_state, self.hw.stats.reboots
         if n != s.reboots_seen:
             s.reboots += n - s.reboots_seen
             s.reboots_seen = n
@@ -353,7 +358,7 @@ class LoopService:
             self.supervisor.reboot(s.t_s, self.hw.last_reboot or "device restarted")
 
     def _write(self, cmd: Command) -> None:
-        s = self.session
+        s = self.run_state
         d0, d1 = cmd.duty
         try:
             s.command_seq = self.hw.write_command(d0, d1, cmd.direction, cmd.enable)
@@ -366,14 +371,14 @@ class LoopService:
         """The command is out: the reaction time, the controller's integration ahead, the records, the
         session meter, the live figures."""
         now = time.perf_counter()
-        s = self.session
-        s.reaction.add(now - self.hw.last_sample_time)
+        s = self.run_state
+        s.reaction.add(now - s.arrival_s)
         if self._advance is not None:
             self._advance()
         if s.cycles < s.n_max:
             s.references[s.cycles], s.angles[s.cycles] = cmd.reference_deg, state.angle_deg
         s.cycles += 1
-        self._hand_over(CommandRecord(now, t_s, cmd, s.command_seq, self.supervisor.temperature_c))
+        self._hand_over(_new_record(CommandRecord, (now, t_s, cmd, s.command_seq, self.supervisor.temperature_c)))
         if self.meter is not None:
             self._meter(t_s, state, cmd)
         if s.cycles % PROGRESS_EVERY == 0:
@@ -382,11 +387,10 @@ class LoopService:
     def _hand_over(self, command_record: CommandRecord | None = None) -> None:
         """Offer the samples' records (then the command's) to every sink, and wake each once: they
         work while the loop waits for the next sample."""
-        s = self.session
+        s = self.run_state
         sinks = self._sinks
         if sinks:
-            for p in s.pending:
-                rec = SampleRecord(*p)
+            for rec in s.pending:
                 for offer in sinks:
                     offer(rec)
             if command_record is not None:
@@ -410,7 +414,7 @@ class LoopService:
                 offer(rec)
 
     def _update_progress(self, t_s: float, state: State, cmd: Command) -> None:
-        p, s = self.progress, self.session
+        p, s = self.progress, self.run_state
         p.t_s, p.angle_deg, p.reference_deg = t_s, state.angle_deg, cmd.reference_deg
         p.duty, p.temperature_c, p.samples = max(cmd.duty), self.supervisor.temperature_c, s.samples
         p.sample_gaps = s.sample_gaps
@@ -419,7 +423,7 @@ class LoopService:
     def _shutdown(self) -> None:
         """PWM 0 now; after a trip also ESTOP, then watch a few samples confirm PWM off. Nothing to
         do on a device that was never configured (its CONFIGURE failed): it is not driving."""
-        s, sup = self.session, self.supervisor
+        s, sup = self.run_state, self.supervisor
         self._hand_over()  # samples taken in a cycle that ended before its write
         s.command = SAFE_COMMAND
         if self.hw.state is not LifecycleState.ACTIVE:
@@ -443,20 +447,20 @@ class LoopService:
                 break
             self._write(SAFE_COMMAND)
             try:
-                smp = self.hw.read_sample(timeout=2 * self.period_s)
+                arrival = self.hw.read(timeout=2 * self.period_s)
             except HardwareError:
                 break
-            if smp is not None:
-                self._take_quiet(smp)
+            if arrival is not None:
+                self._take_quiet(arrival)
             f = s.final
             if f is not None and f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED:
                 break
 
-    def _take_quiet(self, smp: Sample) -> None:
+    def _take_quiet(self, arrival: Arrival) -> None:
         """A sample during shutdown: recorded and counted, no more trips judged."""
         n_events = len(self.supervisor.events)
-        self._take(smp)
-        del self.supervisor.events[n_events:]
+        self._take(arrival)
+        self.supervisor.forget_events(n_events)
         self._hand_over()
 
     def _sink_reports(self) -> dict[str, dict[str, Any]]:
@@ -464,7 +468,7 @@ class LoopService:
         return {n: sink_report(x) for n, x in zip(names, self.sinks, strict=True)}
 
     def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
-        s, sup = self.session, self.supervisor
+        s, sup = self.run_state, self.supervisor
         n = min(s.cycles, s.n_max)
         refs, angles = s.references[:n], s.angles[:n]
         ok = np.isfinite(refs) & np.isfinite(angles)
@@ -492,7 +496,7 @@ def _unique_names(names: list[str]) -> list[str]:
     return out
 
 
-def _speed(s: Session) -> dict[str, float]:
+def _speed(s: RunState) -> dict[str, float]:
     """Device time the samples covered against the host time the cycles took: 1x in real time, the
     speed-up of a lockstep run (issue 25: at least 5x over a pty)."""
     device_s = (s.samples + s.sample_gaps) * s.period_s

@@ -52,7 +52,7 @@ MAX_DURATION_S = 24 * 3600.0
 class SessionOptions:
     """How a session runs, beside its config and device (every field has the CLI's meaning, ``rehab-hil
     run --help``). ``controller``: a controller's name (``rehab_hil.controllers``), or an object the
-    loop can step (``service.controllers.Controller``: ``claims``, ``reset``, ``__call__``)."""
+    loop can step (``service.controllers.LoopController``: ``claims``, ``reset``, ``__call__``)."""
 
     controller: Any = None  # None: [rig.session] controller
     reference: str = "session"  # "session" (open-close cycles) or "step" ([rig.session] step_deg)
@@ -154,13 +154,20 @@ class RigSession:
         self._home()
         if self.options.record is not None:
             self._recording()
-        self.telemetry = zenoh_telemetry(self) if self.options.telemetry is not None else None
-        if self.telemetry is not None:
+        opts = self.options
+        if opts.telemetry is not None:
+            self.telemetry = zenoh_telemetry(opts.telemetry, self.cfg.plant, self.config_path, self.binding,
+                                             self.period_s, self.hw.info)
             self.stack.callback(self.telemetry.close)
-        self.foxglove = foxglove_view(self) if self.options.foxglove is not None else None
-        if self.foxglove is not None:
+        if opts.foxglove is not None:
+            self.foxglove = foxglove_view(opts.foxglove, self.binding)
             self.stack.callback(self.foxglove.close)
-        self.twin = live_twin(self)
+        if opts.twin or (self.cfg.twin is not None and self.cfg.twin.enabled):
+            declared = getattr(self.controller, "controller", self.controller)  # a built controller's declaration
+            outputs = [x for x in (self.recorder, self.foxglove and self.foxglove.sink) if x is not None]
+            self.twin = live_twin(self.cfg, self.binding, self.run_dir, outputs, self.telemetry and self.telemetry.sink,
+                                  getattr(declared, "reference", None), self.lockstep, str(self.config_path))
+            self.stack.callback(self.twin.live.close)  # the twin's thread, if the session never ran (idempotent)
         self._loop()
 
     def _home(self) -> None:

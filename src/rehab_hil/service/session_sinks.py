@@ -5,13 +5,11 @@ naming its option. zenoh and Foxglove load only when asked for (their imports ta
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
 from rehab_hil.service import assembly
 from rehab_hil.service.errors import SessionError
-
-if TYPE_CHECKING:  # the session module imports this one; these names are for the type checker only
-    from rehab_hil.service.session import RigSession
 
 __all__ = ["FoxgloveOptions", "TelemetryOptions", "foxglove_view", "live_twin", "zenoh_telemetry"]
 
@@ -36,14 +34,14 @@ class FoxgloveOptions:
     port: int = 8765
 
 
-def zenoh_telemetry(session: RigSession) -> Any:
-    """The zenoh publisher (``telemetry.rig.RigTelemetry``) for the session's ``telemetry`` option."""
+def zenoh_telemetry(opts: TelemetryOptions, plant: str, config_path: Path, binding: Any, period_s: float,
+                    hello: Any) -> Any:
+    """The zenoh publisher (``telemetry.rig.RigTelemetry``); its ``info`` answer names the plant,
+    the config and the device's firmware (``hello``)."""
     from rehab_hil.telemetry import NetworkConfig, RigIdError, TelemetryConfigError
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
 
-    opts = session.options.telemetry
-    assert opts is not None
-    info = rig_info(session.cfg.plant, session.config_path, session.binding, session.period_s, session.hw.info)
+    info = rig_info(plant, config_path, binding, period_s, hello)
     try:
         if opts.connect:
             if opts.user and opts.password is None:
@@ -56,38 +54,28 @@ def zenoh_telemetry(session: RigSession) -> Any:
         raise SessionError("telemetry", str(e)) from None
 
 
-def foxglove_view(session: RigSession) -> Any:
+def foxglove_view(opts: FoxgloveOptions, binding: Any) -> Any:
     """The Foxglove live view (``telemetry.foxglove.LiveView``): the server and the rig's feed."""
     from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, LiveView
 
-    opts = session.options.foxglove
-    assert opts is not None
     try:
         live = FoxgloveLive(opts.host, opts.port)
     except FoxgloveError as e:
         raise SessionError("foxglove", str(e)) from None
-    return LiveView(live, live.add_rig(session.binding))
+    return LiveView(live, live.add_rig(binding))
 
 
-def live_twin(session: RigSession) -> Any:
-    """The live twin (``twin.session.TwinRun``) for the ``twin`` option or ``[twin] enabled``; None when off."""
-    cfg = session.cfg
-    if not (session.options.twin or (cfg.twin is not None and cfg.twin.enabled)):
-        return None
+def live_twin(cfg: Any, binding: Any, run_dir: Path | None, outputs: list[Any], publisher: Any, reference: Any,
+              lockstep: bool, source: str) -> Any:
+    """The live twin (``twin.session.TwinRun``): its predictions and model events offered to ``outputs``
+    (the recorder, the Foxglove feed) and published by ``publisher`` (zenoh's, or None) on
+    ``rehab/<rig>/twin``; ``reference``: the controller's (its open-close period gives per-cycle
+    interaction estimates)."""
     from rehab_hil.twin.model import TwinSetupError
     from rehab_hil.twin.session import start_twin
 
-    declared = getattr(session.controller, "controller", session.controller)  # a built controller's declaration
-    ref = getattr(declared, "reference", None)
-    cycle_s = ref.period_s if ref is not None and ref.kind == "session" else None
-    # its predictions and model events go to the recording and Foxglove as records, to zenoh on .../twin
-    feed = session.foxglove.sink if session.foxglove is not None else None
-    outputs = [x for x in (session.recorder, feed) if x is not None]
-    publisher = session.telemetry.sink if session.telemetry is not None else None
+    cycle_s = reference.period_s if reference is not None and reference.kind == "session" else None
     try:
-        twin = start_twin(cfg, session.binding, assembly.period_s(cfg), session.run_dir, outputs, publisher,
-                          cycle_s, session.lockstep)
+        return start_twin(cfg, binding, assembly.period_s(cfg), run_dir, outputs, publisher, cycle_s, lockstep)
     except TwinSetupError as e:
-        raise SessionError(None, f"{session.config_path}: [twin] {e}") from None
-    session.stack.callback(twin.live.close)  # the twin's thread, if the session never ran (idempotent)
-    return twin
+        raise SessionError(None, f"{source}: [twin] {e}") from None

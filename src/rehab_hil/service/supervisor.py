@@ -64,6 +64,7 @@ class Supervisor:
         self.limits, self.dt_s, self.force_signals, self.thermal = limits, dt_s, force_signals, thermal
         self.estop_input, self.temperature_signal = estop_input, temperature_signal
         self.events: list[SafetyEvent] = []
+        self.tripped = False  # latched by the first event (a plain attribute: read several times a cycle)
         self.heating_s = 0.0
         self.missing = 0
         self.max_temperature_c = thermal.temperature_c if thermal else math.nan
@@ -77,9 +78,6 @@ class Supervisor:
         self._sent_reference_deg = math.nan
         self._still_since: tuple[float, float] | None = None  # (t_s, angle_deg) when driving began
 
-    @property
-    def tripped(self) -> bool:
-        return bool(self.events)
 
     @property
     def temperature_c(self) -> float:
@@ -90,6 +88,7 @@ class Supervisor:
         if any(e.reason == reason for e in self.events):
             return
         self.events.append(SafetyEvent(t_s, reason, detail))
+        self.tripped = True
         log.error("safety trip at t=%.3f s: %s %s", t_s, reason, detail)
 
     def observe(self, t_s: float, state: State, faults: int, status: int = 0,
@@ -174,10 +173,16 @@ class Supervisor:
     def reboot(self, t_s: float, detail: str) -> None:
         self.trip(t_s, "device_reboot", detail)
 
-    def filter(self, t_s: float, cmd: Command) -> Command:
-        """Clamp duties to ``max_duty``; zero everything once tripped. Advances the thermal model
-        and the heating time by the device time since the last call (``t_s`` is the newest
-        sample's device time), with the duty sent then, and counts the duty sent now."""
+    def forget_events(self, n: int) -> None:
+        """Keep only the first ``n`` events (the loop's shutdown: samples read there judge no more trips)."""
+        del self.events[n:]
+        self.tripped = bool(self.events)
+
+    def admit(self, t_s: float, cmd: Command) -> Command:
+        """The command the rig may get: duties clamped to ``max_duty``, everything zero once tripped.
+        Not a pure filter: it advances the thermal model and the heating time by the device time
+        since the last call (``t_s`` is the newest sample's device time) with the duty sent then,
+        counts the duty sent now, and may trip on either (heating time, temperature)."""
         if not self.tripped:
             d0 = min(max(cmd.duty[0], 0.0), self.limits.max_duty)
             d1 = min(max(cmd.duty[1], 0.0), self.limits.max_duty)
