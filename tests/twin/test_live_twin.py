@@ -73,3 +73,22 @@ def test_a_monitor_over_long_segments_keeps_the_estimate_on_its_own_short_ones()
     assert twin.model.segment_samples == 1000 and twin.estimator.model.segment_samples == 250
     assert twin.segments == len(records) // 1000
     assert twin.estimator.updates == len(records) // 250 - 1  # every segment after the first anchor
+
+
+def test_a_twin_that_fails_is_reported_once_and_then_counts_what_it_is_offered_as_dropped() -> None:
+    twin, records = _twin()
+
+    def broken(*_: object) -> None:
+        raise FloatingPointError("model diverged")
+
+    twin.process = broken  # type: ignore[method-assign]
+    told: list[str] = []
+    live = LiveTwin(twin)
+    live.on_failure = told.append
+    for r in records:
+        live.offer(r)
+    live.close()  # returns: the worker stopped at its first full segment
+    assert isinstance(live.error, FloatingPointError) and told == ["twin: FloatingPointError: model diverged"]
+    taken = twin.model.segment_samples  # the record that filled the first segment was the last one taken
+    assert live.dropped == len(records) - taken and not live.offer(records[0])
+    assert live.dropped == len(records) - taken + 1

@@ -11,7 +11,7 @@ must not be lost; the cap bounds the sample flow).
 The worker takes records (``handle``), calls ``tick`` every ``tick_s`` (flushing, stats) and
 ``finish`` once at the end. An exception in the worker is never silent: it is kept in ``error``,
 ``on_failure`` (set by the loop) is called once with one line naming the sink and the error, and
-every later offer counts as dropped.
+what was still queued and every later offer count as dropped.
 """
 
 from __future__ import annotations
@@ -170,6 +170,8 @@ class ThreadedSink:
         except BaseException as e:  # never silent: kept, reported once, later offers counted as dropped
             self._cap = -1
             self.error = e
+            self.dropped += len(self._q)  # what was still queued is lost too
+            self._q.clear()
             notify = self.on_failure
             if notify is not None:
                 notify(f"{self.name}: {type(e).__name__}: {e}")
