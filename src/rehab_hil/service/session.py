@@ -71,6 +71,8 @@ class SessionOptions:
     hw: HardwareInterface | None = None  # an already connected rig (the caller closes it) instead of ``device``
     supervisor: Any = None  # a ``Supervisor`` instead of the config's limits (tests of the loop only)
     configure: Configure | None = None  # a CONFIGURE instead of the config's (tests of the link only)
+    sinks: tuple[Any, ...] = ()  # more sinks after the loop's write (``service.sinks.Sink``), beside the above
+    sample_timeout_s: float | None = None  # how long a cycle waits for its sample (None: a period; lockstep 5 s)
 
 
 class RigSession:
@@ -137,7 +139,8 @@ class RigSession:
             self.loop.meter = assembly.build_meter(self.cfg, self.controller, duration_s)
         realtime = self.options.realtime if self.options.realtime is not None else not self.lockstep
         result = self.loop.run(duration_s, pacing=self.options.pacing, realtime=realtime,
-                               sample_timeout_s=LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None,
+                               sample_timeout_s=self.options.sample_timeout_s or (
+                                   LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None),
                                lockstep=self.lockstep)
         self.result = result
         self._finish(result)
@@ -203,7 +206,7 @@ class RigSession:
         sinks = [self.recorder, *(v.sink for v in views), self.twin.live if self.twin is not None else None]
         self.loop = loop = LoopService(
             self.hw, self.configure, self.controller, assembly.build_estimator(self.cfg, self.binding), supervisor,
-            self.period_s, sinks=[x for x in sinks if x is not None])
+            self.period_s, sinks=[*(x for x in sinks if x is not None), *self.options.sinks])
         if self.twin is not None:
             self.twin.on_stop = lambda text: loop.request_stop(text, "model_mismatch")
         for view in views:
