@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 
 from rehab_hil.discrepancy.parameters import ERROR_PARAM, ParameterTerm
 from rehab_hil.discrepancy.replay import Replay
-from rehab_hil.discrepancy.selection import effective_fraction
+from rehab_hil.discrepancy.selection import bounded, effective_fraction
 from rehab_hil.effects import Effect, EffectParam
 
 __all__ = ["MIN_MAGNITUDE_SHARE", "MIN_PARAMETER_ERROR", "Fit", "Objective", "Term", "effect_term", "fit_joint",
@@ -35,7 +35,6 @@ __all__ = ["MIN_MAGNITUDE_SHARE", "MIN_PARAMETER_ERROR", "Fit", "Objective", "Te
 # Finite-difference step on parameters scaled by their typical value: large enough to see through
 # encoder quantisation and stick-slip switching, which make the simulated error piecewise flat.
 DIFF_STEP = 0.05
-BLOWUP = 1e3  # scaled residual that stands for a diverged simulation
 MAX_NFEV = 8  # per fitted parameter beyond the first, 6 more (shape parameters start far off)
 # A fitted effect smaller than this share of its typical magnitude (a 0.02-count sensor offset) or a
 # parameter off by less than MIN_PARAMETER_ERROR (within a config's accuracy; an open-loop replay can
@@ -94,7 +93,7 @@ class Fit:
 
 class Objective:
     """The weighted scaled residual of a parameter vector on the fit part (what the fits minimise),
-    a diverged run clipped to ``BLOWUP``; ``count`` runs so far, ``tick`` called on each."""
+    a diverged run bounded (``selection.bounded``); ``count`` runs so far, ``tick`` called on each."""
 
     def __init__(self, replay: Replay, n_train: int, tick: Callable[[], None] | None) -> None:
         self.replay, self.n_train, self.tick, self.count = replay, n_train, tick, 0
@@ -105,8 +104,7 @@ class Objective:
             self.tick()
         r = self.replay.residual(self.replay.simulate(P, self.n_train, sensed=False),
                                   slice(self.replay.fit_start, self.n_train), weighted=True).ravel()
-        # a candidate that makes the model diverge is a bad fit, not a crash
-        return np.clip(np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP), -BLOWUP, BLOWUP)
+        return bounded(r)
 
 
 def fit_term(replay: Replay, base: np.ndarray, term: Term, n_train: int,

@@ -33,6 +33,7 @@ from scipy.optimize import least_squares
 
 from rehab_hil.control.cascade import LOOP_PREFIX
 from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
+from rehab_hil.discrepancy.selection import bounded
 from rehab_hil.discrepancy.verdict import SPREAD_SHARE
 
 if TYPE_CHECKING:
@@ -182,7 +183,7 @@ def _fit_nuisance(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, 
         xx[free_x] += z[:len(free_x)] * sc[:len(free_x)]
         dd[free_xd] += z[len(free_x):] * sc[len(free_x):]
         r = replay.residual(replay.simulate_from(P, n_win, xx, dd), slice(0, n_win), weighted=True).ravel()
-        return np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
+        return bounded(r)
 
     z0 = np.zeros(sc.size)
     r0 = fun(z0)

@@ -17,14 +17,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MIN_DELTA_BIC", "MIN_IMPROVEMENT", "RESOLUTION_FLOOR", "Score", "bic", "effective_fraction", "improvement",
-           "is_significant"]
+__all__ = ["BLOWUP", "MIN_DELTA_BIC", "MIN_IMPROVEMENT", "RESOLUTION_FLOOR", "Score", "bic", "bounded",
+           "effective_fraction", "improvement", "is_significant"]
 
 MIN_DELTA_BIC = 10.0
 MIN_IMPROVEMENT = 0.15  # relative cut of a channel's held-out RMS error
 # A cut of a channel's RMS error smaller than 0.5 % of its spread (its std) is below the resolution
 # of the data (an encoder count is ~0.5 % of a typical motion): no evidence of a missing effect.
 RESOLUTION_FLOOR = 0.005
+BLOWUP = 1e3  # scaled residual that stands for a diverged simulation
+
+
+def bounded(r: np.ndarray) -> np.ndarray:
+    """A scaled residual with a diverged run's NaN and infinities as +-``BLOWUP``, and nothing beyond:
+    a candidate that makes the model diverge is a very bad fit, not a crash."""
+    return np.clip(np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP), -BLOWUP, BLOWUP)
 
 
 def effective_fraction(residual: np.ndarray) -> float:
@@ -55,7 +62,7 @@ def bic(residual: np.ndarray, n_params: int, fraction: float, weight: np.ndarray
     ``weight`` (per channel) weighs the channels in the BIC as the fits do (``Replay.fit_weight``),
     while the per-channel RMS stays in the scaled unit (the improvement and its floor)."""
     r = np.atleast_2d(residual)
-    r = np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)  # diverged: very bad
+    r = bounded(r)
     n = r.size
     rw = r if weight is None else r * np.asarray(weight, float)[:, None]
     rss = float(np.sum(rw**2))

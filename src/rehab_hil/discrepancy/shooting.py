@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from rehab_hil.discrepancy.replay import Replay
+from rehab_hil.discrepancy.selection import bounded
 
 __all__ = ["DRIFT_RATIO", "SEGMENT_S", "choose_mode"]
 
@@ -43,5 +44,5 @@ def choose_mode(replay: Replay, P: np.ndarray, n_train: int) -> tuple[str, float
 
 
 def _rms(r: np.ndarray) -> np.ndarray:
-    r = np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
+    r = bounded(r)
     return np.sqrt(np.mean(r**2, axis=1))

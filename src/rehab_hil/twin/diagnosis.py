@@ -27,7 +27,7 @@ from rehab_hil.discrepancy.fitting import Objective, Term, effect_term, fit_join
 from rehab_hil.discrepancy.initial_state import estimate_initial_state, state_scales
 from rehab_hil.discrepancy.parameters import ERROR_PARAM, ParameterTerm, parameter_terms
 from rehab_hil.discrepancy.replay import Replay
-from rehab_hil.discrepancy.selection import Score, bic, effective_fraction
+from rehab_hil.discrepancy.selection import Score, bic, bounded, effective_fraction
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.significance import demanding_channels, score, significant
 from rehab_hil.discrepancy.verdict import tied_parameter
@@ -249,7 +249,7 @@ def _refine_start(replay: Replay, P: np.ndarray) -> int:
         x[free] += (z - 1.0) * scales[free]
         r = replay.residual(replay.simulate_from(P, n_win, x, replay.xd0.copy()), slice(0, n_win),
                             weighted=True).ravel()
-        return np.clip(np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3), -1e3, 1e3)
+        return bounded(r)
 
     zlo = 1.0 + np.minimum((lo[free] - base[free]) / scales[free], -1e-9)
     zhi = 1.0 + np.maximum((hi[free] - base[free]) / scales[free], 1e-9)
