@@ -164,7 +164,7 @@ def run_session(host_path: Path, sim_path: Path, seed: int, case: str, duration_
     t0 = time.perf_counter()
     try:
         controller = assembly.build_controller(host, None, "session", source=str(host_path))
-        ref = controller.controller.reference
+        ref = controller.reference
         period = assembly.period_s(host)
         twin = start_twin(host, binding, period, run_dir=None, cycle_s=ref.period_s if ref.kind == "session" else None)
         # a lockstep session runs several times faster than real time: the twin's queue holds the whole

@@ -60,7 +60,7 @@ def build_controller(cfg: Any, name: str | None = None, reference: str = "sessio
 def build_meter(cfg: Any, controller: ControllerRuntime, duration_s: float) -> SessionMeter | None:
     """Per-cycle session figures (``session_metrics``) for a controller tracking open-close cycles;
     None for a step. Energy from the plant's own actuator power (``Plant.actuator_power_w``)."""
-    ref = controller.controller.reference
+    ref = controller.reference
     if ref.kind != "session":
         return None
     plant = get_plant(cfg.plant)

@@ -1,8 +1,10 @@
 """The loop's side of a controller: the command it sends and the runtime that steps a built controller.
 
 Controllers themselves are declared in ``rehab_hil.controllers`` (parts from state interfaces to a
-command interface, the same for simulation and the rig). Here ``ControllerRuntime`` steps one in
-the real-time loop with dt from device time, and ``Actuator`` turns its effort on the plant's
+command interface, the same for simulation and the rig): ``Controller`` names that declaration.
+Here ``LoopController`` is what the loop steps (claims, reset, a command per sample),
+``ControllerRuntime`` is the one that steps a declared controller in the real-time loop with dt
+from device time, and ``Actuator`` turns its effort on the plant's
 actuator input into a PWM duty and direction bit (the command interface's conversion), so a
 controller never knows the device backend.
 """
@@ -11,15 +13,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
-from rehab_hil.controllers.base import DT
+from rehab_hil.controllers.base import DT, Controller, Reference
 from rehab_hil.interfaces import Claims, CommandInterface, DeviceBinding
 from rehab_hil.service.estimation import State
 
-__all__ = ["SAFE_COMMAND", "Actuator", "Command", "Controller", "ControllerRuntime"]
+__all__ = ["SAFE_COMMAND", "Actuator", "Command", "ControllerRuntime", "LoopController"]
 
 
 @dataclass(frozen=True)
@@ -36,7 +38,9 @@ class Command:
 SAFE_COMMAND = Command()
 
 
-class Controller(Protocol):
+class LoopController(Protocol):
+    """What the loop steps: a ``Command`` per sample (a ``ControllerRuntime``, or a test's own)."""
+
     claims: Claims  # the command and state interfaces it uses, by name
 
     def reset(self) -> None: ...
@@ -89,7 +93,7 @@ class ControllerRuntime:
     done while it waits for the next sample, not between the sample and the command. No
     allocation per step beyond the returned command."""
 
-    def __init__(self, controller: Any) -> None:
+    def __init__(self, controller: Controller) -> None:
         ctx = controller.ctx
         self.controller = controller
         self.claims = controller.claims
@@ -117,6 +121,21 @@ class ControllerRuntime:
                 self._u[names.index(name)] = value
         self._u_prev = self._u.copy()
         self.reset()
+
+    @property
+    def name(self) -> str:
+        """The declared controller's name."""
+        return self.controller.name
+
+    @property
+    def notes(self) -> list[str]:
+        """The declared controller's warnings for the operator (a clipped reference)."""
+        return self.controller.notes
+
+    @property
+    def reference(self) -> Reference:
+        """What the declared controller tracks."""
+        return self.controller.reference
 
     def reset(self) -> None:
         self._x = self._x0.copy()
