@@ -12,10 +12,8 @@ from rehab_hil.controllers.pid import limit_part
 from rehab_hil.interfaces import Claims
 from rehab_hil.loading import load_config
 from rehab_hil.models.system import Part, njit
-from rehab_hil.plants import get_plant
-from rehab_hil.service import assembly
-from rehab_hil.service.runner import LoopService
-from rehab_hil.testing import CONFIGS, inprocess_rig
+from rehab_hil.service.session import open_session
+from rehab_hil.testing import CONFIGS
 
 from .conftest import with_text
 
@@ -99,15 +97,7 @@ def test_it_runs_offline_with_the_plant_model_and_holds_the_bend_inside_its_band
 
 
 def test_it_runs_on_the_rig_through_the_loop(config):
-    cfg = load_config(config)
-    binding = get_plant(cfg.plant).device(cfg)
-    hw = inprocess_rig(config, configured=False)
-    try:
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), assembly.build_controller(cfg, "thermostat"),
-                          assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
-                          assembly.period_s(cfg))
-        res = svc.run(8.0, realtime=False)
-    finally:
-        hw.close()
+    with open_session(config, "inprocess", controller="thermostat") as session:
+        res = session.run(8.0)
     assert res.events == [] and res.pwm_off_at_end
     assert res.tracking["max_abs_error"] < 40.0 and res.final_sample is not None

@@ -14,12 +14,11 @@ from rehab_hil.cli import main
 from rehab_hil.config import ConfigError
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.service import assembly
 from rehab_hil.service.controllers import Command
 from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, read_mcap
 from rehab_hil.service.records import SampleRecord
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, rig_prefix, schemas, topics
 from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths
 from rehab_hil.testing import free_port
@@ -39,7 +38,7 @@ def binding_of(config: Path):  # type: ignore[no-untyped-def]
 
 
 def test_a_websocket_client_sees_the_channels_and_the_samples_of_the_local_recording(tmp_path: Path, wait) -> None:
-    cfg, binding = binding_of(CONFIG)
+    _, binding = binding_of(CONFIG)
     t = topics("/rig")
     with FoxgloveLive(port=0) as live:
         feed = live.add_rig(binding)
@@ -48,11 +47,10 @@ def test_a_websocket_client_sees_the_channels_and_the_samples_of_the_local_recor
             assert client.wait_subscribed(), client.error
             assert wait(lambda: feed.channels["sample"].has_sinks() and feed.channels["command"].has_sinks())
             local = Recorder(tmp_path, binding)
-            svc = LoopService(LockstepRig(), assembly.firmware_configure(cfg, binding), RampController(),
-                              Estimator(binding), assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                              sinks=[local, feed])
             try:
-                result = svc.run(0.4, pacing="device", realtime=False, sample_timeout_s=0.5)
+                with open_session(CONFIG, hw=LockstepRig(), controller=RampController(), sinks=(local, feed),
+                                  realtime=False, sample_timeout_s=0.5) as session:
+                    result = session.run(0.4)
             finally:
                 local.close()
             assert result.cycles > 300 and not result.events

@@ -21,10 +21,9 @@ from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Sample
 from rehab_hil.service import assembly
-from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.run_dir import read_metadata
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session as open_rig_session  # beside zenoh's open_session
 from rehab_hil.telemetry import (
     NetworkConfig,
     TelemetryConfigError,
@@ -105,10 +104,9 @@ def test_three_rigs_on_one_router_monitor_and_a_multi_rig_recording(router: str,
         results = {}
 
         def session(r: str) -> None:
-            svc = LoopService(hws[r], assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                              sinks=[locals_[r], pubs[r]])
-            results[r] = svc.run(0.3, pacing="device", realtime=False, sample_timeout_s=0.5)
+            with open_rig_session(CONFIG, hw=hws[r], controller=RampController(), sinks=(locals_[r], pubs[r]),
+                                  realtime=False, sample_timeout_s=0.5) as rig:
+                results[r] = rig.run(0.3)
 
         loops = [threading.Thread(target=session, args=(r,)) for r in rigs]
         for th in loops:
@@ -194,9 +192,9 @@ def test_the_foxglove_bridge_serves_a_rig_from_zenoh(router: str, wait, capsys: 
         assert wait(pub.has_subscribers)  # the bridge is subscribed, so its server is up
         client = FoxgloveClient(ws_port, ["/rig/sample"])
         assert client.wait_subscribed(), client.error
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[pub])
-        result = svc.run(0.2, pacing="device", realtime=False, sample_timeout_s=0.5)
+        with open_rig_session(CONFIG, hw=hw, controller=RampController(), sinks=(pub,), realtime=False,
+                              sample_timeout_s=0.5) as session:
+            result = session.run(0.2)
         assert wait(lambda: len(client.messages["/rig/sample"]) >= result.samples - 5)
     finally:
         if client is not None:

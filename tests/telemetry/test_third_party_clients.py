@@ -16,10 +16,8 @@ from mcap.reader import make_reader
 
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.service import assembly
-from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.telemetry.foxglove import FoxgloveLive, topics
 from rehab_hil.telemetry.ws_subprotocol import CLASSIC, SDK, rewrite_request, rewrite_response
 
@@ -33,14 +31,12 @@ CLIENTS = ROOT / "tests" / "clients"
 
 def _session(feed, tmp_path: Path) -> list[tuple[str, dict]]:
     """A 0.3 s lockstep session fed to ``feed`` and recorded; the recording's (topic, message)."""
-    cfg = load_config(CONFIG)
-    binding = get_plant(cfg.plant).device(cfg)
-    local = Recorder(tmp_path, binding)
-    svc = LoopService(LockstepRig(), assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                      sinks=[local] if feed is None else [local, feed])
+    local = Recorder(tmp_path, _binding())
     try:
-        result = svc.run(0.3, pacing="device", realtime=False, sample_timeout_s=0.5)
+        with open_session(CONFIG, hw=LockstepRig(), controller=RampController(),
+                          sinks=(local,) if feed is None else (local, feed), realtime=False,
+                          sample_timeout_s=0.5) as session:
+            result = session.run(0.3)
     finally:
         local.close()
     assert result.cycles > 200 and not result.events

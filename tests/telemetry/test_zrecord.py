@@ -13,9 +13,8 @@ import zenoh
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
-from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.telemetry import TelemetryPublisher
 from rehab_hil.telemetry.rig import rig_info
 from rehab_hil.telemetry.zrecord import ZenohRecorder
@@ -43,9 +42,9 @@ def test_a_zenoh_recording_equals_the_local_recording_sample_for_sample(
     pub = TelemetryPublisher(rig_session, "loop1", info=info, queue_size=20_000)
     try:
         assert wait(pub.has_subscribers)
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[local, pub])
-        result = svc.run(0.6, pacing="device", realtime=False, sample_timeout_s=0.5)
+        with open_session(CONFIG, hw=hw, controller=RampController(), sinks=(local, pub), realtime=False,
+                          sample_timeout_s=0.5) as session:
+            result = session.run(0.6)
         assert result.cycles > 500 and not result.events
     finally:
         local.close()
@@ -100,9 +99,9 @@ def test_a_zenoh_recording_on_a_busy_machine_states_every_sample_it_did_not_rece
             pub._put_batch = held_put  # type: ignore[method-assign]
         try:
             assert wait(pub.has_subscribers)
-            svc = LoopService(hw, assembly.firmware_configure(cfg, binding), RampController(), Estimator(binding),
-                              assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[local, pub])
-            result = svc.run(2.0, pacing="device", realtime=False, sample_timeout_s=5.0)
+            with open_session(CONFIG, hw=hw, controller=RampController(), sinks=(local, pub), realtime=False,
+                              sample_timeout_s=5.0) as session:
+                result = session.run(2.0)
             assert not result.events
         finally:
             held.set()
