@@ -30,6 +30,7 @@ from pydantic import Field, model_validator
 from rehab_hil.config import ConfigError, Section, load_toml, validate
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.plants.registry import get_plant
+from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["ADC_MAX", "CIRCUITS", "G0", "REFERENCE_KEY", "Calibration", "CalibrationFile", "CalibrationPoint",
            "ForceLimitError", "calibration_for", "calibration_summary", "fit_calibration", "force_limit_counts",
@@ -213,13 +214,13 @@ def load_calibration(path: str | Path) -> Calibration:
     return Calibration(data, str(path))
 
 
-def calibration_reference(cfg: Any) -> str | None:
+def calibration_reference(cfg: PlantConfig) -> str | None:
     """The config's ``[rig] force_calibration`` path, or None (also while the schema has no such key)."""
     ref = cfg.rig.model_dump().get("force_calibration")
     return ref if isinstance(ref, str) and ref else None
 
 
-def calibration_for(cfg: Any, config_path: str | Path = "<config>", base_dir: str | Path | None = None,
+def calibration_for(cfg: PlantConfig, config_path: str | Path = "<config>", base_dir: str | Path | None = None,
                     ) -> Calibration | None:
     """The calibration a config references (relative paths against ``base_dir``, default the current
     directory), or None. A missing or invalid file is a ``ConfigError`` naming the file and key."""
@@ -237,7 +238,7 @@ def _force_channel(binding: Any) -> Any | None:
     return binding.adc[0] if binding.adc and binding.adc[0].kind == "force" else None
 
 
-def force_limit_counts(cfg: Any, binding: Any, calibration: Calibration | None = None) -> int:
+def force_limit_counts(cfg: PlantConfig, binding: Any, calibration: Calibration | None = None) -> int:
     """The firmware's A0 force limit in counts for ``[rig.limits] max_force_n``: from the sensor's
     calibration when there is one (``calibration`` or the config's reference), else the plant's
     linear map. 1023 (off) when A0 is not a force sensor. Raises ``ForceLimitError`` when the limit
@@ -259,7 +260,7 @@ def force_limit_counts(cfg: Any, binding: Any, calibration: Calibration | None =
     return math.floor(counts)
 
 
-def calibration_summary(cfg: Any, binding: DeviceBinding | None = None,
+def calibration_summary(cfg: PlantConfig, binding: DeviceBinding | None = None,
                         base_dir: str | Path | None = None) -> dict[str, Any]:
     """What a session's metadata records about its force sensor: the calibration in use (file,
     sensor, model, coefficients, fit, hysteresis, date) or the plant's linear map, and the

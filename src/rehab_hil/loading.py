@@ -10,7 +10,6 @@ names the file and the dotted key (``ConfigError``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from rehab_hil.calibration import calibration_for
 from rehab_hil.config import ConfigError, load_toml
@@ -20,12 +19,14 @@ from rehab_hil.effects import applicable, not_applicable_message
 from rehab_hil.models.schedule import ScheduleError
 from rehab_hil.plants.changes import scheduled
 from rehab_hil.plants.registry import plants
+from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["load_config"]
 
 
-def load_config(path: str | Path, expect: str | None = None) -> Any:
-    """Load a plant config; its top-level ``plant`` key selects the schema. Errors name file and key."""
+def load_config(path: str | Path, expect: str | None = None) -> PlantConfig:
+    """Load a plant config; its top-level ``plant`` key selects the schema (a ``PlantConfig``
+    subclass, the plant's ``config``), validated as above. Errors name file and key."""
     known = plants()
     data = load_toml(path)
     plant = data.get("plant")

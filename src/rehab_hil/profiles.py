@@ -16,6 +16,7 @@ from typing import Any
 from pydantic import Field
 
 from rehab_hil.config import ConfigError, Section, load_toml, validate
+from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["Profile", "ProfileLimits", "ProfileSession", "apply_profile", "load_profile", "profile_summary"]
 
@@ -50,7 +51,7 @@ def load_profile(path: str | Path) -> Profile:
     return validate(path, load_toml(path), Profile)
 
 
-def apply_profile(cfg: Any, profile: Profile, config_path: str | Path, profile_path: str | Path) -> Any:
+def apply_profile(cfg: PlantConfig, profile: Profile, config_path: str | Path, profile_path: str | Path) -> PlantConfig:
     """The config with the profile's limits and session applied; refuses (``ConfigError`` on the
     profile's key) a limit wider than the rig's and a movement outside the range of motion."""
     lim, ses = cfg.rig.limits, cfg.rig.session

@@ -31,6 +31,7 @@ from rehab_hil.interfaces import Claims, DeviceBinding
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.system import Diagram, DiagramError, Part, SimulationResult
 from rehab_hil.plants.registry import Plant, get_plant
+from rehab_hil.plants.sections import PlantConfig
 from rehab_hil.session_metrics import cycle_metrics, session_summary
 
 __all__ = [
@@ -62,14 +63,14 @@ class ControllerError(ValueError):
 class ControlContext:
     """One plant config from a controller's side: its ports, rig binding and the signal names."""
 
-    cfg: Any
+    cfg: PlantConfig
     plant: type[Plant]
     ports: Ports
     binding: DeviceBinding
     source: str = "<config>"  # the config's path, for messages
 
     @classmethod
-    def of(cls, cfg: Any, source: str = "<config>") -> ControlContext:
+    def of(cls, cfg: PlantConfig, source: str = "<config>") -> ControlContext:
         plant = get_plant(cfg.plant)
         return cls(cfg, plant, plant.ports(cfg), plant.device(cfg), source)
 
@@ -146,7 +147,7 @@ class Reference:
     start_deg: float = 0.0  # a step starts here (the rest pose)
 
     @classmethod
-    def session(cls, cfg: Any) -> Reference:
+    def session(cls, cfg: PlantConfig) -> Reference:
         s = cfg.rig.session
         period = 60.0 / s.cycles_per_minute
         move = s.move_fraction * period
@@ -154,7 +155,7 @@ class Reference:
         return cls("session", s.closed_deg, s.open_deg, move, hold, hold)
 
     @classmethod
-    def step(cls, cfg: Any, target_deg: float | None = None, start_deg: float = 0.0) -> Reference:
+    def step(cls, cfg: PlantConfig, target_deg: float | None = None, start_deg: float = 0.0) -> Reference:
         s = cfg.rig.session
         period = 60.0 / s.cycles_per_minute
         return cls("step", start_deg, s.step_deg if target_deg is None else target_deg, 0.0, period, 0.0,
@@ -309,7 +310,7 @@ class Controller:
 
 def closed_loop(controller: Controller, duration_s: float, *, params: Mapping[str, float] | None = None,
                 inputs: Mapping[str, np.ndarray | float] | None = None, outputs: Sequence[str] = (),
-                plant_cfg: Any = None) -> SimulationResult:
+                plant_cfg: PlantConfig | None = None) -> SimulationResult:
     """The controller composed with its plant model (the config's ``[[effects]]`` included) in one
     diagram, simulated for ``duration_s`` from rest: the offline twin of a session. ``plant_cfg``
     puts another config's plant under it (the same plant with effects the controller's model lacks,
@@ -326,7 +327,8 @@ def closed_loop(controller: Controller, duration_s: float, *, params: Mapping[st
     return system.simulate(n, {k: v for k, v in given.items() if k in system.input_names}, outputs=record, params=p)
 
 
-def closed_loop_system(controller: Controller, plant_cfg: Any = None) -> tuple[Any, Callable[[int], dict[str, Any]]]:
+def closed_loop_system(controller: Controller, plant_cfg: PlantConfig | None = None
+                       ) -> tuple[Any, Callable[[int], dict[str, Any]]]:
     """The compiled plant + controller diagram and a function giving its inputs for ``n`` steps."""
     ctx = controller.ctx
     cfg = ctx.cfg if plant_cfg is None else plant_cfg
@@ -345,7 +347,7 @@ def closed_loop_system(controller: Controller, plant_cfg: Any = None) -> tuple[A
     return system, feed
 
 
-def offline_session(controller: Controller, cycles: int = 3, plant_cfg: Any = None,
+def offline_session(controller: Controller, cycles: int = 3, plant_cfg: PlantConfig | None = None,
                     outputs: Sequence[str] = ()) -> tuple[SimulationResult, dict[str, float]]:
     """``cycles`` open-close cycles of the controller on the model (after its rest at closed) and
     the per-cycle figures of all but the first (from rest), as a session reports them."""

@@ -24,13 +24,14 @@ from rehab_hil.controllers.base import (
     closed_loop,
     get_controller,
 )
+from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["PREFLIGHT_MAX_S", "build_controller", "preflight", "settings_for", "validate_controllers"]
 
 PREFLIGHT_MAX_S = 120.0  # the pre-flight run covers the rest and one reference period, at most this long [s]
 
 
-def validate_controllers(cfg: Any, path: Any) -> Any:
+def validate_controllers(cfg: PlantConfig, path: Any) -> PlantConfig:
     """The config with each ``[controllers.<name>]`` table validated (ConfigError naming the key)."""
     validated = {}
     for name, table in cfg.controllers.items():
@@ -45,7 +46,7 @@ def validate_controllers(cfg: Any, path: Any) -> Any:
     return cfg.model_copy(update={"controllers": validated})
 
 
-def settings_for(cfg: Any, name: str, source: str = "<config>") -> Any:
+def settings_for(cfg: PlantConfig, name: str, source: str = "<config>") -> Any:
     """The validated ``[controllers.<name>]`` table; a controller with settings needs its table."""
     spec = get_controller(name, source, key="--controller")
     if spec.settings is None:
@@ -57,7 +58,7 @@ def settings_for(cfg: Any, name: str, source: str = "<config>") -> Any:
     return got if not isinstance(got, dict) else validate(source, got, spec.settings, prefix=f"controllers.{name}.")
 
 
-def build_controller(cfg: Any, name: str | None = None, reference: Reference | None = None,
+def build_controller(cfg: PlantConfig, name: str | None = None, reference: Reference | None = None,
                      source: str = "<config>", check: bool = True) -> Controller:
     """The controller ``name`` (default: ``[rig.session] controller``) for the config's plant and
     ``reference`` (default: the session's cycles), refused if it does not apply."""

@@ -18,6 +18,7 @@ from typing import Any
 
 from rehab_hil.controllers.base import ControllerError, Reference, offline_session
 from rehab_hil.controllers.build import build_controller
+from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["MIN_GAIN", "Tuned", "feedback_margins", "tune"]
 
@@ -50,7 +51,7 @@ def _candidates(settings: Any) -> list[str]:
     return [k for k in keys if isinstance(values.get(k), float) and values[k] > 0.0]
 
 
-def tune(cfg: Any, name: str, source: str = "<config>", cycles: int = 3, passes: int = 2,
+def tune(cfg: PlantConfig, name: str, source: str = "<config>", cycles: int = 3, passes: int = 2,
          progress: Callable[[str], None] | None = None) -> Tuned:
     """Search ``[controllers.<name>]`` on the model of ``cfg`` for the lowest session cost."""
     spec_settings = cfg.controllers.get(name)
@@ -100,7 +101,7 @@ def tune(cfg: Any, name: str, source: str = "<config>", cycles: int = 3, passes:
     return Tuned(name, spec_settings.model_dump(), best.model_dump(), first_fig, best_fig, evaluations, trail)
 
 
-def feedback_margins(cfg: Any, gains: Any) -> dict[str, float] | None:
+def feedback_margins(cfg: PlantConfig, gains: Any) -> dict[str, float] | None:
     """Gain margin [dB], phase margin [deg] and crossover [rad/s] of the PID on the encoder angle
     around the plant's linear model (python-control), or None when the plant has none."""
     import sys

@@ -13,7 +13,7 @@ from pydantic import BaseModel, ValidationError
 from rehab_hil.effects import EFFECTS, check_spec
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.models.schedule import ScheduleError, build_schedule
-from rehab_hil.plants.sections import EffectSpec
+from rehab_hil.plants.sections import EffectSpec, PlantConfig
 
 __all__ = ["NOT_CHANGEABLE", "changeable_keys", "scheduled", "scheduled_binding", "with_change"]
 
@@ -22,12 +22,12 @@ NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controlle
                   "twin")
 
 
-def scheduled(cfg: Any) -> bool:
+def scheduled(cfg: PlantConfig) -> bool:
     """Whether ``cfg`` schedules anything mid-session (an effect with start_s or ramp_s, a change)."""
     return bool(getattr(cfg, "changes", ())) or any(e.timing.scheduled for e in getattr(cfg, "effects", ()))
 
 
-def changeable_keys(cfg: Any) -> dict[str, Any]:
+def changeable_keys(cfg: PlantConfig) -> dict[str, Any]:
     """Every leaf of the plant's own tables by dotted TOML key -> its value (what a change may name)."""
     out: dict[str, Any] = {}
 
@@ -58,7 +58,7 @@ def _replaced(obj: Any, parts: Sequence[str], value: float) -> Any:
     return type(obj).model_validate(data)
 
 
-def with_change(cfg: Any, i: int) -> Any:
+def with_change(cfg: PlantConfig, i: int) -> PlantConfig:
     """``cfg`` with its change ``i`` (``[[changes]]`` entry) at its end value; ScheduleError names the
     entry's key when the key is unknown, not a real number, or its new value is refused."""
     ch = cfg.changes[i]
@@ -83,7 +83,7 @@ def with_change(cfg: Any, i: int) -> Any:
                             f"{ch.key} = {new:g} is refused: {err['msg'].lower()}") from None
 
 
-def scheduled_binding(bind: Callable[[Any], DeviceBinding], cfg: Any) -> DeviceBinding:
+def scheduled_binding(bind: Callable[[PlantConfig], DeviceBinding], cfg: PlantConfig) -> DeviceBinding:
     """The rig binding at the session's start (scheduled effects off, changed keys at their config
     values) with the schedule that moves them to their end values. ``bind`` binds a config as
     written, every effect acting from the start (the plant's ``Plant._binding``)."""

@@ -50,37 +50,37 @@ class Plant:
             _REGISTRY[cls.name] = cls
 
     @staticmethod
-    def build(cfg: Any) -> list[Part]:
+    def build(cfg: PlantConfig) -> list[Part]:
         """The nominal plant as parts (a fresh list each call)."""
         raise NotImplementedError
 
     @staticmethod
-    def ports(cfg: Any) -> Ports:
+    def ports(cfg: PlantConfig) -> Ports:
         """The plant's typed ports under ``cfg``."""
         raise NotImplementedError
 
     @classmethod
-    def step(cls, cfg: Any) -> tuple[float, int]:
+    def step(cls, cfg: PlantConfig) -> tuple[float, int]:
         """(sample step [s], RK4 substeps) from ``[simulation]``."""
         return cfg.simulation.step_s, cfg.simulation.substeps
 
     @classmethod
-    def n_steps(cls, cfg: Any, duration_s: float) -> int:
+    def n_steps(cls, cfg: PlantConfig, duration_s: float) -> int:
         return max(1, round(duration_s / cls.step(cfg)[0]))
 
     @classmethod
-    def external_inputs(cls, cfg: Any) -> tuple[str, ...]:
+    def external_inputs(cls, cfg: PlantConfig) -> tuple[str, ...]:
         """Signals the plant's diagram may take from outside: its inputs and config constants."""
         return tuple(dict.fromkeys([*cls.inputs, *cls.ports(cfg).constants]))
 
     @classmethod
-    def actuator_power_w(cls, cfg: Any, effort: np.ndarray, velocity_rad_s: np.ndarray) -> np.ndarray:
+    def actuator_power_w(cls, cfg: PlantConfig, effort: np.ndarray, velocity_rad_s: np.ndarray) -> np.ndarray:
         """Electrical power into the actuator [W] for an effort on its input (and the joint velocity,
         for a motor's back-EMF): what a session's energy per cycle sums. Default: not modelled (nan)."""
         return np.full(np.shape(effort), np.nan)
 
     @classmethod
-    def diagram(cls, cfg: Any, extra_parts: Sequence[Part] = (), extra_inputs: Iterable[str] = (),
+    def diagram(cls, cfg: PlantConfig, extra_parts: Sequence[Part] = (), extra_inputs: Iterable[str] = (),
                 extra_sums: Iterable[str] = ()) -> Diagram:
         """The plant's diagram (``compose``: nominal parts plus the config's effects) with extra parts
         (a reference, a controller), the plant's external inputs plus ``extra_inputs``, and the
@@ -89,11 +89,11 @@ class Plant:
                        sums=(*cls.ports(cfg).sums, *extra_sums))
 
     @classmethod
-    def applicable_effects(cls, cfg: Any) -> list[str]:
+    def applicable_effects(cls, cfg: PlantConfig) -> list[str]:
         return [e.name for e in applicable(cls.ports(cfg))]
 
     @classmethod
-    def device(cls, cfg: Any) -> DeviceBinding:
+    def device(cls, cfg: PlantConfig) -> DeviceBinding:
         """The rig's view, from the ports: actuators on PWM channels, the encoder port, ADC ports.
 
         A config that schedules changes (``start_s``/``ramp_s`` on an effect, ``[[changes]]``) gets the
@@ -103,7 +103,7 @@ class Plant:
         return scheduled_binding(cls._binding, cfg)
 
     @classmethod
-    def _binding(cls, cfg: Any) -> DeviceBinding:
+    def _binding(cls, cfg: PlantConfig) -> DeviceBinding:
         """The rig binding of ``cfg`` as written (every effect acting from the start)."""
         ports = cls.ports(cfg)
         parts = compose(cls, cfg)
@@ -133,7 +133,7 @@ class Plant:
         )
 
 
-def compose(plant: type[Plant], cfg: Any) -> list[Part]:
+def compose(plant: type[Plant], cfg: PlantConfig) -> list[Part]:
     """The plant's parts plus the config's ``[[effects]]``: the one place effects are added, for
     simulation, replay and the simulated rig alike. Every effect acts from the start and
     ``[[changes]]`` are not applied: their schedule is the simulated rig's (``Plant.device``)."""
@@ -171,7 +171,7 @@ def get_plant(name: str) -> type[Plant]:
     return known[name]
 
 
-def run_scenario(spec: type[Plant], cfg: Any, scenario: Scenario,
+def run_scenario(spec: type[Plant], cfg: PlantConfig, scenario: Scenario,
                  extra_parts: list[Part] | None = None) -> SimulationResult:
     """Compile plant + scenario (+ extra effect parts) and simulate; records CSV signals."""
     diagram = spec.diagram(cfg, [*(extra_parts or []), *scenario.parts], extra_inputs=scenario.inputs,

@@ -65,7 +65,10 @@ class ChangeSpec(Section):
 
 
 class PlantConfig(Section):
-    """What every plant file has: its plant name, the integration step, the rig and added effects."""
+    """What every plant file has: its plant name, the integration step, the rig and added effects.
+
+    ``rehab_hil.loading.load_config`` returns the plant's own subclass, validated: the type a
+    config travels under (``cfg: PlantConfig``); a plant's own tables are its subclass's."""
 
     plant: str
     simulation: SimulationSection

@@ -6,7 +6,6 @@ margin (``[rig.host]``) inside them, so it acts first and the firmware is the ba
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 from rehab_hil.calibration import force_limit_counts
 from rehab_hil.config import ConfigError
@@ -16,6 +15,7 @@ from rehab_hil.controllers import build_controller as build
 from rehab_hil.hardware.interface import configure_from_config
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.plants.registry import get_plant
+from rehab_hil.plants.sections import PlantConfig
 from rehab_hil.protocol import Configure
 from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.estimation import Estimator
@@ -32,7 +32,7 @@ class ServiceSetupError(ValueError):
     """The config lacks what the chosen controller or the loop needs."""
 
 
-def period_s(cfg: Any) -> float:
+def period_s(cfg: PlantConfig) -> float:
     return 1.0 / cfg.rig.sample_rate_hz
 
 
@@ -41,7 +41,7 @@ def force_channels(binding: DeviceBinding) -> tuple[str, ...]:
     return tuple(ch.signal for ch in binding.adc if ch.kind == "force")
 
 
-def build_controller(cfg: Any, name: str | None = None, reference: str = "session",
+def build_controller(cfg: PlantConfig, name: str | None = None, reference: str = "session",
                      source: str = "<config>") -> ControllerRuntime:
     """The controller ``name`` (default: ``[rig.session] controller``) built for the config's
     plant (``rehab_hil.controllers``: refused in one line if it does not apply) and ready for the
@@ -57,7 +57,7 @@ def build_controller(cfg: Any, name: str | None = None, reference: str = "sessio
         raise ServiceSetupError(str(e)) from None
 
 
-def build_meter(cfg: Any, controller: ControllerRuntime, duration_s: float) -> SessionMeter | None:
+def build_meter(cfg: PlantConfig, controller: ControllerRuntime, duration_s: float) -> SessionMeter | None:
     """Per-cycle session figures (``session_metrics``) for a controller tracking open-close cycles;
     None for a step. Energy from the plant's own actuator power (``Plant.actuator_power_w``)."""
     ref = controller.reference
@@ -68,7 +68,7 @@ def build_meter(cfg: Any, controller: ControllerRuntime, duration_s: float) -> S
                         ref.closed_deg, ref.open_deg, lambda effort, vel: plant.actuator_power_w(cfg, effort, vel))
 
 
-def build_estimator(cfg: Any, binding: DeviceBinding) -> Estimator:
+def build_estimator(cfg: PlantConfig, binding: DeviceBinding) -> Estimator:
     host = cfg.rig.host
     return Estimator(binding, host.velocity_filter_hz if host else 30.0)
 
@@ -78,13 +78,13 @@ def temperature_channel(binding: DeviceBinding) -> str | None:
     return next((ch.signal for ch in binding.adc if ch.kind == "temperature" or ch.signal.endswith("_c")), None)
 
 
-def estop_enabled(cfg: Any) -> bool:
+def estop_enabled(cfg: PlantConfig) -> bool:
     """``[rig.estop] enabled``; without the table: on for a real serial port, off for simulated rigs."""
     es = cfg.rig.estop
     return es.enabled if es is not None else cfg.rig.port.startswith("/")
 
 
-def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
+def build_supervisor(cfg: PlantConfig, binding: DeviceBinding) -> Supervisor:
     """Host limits = ``[rig.limits]`` tightened by the ``[rig.host]`` margins (``RigSection.host_limits``)."""
     lim, th, host = cfg.rig.limits, cfg.rig.thermal, cfg.rig.host_limits()
     limits = SupervisorLimits(
@@ -101,7 +101,7 @@ def build_supervisor(cfg: Any, binding: DeviceBinding) -> Supervisor:
                       temperature_signal=temperature_channel(binding))
 
 
-def firmware_configure(cfg: Any, binding: DeviceBinding) -> Configure:
+def firmware_configure(cfg: PlantConfig, binding: DeviceBinding) -> Configure:
     """The firmware's copy of the limits: range of motion, heating time, max duty, the e-stop input
     (enabled, wiring) and, when A0 is a contact force, its limit in ADC counts and debounce (the
     firmware checks A0 only)."""

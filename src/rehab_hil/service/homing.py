@@ -17,10 +17,10 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 from rehab_hil.hardware.interface import HardwareError, HardwareInterface, duty_units
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.plants.sections import PlantConfig
 from rehab_hil.protocol import Configure, Fault, Sample
 
 __all__ = ["BACK_DEG", "HOME_MODES", "HomingResult", "home", "home_count", "home_current", "home_hard_stop"]
@@ -146,7 +146,7 @@ def _zero_at_stop(hw: HardwareInterface, session: Configure, binding: DeviceBind
     return HomingResult("hard-stop", count, at, elapsed_us * 1e-6)
 
 
-def home(mode: str, hw: HardwareInterface, cfg: Any, binding: DeviceBinding, session: Configure,
+def home(mode: str, hw: HardwareInterface, cfg: PlantConfig, binding: DeviceBinding, session: Configure,
          confirm: Callable[[str], object] | None = None) -> HomingResult | None:
     """``rehab-hil run --home MODE``: ``confirm(prompt)`` waits for the user (current pose) or
     returns at once; None for ``none``. Raises ``HardwareError`` when homing cannot be done."""
