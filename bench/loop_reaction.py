@@ -27,7 +27,6 @@ python bench/loop_reaction.py [--duration 30] [--repeats 3] [--links direct,brid
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import os
 import platform
@@ -42,62 +41,35 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = "f558027"  # the last commit before issue 25's loop changes: "before"
+BASE = "433edda"  # the last commit before issue 37's reshaping (the session object, the sinks): "before"
 CONFIG = ROOT / "configs" / "sma_exoskeleton.toml"  # `make run`'s rig
 
 
 # ---- the child: one session on a device that is already running ---------------------------------
 def child(args: argparse.Namespace) -> int:
     """One session against the pty ``args.port`` with whatever ``rehab_hil`` PYTHONPATH gives."""
-    import dataclasses
+    import importlib.util
 
     import rehab_hil
     from rehab_hil.hardware.serial_hw import SerialHardware
-    from rehab_hil.loading import load_config
-    from rehab_hil.plants import get_plant
-    from rehab_hil.service import assembly
-    from rehab_hil.service.recorder import Recorder
-    from rehab_hil.service.runner import LoopService
-    from rehab_hil.telemetry import NetworkConfig
-    from rehab_hil.telemetry.rig import RigTelemetry, rig_info
 
-    cfg = load_config(args.config)
-    binding = get_plant(cfg.plant).device(cfg)
-    conf = assembly.firmware_configure(cfg, binding)
-    if args.watchdog_ms:
-        conf = dataclasses.replace(conf, watchdog_ms=args.watchdog_ms)
-    controller = assembly.build_controller(cfg, source=str(args.config))
+    builder = importlib.util.find_spec("rehab_hil.service.session") is not None  # issue 37's open_session
+    cfg, conf, period_s = _child_config(args)
     hw = SerialHardware(args.port, cfg.rig.baud)
     hw.connect(timeout=20.0)  # behind the bridge: the DTR reset and ~1 s of bootloader first
-    tap = Tap(hw, round(args.duration / assembly.period_s(cfg)) + 100)
+    tap = Tap(hw, round(args.duration / period_s) + 100)
     with tempfile.TemporaryDirectory() as rec_dir:
-        recorder = tel = None
-        if not args.bare:
-            recorder = Recorder(rec_dir, binding)
-            tel = RigTelemetry("bench", rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), hw.info),
-                               NetworkConfig(role="hub", port=args.zenoh_port), queue_size=20_000)
+        run, progress, close = (_child_session if builder else _child_loop)(args, cfg, conf, hw, rec_dir)
         print("READY", flush=True)  # the parent's subscriber connects now
         sys.stdin.readline()  # ... and says when it is subscribed
-        sup = assembly.build_supervisor(cfg, binding)
-        if "sinks" in inspect.signature(LoopService).parameters:  # one list of sinks (issue 37)
-            sinks: dict[str, Any] = {"sinks": [x for x in (recorder, tel.sink if tel else None) if x is not None]}
-        else:  # an older tree: the "before" of a before/after run
-            sinks = {"recorder": recorder, "telemetry": tel.sink if tel else None}
-        svc = LoopService(hw, conf, controller, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg),
-                          meter=assembly.build_meter(cfg, controller, args.duration), **sinks)
-        if tel is not None:
-            tel.watch(svc, hw)
         stop_display = threading.Event()
         if args.display:  # rehab-hil run's live display: a rich table redrawn 4 times a second
-            threading.Thread(target=display, args=(svc, stop_display), daemon=True).start()
+            threading.Thread(target=display, args=(progress, stop_display), daemon=True).start()
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        res = svc.run(args.duration, pacing="device", realtime=True)
+        res = run()
         r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         stop_display.set()
-        if tel is not None:
-            tel.close()
-        if recorder is not None:
-            recorder.close()
+        rows, offered = close()
         hw.close()
     cpu = (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (t1 - t0)
     t = res.timing
@@ -108,15 +80,82 @@ def child(args: argparse.Namespace) -> int:
         "reaction_us": {q: res.reaction.get(f"lateness_{q}_us") for q in ("p50", "p99", "p99_9", "max")},
         "tick_to_command_us": tap.tick_to_command(),
         "cmd_echo_us": {q: 1e6 * res.link.get(f"latency_{q}_s", float("nan")) for q in ("p50", "p99")},
-        "recorder_rows": recorder.rows if recorder else 0, "recorder_dropped": res.recorder_dropped,
-        "telemetry_dropped": res.telemetry_dropped, "telemetry_offered": tel.sink.offered if tel else 0,
+        "recorder_rows": rows, "recorder_dropped": res.recorder_dropped,
+        "telemetry_dropped": res.telemetry_dropped, "telemetry_offered": offered,
         "host_cpu_pct": 100.0 * cpu, "events": [e.reason for e in res.events],
     }
     print("RESULT " + json.dumps(out), flush=True)
     return 0
 
 
-def display(svc: Any, stop: threading.Event) -> None:
+def _child_config(args: argparse.Namespace) -> tuple[Any, Any, float]:
+    """The config, the CONFIGURE (``--watchdog-ms`` over the config's) and the period, in either tree."""
+    import dataclasses
+
+    from rehab_hil.plants import get_plant
+    from rehab_hil.service import assembly
+
+    try:
+        from rehab_hil.loading import load_config
+    except ImportError:  # the tree before issue 37
+        from rehab_hil.plants import load_config
+    cfg = load_config(args.config)
+    conf = assembly.firmware_configure(cfg, get_plant(cfg.plant).device(cfg))
+    if args.watchdog_ms:
+        conf = dataclasses.replace(conf, watchdog_ms=args.watchdog_ms)
+    return cfg, conf, assembly.period_s(cfg)
+
+
+def _child_session(args: argparse.Namespace, cfg: Any, conf: Any, hw: Any, rec_dir: str) -> tuple[Any, Any, Any]:
+    """This tree: the session from ``open_session`` on the connected rig, recording and publishing."""
+    from rehab_hil.service.session import TelemetryOptions, open_session
+
+    extra = {} if args.bare else {"record": Path(rec_dir),
+                                  "telemetry": TelemetryOptions("bench", port=args.zenoh_port)}
+    session = open_session(args.config, hw=hw, configure=conf, realtime=True, **extra)
+
+    def close() -> tuple[int, int]:
+        session.close()
+        rec, tel = session.recorder, session.telemetry
+        return (rec.rows if rec else 0), (tel.sink.offered if tel else 0)
+
+    return (lambda: session.run(args.duration)), (lambda: session.progress), close
+
+
+def _child_loop(args: argparse.Namespace, cfg: Any, conf: Any, hw: Any, rec_dir: str) -> tuple[Any, Any, Any]:
+    """The tree before issue 37: the loop wired by hand as its ``rehab-hil run`` did."""
+    from rehab_hil.plants import get_plant
+    from rehab_hil.service import assembly
+    from rehab_hil.service.recorder import Recorder
+    from rehab_hil.service.runner import LoopService
+    from rehab_hil.telemetry import NetworkConfig
+    from rehab_hil.telemetry.rig import RigTelemetry, rig_info
+
+    binding = get_plant(cfg.plant).device(cfg)
+    controller = assembly.build_controller(cfg, source=str(args.config))
+    recorder = tel = None
+    if not args.bare:
+        recorder = Recorder(rec_dir, binding)
+        tel = RigTelemetry("bench", rig_info(cfg.plant, args.config, binding, assembly.period_s(cfg), hw.info),
+                           NetworkConfig(role="hub", port=args.zenoh_port), queue_size=20_000)
+    svc = LoopService(hw, conf, controller, assembly.build_estimator(cfg, binding),
+                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
+                      recorder=recorder, telemetry=tel.sink if tel else None,
+                      meter=assembly.build_meter(cfg, controller, args.duration))
+    if tel is not None:
+        tel.watch(svc, hw)
+
+    def close() -> tuple[int, int]:
+        if tel is not None:
+            tel.close()
+        if recorder is not None:
+            recorder.close()
+        return (recorder.rows if recorder else 0), (tel.sink.offered if tel else 0)
+
+    return (lambda: svc.run(args.duration, pacing="device", realtime=True)), (lambda: svc.progress), close
+
+
+def display(progress: Any, stop: threading.Event) -> None:
     """What ``rehab-hil run`` does on its main thread while the loop runs: rich's Live, 4 Hz."""
     import io
 
@@ -126,9 +165,9 @@ def display(svc: Any, stop: threading.Event) -> None:
     from rehab_hil.cli.run import _progress_table
 
     console = Console(file=io.StringIO(), force_terminal=True, width=100)
-    with Live(_progress_table(svc.progress), console=console, refresh_per_second=4) as live:
+    with Live(_progress_table(progress()), console=console, refresh_per_second=4) as live:
         while not stop.wait(0.25):
-            live.update(_progress_table(svc.progress))
+            live.update(_progress_table(progress()))
 
 
 class Tap:
@@ -143,13 +182,28 @@ class Tap:
         self.k = 0
         self.dev_us: int | None = None
         self.arrival = 0.0
-        read, write = hw.read_sample, hw.write_command
+        write = hw.write_command
 
-        def read_sample(timeout: float | None = None) -> Any:
-            s = read(timeout)
-            if s is not None:
-                self.dev_us, self.arrival = s.device_time_us, hw.last_sample_time
-            return s
+        if hasattr(hw, "read"):  # since issue 37 the loop reads (arrival, sample, gap)
+            read = hw.read
+
+            def read_arrival(timeout: float | None = None) -> Any:
+                a = read(timeout)
+                if a is not None:
+                    self.dev_us, self.arrival = a.sample.device_time_us, a.host_time_s
+                return a
+
+            hw.read = read_arrival
+        else:
+            read_sample_of = hw.read_sample
+
+            def read_sample(timeout: float | None = None) -> Any:
+                s = read_sample_of(timeout)
+                if s is not None:
+                    self.dev_us, self.arrival = s.device_time_us, hw.last_sample_time
+                return s
+
+            hw.read_sample = read_sample
 
         def write_command(*a: Any, **kw: Any) -> int:
             seq = write(*a, **kw)
@@ -160,7 +214,7 @@ class Tap:
                 self.dev_us = None
             return seq
 
-        hw.read_sample, hw.write_command = read_sample, write_command
+        hw.write_command = write_command
 
     def tick_to_command(self) -> dict[str, float]:
         """Each controlled sample's device tick (its device time on the host's monotonic clock: the
