@@ -11,6 +11,7 @@ writes ``bench/results/lockstep_speed.json``.
 
     .venv/bin/python bench/lockstep_speed.py                    # 3 plants x 4 ways, 20 s sessions, 2 repeats
     .venv/bin/python bench/lockstep_speed.py --plants sma_exoskeleton --repeats 1
+    .venv/bin/python bench/lockstep_speed.py --base 433edda --ways "sim, lockstep (pty)"   # before/after
 """
 
 from __future__ import annotations
@@ -36,12 +37,22 @@ WAYS = {  # name: extra arguments of rehab-hil run
 }
 
 
-def one(plant: str, way: str, duration_s: float, folder: Path, twin: bool) -> dict:
+def base_tree(tmp: Path, base: str) -> Path:
+    """``src/`` of commit ``base`` unpacked under ``tmp`` (the "before" of ``--base``)."""
+    dest = tmp / f"base-{base}"
+    dest.mkdir()
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", base, "src"], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest / "src"
+
+
+def one(plant: str, way: str, duration_s: float, folder: Path, twin: bool, src: Path | None = None) -> dict:
     out = folder / f"{plant}-{way.split(',')[0].split()[0]}-{time.monotonic_ns()}"
     cmd = [*CLI, "run", "--config", str(ROOT / "configs" / f"{plant}.toml"), *WAYS[way], "--duration",
            str(duration_s), "--no-display", "--record", str(out), *(["--twin"] if twin else [])]
     t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    env = {**os.environ, "PYTHONPATH": str(src)} if src is not None else None  # --base: that tree's code
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
     whole = time.perf_counter() - t0
     metas = list(out.glob("*/metadata.json"))
     if p.returncode != 0 or not metas:
@@ -57,31 +68,40 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0, help="device time per session [s]")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--twin", action="store_true", help="with the live twin beside the loop (make run's flag)")
+    ap.add_argument("--ways", nargs="+", default=list(WAYS), choices=list(WAYS), metavar="WAY")
+    ap.add_argument("--base", default=None, metavar="COMMIT",
+                    help="also run each session with the code of COMMIT ('before'), alternating with this tree")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     rows = []
     print(f"load {os.getloadavg()[0]:.2f} at the start; {args.duration:g} s sessions, {args.repeats} repeats, "
           f"recording on{', twin on' if args.twin else ''}", flush=True)
     with tempfile.TemporaryDirectory(prefix="lockstep-speed-") as tmp:
+        trees = {"": None} if args.base is None else {"before": base_tree(Path(tmp), args.base), "after": None}
         for _ in range(args.repeats):  # repeats outermost: a change of load falls on every way
             for plant in args.plants:
-                for way in WAYS:
-                    r = one(plant, way, args.duration, Path(tmp), args.twin)
-                    rows.append(r)
-                    print(f"  {plant:16s} {way:22s} " + (f"{r['speed_x']:6.2f}x  loop {r['loop_wall_s']:6.2f} s, "
-                                                        f"command {r['command_wall_s']:6.2f} s" if "speed_x" in r
-                                                        else f"FAILED {r['error']!r}"), flush=True)
+                for way in args.ways:
+                    for tree, src in trees.items():
+                        r = one(plant, way, args.duration, Path(tmp), args.twin, src)
+                        r["way"] = f"{way} {tree}".strip()
+                        rows.append(r)
+                        print(f"  {plant:16s} {r['way']:29s} " + (
+                            f"{r['speed_x']:6.2f}x  loop {r['loop_wall_s']:6.2f} s, "
+                            f"command {r['command_wall_s']:6.2f} s"
+                            if "speed_x" in r else f"FAILED {r['error']!r}"), flush=True)
+        ways = [f"{w} {t}".strip() for w in args.ways for t in trees]
     print(f"\nload {os.getloadavg()[0]:.2f} at the end. Median speed over {args.repeats} runs (range), x real time:")
-    print("| plant | " + " | ".join(WAYS) + " |")
-    print("| --- |" + " --- |" * len(WAYS))
+    print("| plant | " + " | ".join(ways) + " |")
+    print("| --- |" + " --- |" * len(ways))
     for plant in args.plants:
         cells = []
-        for way in WAYS:
+        for way in ways:
             v = [r["speed_x"] for r in rows if r["plant"] == plant and r["way"] == way and "speed_x" in r]
             cells.append(f"{statistics.median(v):.2f} ({min(v):.2f}-{max(v):.2f})" if v else "failed")
         print(f"| {plant} | " + " | ".join(cells) + " |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"duration_s": args.duration, "twin": args.twin, "runs": rows}, indent=1))
+    args.out.write_text(json.dumps({"duration_s": args.duration, "twin": args.twin, "base": args.base, "runs": rows},
+                                   indent=1))
     print(f"wrote {args.out}")
 
 
