@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from rehab_hil.config import ConfigError, Section, load_toml, validate
-from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.interfaces import AdcChannel, DeviceBinding
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.plants.sections import PlantConfig
 
@@ -233,12 +233,12 @@ def calibration_for(cfg: PlantConfig, config_path: str | Path = "<config>", base
     return load_calibration(path)
 
 
-def _force_channel(binding: Any) -> Any | None:
+def _force_channel(binding: DeviceBinding) -> AdcChannel | None:
     """A0's channel when it is a force (the only channel the firmware limits), else None."""
     return binding.adc[0] if binding.adc and binding.adc[0].kind == "force" else None
 
 
-def force_limit_counts(cfg: PlantConfig, binding: Any, calibration: Calibration | None = None) -> int:
+def force_limit_counts(cfg: PlantConfig, binding: DeviceBinding, calibration: Calibration | None = None) -> int:
     """The firmware's A0 force limit in counts for ``[rig.limits] max_force_n``: from the sensor's
     calibration when there is one (``calibration`` or the config's reference), else the plant's
     linear map. 1023 (off) when A0 is not a force sensor. Raises ``ForceLimitError`` when the limit

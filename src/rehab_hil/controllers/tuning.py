@@ -12,12 +12,14 @@ gives the feedback loop's gain and phase margins for the chosen gains.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from rehab_hil.controllers.base import ControllerError, Reference, offline_session
 from rehab_hil.controllers.build import build_controller
+from rehab_hil.plants.registry import get_plant
 from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["MIN_GAIN", "Tuned", "feedback_margins", "tune"]
@@ -104,14 +106,10 @@ def tune(cfg: PlantConfig, name: str, source: str = "<config>", cycles: int = 3,
 def feedback_margins(cfg: PlantConfig, gains: Any) -> dict[str, float] | None:
     """Gain margin [dB], phase margin [deg] and crossover [rad/s] of the PID on the encoder angle
     around the plant's linear model (python-control), or None when the plant has none."""
-    import sys
-
-    from rehab_hil.plants import get_plant
-
     linear = getattr(sys.modules[get_plant(cfg.plant).__module__], "linear_model", None)
     if linear is None:
         return None
-    import control
+    import control  # python-control takes seconds to import: only where it is used
 
     plant = linear(cfg)[0, 0]  # the actuator input -> angle [rad]
     deg = 180.0 / math.pi
