@@ -36,9 +36,11 @@ from rehab_hil.service import assembly
 from rehab_hil.service.controllers import Command, ControllerRuntime
 from rehab_hil.service.estimation import State
 from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.runner import LoopService, RunResult
+from rehab_hil.service.runner import RunResult
+from rehab_hil.service.session import open_session
 from rehab_hil.testing import pid_runtime
 
+from .conftest import CONFIG
 from .link_proxy import LinkProxy
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
@@ -75,6 +77,7 @@ class Hooked:
 
     def __init__(self, inner: Any, at_s: float, action: Callable[[], None]) -> None:
         self.inner, self.at_s, self.action, self.fired_at = inner, at_s, action, None
+        self.claims = inner.claims
 
     def reset(self) -> None:
         self.inner.reset()
@@ -331,8 +334,8 @@ def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenar
     supervisor.limits = dataclasses.replace(supervisor.limits,
                                             link_loss_periods=round(scenario.link_budget_s / assembly.period_s(cfg)),
                                             min_angle_deg=-math.inf, max_angle_deg=math.inf)
-    svc = LoopService(ctx.hw, conf, controller, assembly.build_estimator(cfg, binding),
-                      supervisor, assembly.period_s(cfg), sinks=[rec])
+    session = open_session(CONFIG, hw=ctx.hw, controller=controller, configure=conf, supervisor=supervisor,
+                           sinks=(rec,), realtime=False, sample_timeout_s=SAMPLE_TIMEOUT_S)
     caplog.set_level(logging.ERROR, logger="rehab_hil.supervisor")
     try:
         # the shared device: streaming off (no backlog while we set up), faults of earlier tests cleared
@@ -341,12 +344,13 @@ def run_session(ctx: Ctx, cfg: Any, binding: Any, out_dir: Any, scenario: Scenar
         ctx.hw.discard_pending()
     except Exception as e:
         rec.close()
+        session.close()
         raise AssertionError(f"{e}; {ctx.proxy.describe()}; device {ctx.device.control('status')}") from e
     try:
-        res = svc.run(DURATION_S if scenario.trip is None else TRIP_DURATION_S, pacing="device", realtime=False,
-                      sample_timeout_s=SAMPLE_TIMEOUT_S)
+        res = session.run(DURATION_S if scenario.trip is None else TRIP_DURATION_S)
     finally:
         rec.close()
+        session.close()
         ctx.settle()
     tap = ctx.proxy.device_tap
     events = [(e.reason, e.detail, round(e.t_s, 3)) for e in res.events]

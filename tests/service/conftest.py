@@ -13,7 +13,7 @@ from rehab_hil.hardware import SerialHardware
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.service.supervisor import Supervisor
 from rehab_hil.testing import pid_runtime
 
@@ -71,9 +71,9 @@ def home(h: SerialHardware, cfg, binding) -> None:
     base = assembly.build_supervisor(cfg, binding)
     wide = dataclasses.replace(base.limits, min_angle_deg=-1e6, max_angle_deg=1e6)
     ctl = pid_runtime(cfg, HOME_DEG)
-    svc = LoopService(h, conf, ctl, assembly.build_estimator(cfg, binding), Supervisor(wide, base.dt_s),
-                      assembly.period_s(cfg))
-    res = svc.run(1.0, realtime=False, sample_timeout_s=5.0, lockstep=True)
+    with open_session(CONFIG, hw=h, controller=ctl, configure=conf, supervisor=Supervisor(wide, base.dt_s),
+                      realtime=False, sample_timeout_s=5.0, lockstep=True) as session:
+        res = session.run(1.0)
     assert not res.events, res.events
 
 

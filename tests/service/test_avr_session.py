@@ -6,8 +6,7 @@ import pytest
 
 from rehab_hil.devices import avr_device
 from rehab_hil.hardware import SerialHardware
-from rehab_hil.service import assembly
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 
 from .conftest import CONFIG
 
@@ -23,11 +22,9 @@ def test_the_model_based_step_on_the_firmware_in_simavr_reaches_the_target_and_e
         hw = SerialHardware(dev.port, resend_s=None)  # virtual time: a resend would cost device time
         hw.connect(timeout=10.0)
         try:
-            svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
-                              assembly.build_controller(cfg, "model_based", "step"),
-                              assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
-                              assembly.period_s(cfg))
-            res = svc.run(1.5, pacing="device", realtime=False, sample_timeout_s=10.0, lockstep=True)
+            with open_session(CONFIG, hw=hw, controller="model_based", reference="step", realtime=False,
+                              sample_timeout_s=10.0, lockstep=True) as session:
+                res = session.run(1.5)
         finally:
             hw.close()
     assert res.events == [], res.events

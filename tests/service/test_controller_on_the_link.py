@@ -10,9 +10,8 @@ import pytest
 
 from rehab_hil import metrics
 from rehab_hil.interchange import read_csv
-from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.testing import inprocess_rig
 
 from .conftest import CONFIG
@@ -22,10 +21,9 @@ def step_on(cfg, binding, tmp_path, controller: str, bursts: tuple[int, ...]) ->
     hw = inprocess_rig(CONFIG, configured=False, bursts=bursts)
     rec = Recorder(tmp_path / f"{controller}-{len(bursts)}", binding)
     try:
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
-                          assembly.build_controller(cfg, controller, "step"), assembly.build_estimator(cfg, binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg), sinks=[rec])
-        res = svc.run(2.0, realtime=False)
+        with open_session(CONFIG, hw=hw, controller=controller, reference="step", sinks=(rec,),
+                          realtime=False) as session:
+            res = session.run(2.0)
     finally:
         rec.close()
         hw.close()

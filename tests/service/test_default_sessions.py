@@ -8,10 +8,9 @@ from __future__ import annotations
 import pytest
 
 from rehab_hil.loading import load_config
-from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
-from rehab_hil.service.runner import LoopService
-from rehab_hil.testing import CONFIGS, inprocess_rig
+from rehab_hil.service.session import open_session
+from rehab_hil.testing import CONFIGS
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -20,8 +19,6 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 def test_the_default_session_runs_60_s_on_the_simulated_rig_without_a_trip(plant: str) -> None:
     path = CONFIGS / f"{plant}.toml"
     cfg = load_config(path)
-    binding = get_plant(cfg.plant).device(cfg)
-    hw = inprocess_rig(path, configured=False)
     controller = assembly.build_controller(cfg)
     duties: list[float] = []
 
@@ -31,13 +28,9 @@ def test_the_default_session_runs_60_s_on_the_simulated_rig_without_a_trip(plant
         return cmd
 
     recording.reset = controller.reset  # type: ignore[attr-defined]
-    try:
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), recording,
-                          assembly.build_estimator(cfg, binding),
-                          assembly.build_supervisor(cfg, binding), assembly.period_s(cfg))
-        res = svc.run(60.0, realtime=False)
-    finally:
-        hw.close()
+    recording.claims = controller.claims  # type: ignore[attr-defined]
+    with open_session(path, "inprocess", controller=recording) as session:
+        res = session.run(60.0)
     assert res.events == [], res.events
     assert res.stop_reason == "duration reached" and res.cycles >= 59_000
     assert max(duties) > 0.05  # the session drives: not trivially inside its limits

@@ -15,9 +15,11 @@ from rehab_hil.interchange import read_csv
 from rehab_hil.protocol import Status
 from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.service.supervisor import Supervisor
 from rehab_hil.testing import push_runtime
+
+from .conftest import CONFIG
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("service-shared-device")]
 
@@ -27,15 +29,20 @@ TIMEOUT = 2.0  # lockstep: how long a cycle waits for its sample (a 2-core make 
 LOCKSTEP = {"realtime": False, "sample_timeout_s": TIMEOUT, "lockstep": True}
 
 
-def service(cfg, binding, hw, controller="pid", supervisor=None, recorder=None, configure=None):
-    if controller == "session":  # the session's own controller on its cycles
-        ctl = assembly.build_controller(cfg)
-    else:  # a named controller stepping to step_deg
-        ctl = assembly.build_controller(cfg, controller, "step") if isinstance(controller, str) else controller
-    return LoopService(hw, configure or assembly.firmware_configure(cfg, binding),
-                       ctl, assembly.build_estimator(cfg, binding),
-                       supervisor or assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                       sinks=[recorder] if recorder is not None else ())
+def session(hw, controller="pid", supervisor=None, recorder=None, **options):
+    """A session on ``hw``: "session" (the session's own controller on its cycles), a named
+    controller stepping to step_deg, or a controller object; ``options``: open_session's."""
+    if controller == "session":
+        controller, options["reference"] = None, "session"
+    elif isinstance(controller, str):
+        options["reference"] = "step"
+    return open_session(CONFIG, hw=hw, controller=controller, supervisor=supervisor,
+                        sinks=(recorder,) if recorder is not None else (), **options)
+
+
+def run_session(duration_s, hw, controller="pid", **options):
+    with session(hw, controller, **options) as s:
+        return s.run(duration_s)
 
 
 def supervisor_with(cfg, binding, force_signals=None, thermal=None, **limits):
@@ -55,7 +62,7 @@ def assert_safe_end(res):
 def test_pid_step_reaches_the_seed_002_target_within_its_metrics(cfg, binding, fresh_hw, tmp_path):
     rec = Recorder(tmp_path, binding)
     try:
-        res = service(cfg, binding, fresh_hw, "pid", recorder=rec).run(2.0, **LOCKSTEP)
+        res = run_session(2.0, fresh_hw, "pid", recorder=rec, **LOCKSTEP)
     finally:
         rec.close()
     assert res.events == []
@@ -87,7 +94,7 @@ def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, bindin
     push = push_runtime(cfg, 0.2)
     ctl = "pid" if reason == "range_of_motion" else push
     try:
-        res = service(cfg, binding, fresh_hw, ctl, supervisor=sup).run(3.0, **LOCKSTEP)
+        res = run_session(3.0, fresh_hw, ctl, supervisor=sup, **LOCKSTEP)
     finally:
         shared_device.control("input patient_torque_nm 0")
     assert [e.reason for e in res.events][:1] == [reason]
@@ -98,23 +105,23 @@ def test_each_supervisor_trip_fires_and_the_device_ends_with_pwm_off(cfg, bindin
 def test_a_firmware_fault_trips_the_host(cfg, binding, fresh_hw):
     conf = assembly.firmware_configure(cfg, binding)
     conf = dataclasses.replace(conf, enc_max=int(45 * binding.encoder_counts_per_rev / 360))  # 45 deg
-    res = service(cfg, binding, fresh_hw, "pid", configure=conf).run(2.0, **LOCKSTEP)
+    res = run_session(2.0, fresh_hw, "pid", configure=conf, **LOCKSTEP)
     assert res.events[0].reason == "device_fault" and "RANGE_OF_MOTION" in res.events[0].detail
     assert_safe_end(res)
 
 
 def test_link_loss_is_detected_after_n_periods_and_reported(cfg, binding, fresh_hw, shared_device):
-    svc = service(cfg, binding, fresh_hw, "pid")
-    threading.Timer(0.3, shared_device.control, args=("stall 600",)).start()
-    res = svc.run(30.0, realtime=False, sample_timeout_s=0.02, lockstep=True)
+    with session(fresh_hw, "pid", realtime=False, sample_timeout_s=0.02, lockstep=True) as s:
+        threading.Timer(0.3, shared_device.control, args=("stall 600",)).start()
+        res = s.run(30.0)
     assert res.events[0].reason == "link_loss"
     assert res.cycles < 30000
 
 
 def test_device_reboot_is_detected_and_puts_the_rig_in_the_safe_state(cfg, binding, fresh_hw, shared_device):
-    svc = service(cfg, binding, fresh_hw, "pid")
-    threading.Timer(0.3, shared_device.control, args=("reboot",)).start()
-    res = svc.run(30.0, realtime=False, sample_timeout_s=0.05, lockstep=True)
+    with session(fresh_hw, "pid", realtime=False, sample_timeout_s=0.05, lockstep=True) as s:
+        threading.Timer(0.3, shared_device.control, args=("reboot",)).start()
+        res = s.run(30.0)
     assert res.events[0].reason == "device_reboot"
     assert res.reboots >= 1
     assert res.final_sample is not None
@@ -130,8 +137,7 @@ def test_recording_holds_every_sample_sent_with_gaps_and_corrupt_frames_counted(
 
     threading.Timer(0.1, faults_on).start()
     try:
-        res = service(cfg, binding, fresh_hw, "session", recorder=rec).run(2.0, realtime=False,
-                                                                           sample_timeout_s=0.02, lockstep=True)
+        res = run_session(2.0, fresh_hw, "session", recorder=rec, realtime=False, sample_timeout_s=0.02, lockstep=True)
     finally:
         shared_device.control("drop 0")
         shared_device.control("corrupt 0")
@@ -150,7 +156,7 @@ def test_recording_holds_every_sample_sent_with_gaps_and_corrupt_frames_counted(
 
 def test_session_tracks_open_close_cycles(cfg, binding, hw):
     t0 = time.perf_counter()
-    res = service(cfg, binding, hw, "session").run(4.0, **LOCKSTEP)
+    res = run_session(4.0, hw, "session", **LOCKSTEP)
     elapsed = time.perf_counter() - t0
     assert res.events == []
     assert res.tracking["mae"] < 3.0 and res.tracking["max_abs_error"] < 10.0

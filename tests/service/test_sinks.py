@@ -14,14 +14,12 @@ from rich.console import Console
 
 from rehab_hil.cli.run import summary_table
 from rehab_hil.interchange import read_csv
-from rehab_hil.service import assembly
 from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.records import CommandRecord, EventRecord
 from rehab_hil.service.run_dir import result_metadata
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.service.sinks import Overflow, Sink, ThreadedSink
 from rehab_hil.service.telemetry import QueueSink
-from rehab_hil.testing import inprocess_rig
 
 from .conftest import CONFIG
 
@@ -120,21 +118,15 @@ class DiskFillsUp(Recorder):
         super()._flush()
 
 
-def _session(cfg, binding, sinks, duration_s: float = 3.0):
-    hw = inprocess_rig(CONFIG, configured=False)
-    try:
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding), assembly.build_controller(cfg, "pid", "step"),
-                          assembly.build_estimator(cfg, binding), assembly.build_supervisor(cfg, binding),
-                          assembly.period_s(cfg), sinks=sinks)
-        return svc, svc.run(duration_s, realtime=False)
-    finally:
-        hw.close()
+def _session(sinks, duration_s: float = 3.0):
+    with open_session(CONFIG, "inprocess", controller="pid", reference="step", sinks=tuple(sinks)) as session:
+        return session.loop, session.run(duration_s)
 
 
-def test_a_recorder_on_a_full_disk_stops_the_session_safely_and_keeps_what_it_wrote(cfg, binding, tmp_path) -> None:
+def test_a_recorder_on_a_full_disk_stops_the_session_safely_and_keeps_what_it_wrote(binding, tmp_path) -> None:
     rec = DiskFillsUp(tmp_path, binding, flush_s=0.02, flushes_ok=2)
     try:
-        svc, res = _session(cfg, binding, [rec])
+        svc, res = _session([rec])
     finally:
         rec.close()
     assert res.pwm_off_at_end
@@ -149,7 +141,7 @@ def test_a_recorder_on_a_full_disk_stops_the_session_safely_and_keeps_what_it_wr
     assert recorded[:len(rows)] == rows
 
 
-def test_a_failed_telemetry_sink_is_reported_and_the_session_runs_to_its_duration(cfg, binding, tmp_path) -> None:
+def test_a_failed_telemetry_sink_is_reported_and_the_session_runs_to_its_duration(binding, tmp_path) -> None:
     def publish(record) -> None:
         if type(record) is CommandRecord and record.command_seq == 200:
             raise ConnectionError("router gone")
@@ -157,7 +149,7 @@ def test_a_failed_telemetry_sink_is_reported_and_the_session_runs_to_its_duratio
     tel = QueueSink(publish, maxsize=20_000, name="telemetry")
     rec = Recorder(tmp_path, binding)
     try:
-        svc, res = _session(cfg, binding, [rec, tel], duration_s=1.0)
+        svc, res = _session([rec, tel], duration_s=1.0)
     finally:
         rec.close()
         tel.close()
