@@ -37,7 +37,7 @@ from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service import assembly
 from rehab_hil.service.estimation import State
 from rehab_hil.service.records import EventRecord
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.testing import push_runtime
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,9 +84,8 @@ def session(kind: str, config: Path, duration_s: float) -> dict[str, Any]:
         tap = Tap(hw)
         sup = assembly.build_supervisor(cfg, binding)
         sup.limits = dataclasses.replace(sup.limits, link_loss_periods=1000)  # measure, do not stop
-        svc = LoopService(hw, conf, assembly.build_controller(cfg, source=str(config)),
-                          assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
-        res = svc.run(duration_s, pacing="device", realtime=True)
+        with open_session(config, hw=hw, configure=conf, supervisor=sup, realtime=True) as rig:  # [rig.session]
+            res = rig.run(duration_s)
     gaps = np.diff(tap.arrivals) * 1e3 if len(tap.arrivals) > 1 else np.array([np.nan])
     return {
         "stop_reason": res.stop_reason, "cycles": res.cycles, "samples": res.samples,
@@ -111,10 +110,10 @@ def heating_trip(kind: str, config: Path, limit_s: float = 2.0) -> dict[str, Any
         sup = assembly.build_supervisor(cfg, binding)
         sup.limits = dataclasses.replace(sup.limits, max_heating_s=limit_s, link_loss_periods=1000)
         ctl = push_runtime(cfg, 0.05, 100.0, 0.0)
-        svc = LoopService(hw, conf, ctl, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
-        t0 = time.perf_counter()
-        res = svc.run(limit_s + 3.0, pacing="device", realtime=True)
-        wall = time.perf_counter() - t0
+        with open_session(config, hw=hw, controller=ctl, configure=conf, supervisor=sup, realtime=True) as rig:
+            t0 = time.perf_counter()
+            res = rig.run(limit_s + 3.0)
+            wall = time.perf_counter() - t0
     ev = res.events[0] if res.events else None
     t = ev.t_s if ev is not None and ev.reason == "heating_time" else float("nan")
     return {"limit_s": limit_s, "trip_device_s": t, "error_pct": 100.0 * (t - limit_s) / limit_s,
@@ -149,8 +148,8 @@ def host_stall(kind: str, config: Path, watchdog_ms: int = 100, pause_s: float =
         sup = assembly.build_supervisor(cfg, binding)
         sup.limits = dataclasses.replace(sup.limits, link_loss_periods=5000)
         ctl = Stall(push_runtime(cfg, 0.05, 100.0, 0.0), 0.5, pause_s)
-        svc = LoopService(hw, conf, ctl, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg))
-        res = svc.run(2.0, pacing="device", realtime=True)
+        with open_session(config, hw=hw, controller=ctl, configure=conf, supervisor=sup, realtime=True) as rig:
+            res = rig.run(2.0)
     last_cmd_us, off_us = None, None
     for a, s in itertools.pairwise(tap.samples):
         if s.faults & Fault.WATCHDOG:
@@ -201,12 +200,10 @@ def link_loss(kind: str, config: Path) -> dict[str, Any]:
         hw.connect(timeout=15.0)
         sup = assembly.build_supervisor(cfg, binding)
         clock = TripClock()
-        svc = LoopService(hw, assembly.firmware_configure(cfg, binding),
-                          assembly.build_controller(cfg, source=str(config)), assembly.build_estimator(cfg, binding),
-                          sup, assembly.period_s(cfg), sinks=[clock])
-        tripped = clock.at
-        threading.Timer(1.0, dev.control, args=("stall 3000",)).start()
-        res = svc.run(5.0, pacing="device", realtime=True)
+        with open_session(config, hw=hw, supervisor=sup, sinks=(clock,), realtime=True) as rig:  # [rig.session]
+            tripped = clock.at
+            threading.Timer(1.0, dev.control, args=("stall 3000",)).start()
+            res = rig.run(5.0)
         ev = res.events[0] if res.events else None
         detection = float("nan")
         if ev is not None and ev.reason == "link_loss" and tripped:

@@ -17,13 +17,10 @@ import resource
 import time
 from pathlib import Path
 
-from rehab_hil.hardware import on_configure, open_rig
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
-from rehab_hil.service.runner import LoopService
-from rehab_hil.telemetry import NetworkConfig
-from rehab_hil.telemetry.rig import RigTelemetry, rig_info
+from rehab_hil.service.session import TelemetryOptions, open_session
 from rehab_hil.testing import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,23 +33,16 @@ def one_run(config: Path, duration_s: float, pacing: str, telemetry: bool, watch
     conf = assembly.firmware_configure(cfg, binding)
     if watchdog_ms is not None:
         conf = dataclasses.replace(conf, watchdog_ms=watchdog_ms)
-    controller = assembly.build_controller(cfg, source=str(config))  # [rig.session] controller, open-close cycles
-    with open_rig("sim", config) as hw:
-        on_configure(binding, hw.info, controller.claims)
-        tel = None
-        if telemetry:  # the real zenoh publisher, hub on a free loopback port
-            info = rig_info(cfg.plant, config, binding, assembly.period_s(cfg), hw.info)
-            tel = RigTelemetry("bench", info, NetworkConfig(port=free_port()), queue_size=20_000)
-        sup = assembly.build_supervisor(cfg, binding)
-        if link_loss_periods is not None:
-            sup.limits = dataclasses.replace(sup.limits, link_loss_periods=link_loss_periods)
-        svc = LoopService(hw, conf, controller, assembly.build_estimator(cfg, binding), sup, assembly.period_s(cfg),
-                          sinks=[tel.sink] if tel is not None else ())
+    sup = assembly.build_supervisor(cfg, binding)
+    if link_loss_periods is not None:
+        sup.limits = dataclasses.replace(sup.limits, link_loss_periods=link_loss_periods)
+    # the [rig.session] controller on its open-close cycles; telemetry: the real zenoh publisher, hub on
+    # a free loopback port
+    with open_session(config, "sim", configure=conf, supervisor=sup, pacing=pacing, realtime=True,
+                      telemetry=TelemetryOptions("bench", port=free_port()) if telemetry else None) as session:
         r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        res = svc.run(duration_s, pacing=pacing, realtime=True)
+        res = session.run(duration_s)
         r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        if tel is not None:
-            tel.close()
     cpu = (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (t1 - t0)
     return {
         "pacing": pacing, "telemetry": telemetry, "duration_s": duration_s, "watchdog_ms": conf.watchdog_ms,

@@ -2,8 +2,8 @@
 lateness with telemetry on and off in the same run. Prints the figures, writes
 bench/results/telemetry.json.
 
-The rig side is this process: the real ``LoopService`` (host pacing, real-time setup) driving the
-in-process lockstep rig (``rehab_hil.testing``: the firmware's logic and the config's plant), handing
+The rig side is this process: a real session (``open_session``: host pacing, real-time setup) driving
+the in-process lockstep rig (``rehab_hil.testing``: the firmware's logic and the config's plant), handing
 its records to a ``TelemetryPublisher`` on a loopback hub it hosts (as ``rehab-hil run --telemetry``
 does). The viewer is a separate process (client session) that timestamps every record on arrival;
 both use ``time.perf_counter`` (CLOCK_MONOTONIC, shared by processes on one machine). Off and on
@@ -89,20 +89,17 @@ class Hold:
         return Command((min(max(0.3 + 0.01 * err, 0.0), 0.6), 0.0), 0, True, 20.0)
 
 
-def segment(config: Path, cfg: Any, binding: Any, seconds: float, sink: Any) -> dict[str, float]:
-    from rehab_hil.hardware import on_configure
-    from rehab_hil.service import assembly
-    from rehab_hil.service.estimation import Estimator
-    from rehab_hil.service.runner import LoopService
+def segment(config: Path, seconds: float, sink: Any) -> dict[str, float]:
+    from rehab_hil.service.session import open_session
     from rehab_hil.testing import inprocess_rig
 
-    hw = inprocess_rig(config, configured=False)
-    controller = Hold()
-    on_configure(binding, hw.info, controller.claims)
-    svc = LoopService(hw, assembly.firmware_configure(cfg, binding), controller, Estimator(binding),
-                      assembly.build_supervisor(cfg, binding), assembly.period_s(cfg),
-                      sinks=[sink] if sink is not None else ())
-    res = svc.run(seconds, pacing="host", realtime=True)
+    hw = inprocess_rig(config, configured=False)  # the loop on the host's clock (host pacing), as before
+    try:
+        with open_session(config, hw=hw, controller=Hold(), sinks=(sink,) if sink is not None else (),
+                          pacing="host", realtime=True) as session:
+            res = session.run(seconds)
+    finally:
+        hw.close()
     out = dict(res.timing)
     out["events"] = [f"{e.reason}: {e.detail}" for e in res.events]
     return out
@@ -156,7 +153,7 @@ def main() -> None:
         for mode in ("off", "on") if i % 2 == 0 else ("on", "off"):
             t0 = time.perf_counter()
             sink = rig.sink if mode == "on" else None
-            segments[mode].append(segment(args.config, cfg, binding, args.segment, sink))
+            segments[mode].append(segment(args.config, args.segment, sink))
             if mode == "on":
                 on_time += time.perf_counter() - t0
             time.sleep(0.2)
