@@ -1,14 +1,16 @@
 """Recording of every sample and command to the interchange CSV and to MCAP, off the loop thread.
 
-The loop calls ``offer`` after its command is out (never blocks, wakes nothing: a full queue drops
-and counts the record) and ``wake`` once per cycle when all of the cycle's records are there; the
-writer thread then works while the loop waits for its next sample, and otherwise every ``flush_s``
-(a producer that never calls ``wake`` gets its records written in batches). It turns records into
-CSV rows (plant signal names + raw columns) and MCAP messages on JSON-schema
-channels (``/rig/sample``, ``/rig/command``, ``/rig/event``; Foxglove and PlotJuggler open them),
-and flushes both files at least every ``flush_s``: a killed run leaves files that hold everything
-up to the last flush. ``read_mcap`` reads such a file even without its footer. The session's
-metadata (``service/run_dir.py``) goes into MCAP metadata records at the start and the end.
+``Recorder`` is the loop's critical sink (``service.sinks.ThreadedSink``): the loop offers its
+records after the command is out and wakes the writer once per cycle; the writer then works while
+the loop waits for its next sample, and otherwise every ``flush_s`` (a producer that never calls
+``wake`` gets its records written in batches). It turns records into CSV rows (plant signal names +
+raw columns) and MCAP messages on JSON-schema channels (``/rig/sample``, ``/rig/command``,
+``/rig/event``, ``/rig/cycle``, and extra channels such as the twin's ``/twin/prediction``; Foxglove
+and PlotJuggler open them), and flushes both files at least every ``flush_s``: a killed run leaves
+files that hold everything up to the last flush. ``read_mcap`` reads such a file even without its
+footer. The session's metadata (``service/run_dir.py``) goes into MCAP metadata records at the
+start and the end. A write that fails (a full disk) stops the writer with its error kept; the loop,
+told so, stops the session: a session must not go on unrecorded.
 """
 
 from __future__ import annotations
@@ -18,11 +20,8 @@ import math
 import operator
 import os
 import struct
-import threading
 import time
-from collections import deque
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,12 +32,12 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from rehab_hil.interfaces import DeviceBinding
-from rehab_hil.protocol import DUTY_FULL, Sample
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import State
+from rehab_hil.protocol import DUTY_FULL
+from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, MessageRecord, SampleRecord
+from rehab_hil.service.sinks import Overflow, ThreadedSink
 from rehab_hil.session_metrics import CycleMetrics
 
-__all__ = ["GENERIC_FIELDS", "Record", "Recorder", "csv_columns", "generic_fields", "read_mcap"]
+__all__ = ["GENERIC_FIELDS", "Recorder", "csv_columns", "generic_fields", "read_mcap"]
 
 RAW_COLUMNS = (
     "host_time_s", "device_time_s", "sample_index", "raw_encoder_counts", "raw_adc0_counts",
@@ -47,19 +46,6 @@ RAW_COLUMNS = (
     "command_direction_bits", "command_enable_bool", "command_seq", "estimated_velocity_rad_s",
     "estimated_temperature_c",
 )
-
-
-@dataclass(frozen=True)
-class Record:
-    """What the loop hands over per cycle: the sample it consumed (or None) and the command sent."""
-
-    host_time_s: float
-    time_s: float  # position on the recording's time axis (continued sample index x period)
-    sample: Sample | None
-    state: State | None
-    command: Command
-    command_seq: int
-    temperature_c: float
 
 
 CYCLE_FIELDS = tuple(CycleMetrics.__dataclass_fields__)
@@ -78,7 +64,7 @@ def csv_columns(binding: DeviceBinding) -> list[str]:
 GENERIC_FIELDS = ("angle_deg", "reference_deg", "analog0", "analog1")
 
 
-def generic_fields(r: Record) -> dict[str, float]:
+def generic_fields(r: SampleRecord) -> dict[str, float]:
     """The plant-independent fields of a sample record: angle, reference, first two calibrated ADC signals."""
     assert r.state is not None
     a = [*r.state.analog.values(), math.nan, math.nan]
@@ -100,11 +86,15 @@ def _json(body: dict[str, Any]) -> bytes:
     return orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
 
 
-class Recorder:
-    """Writes ``<out_dir>/<name>.csv`` and ``<out_dir>/<name>.mcap`` from a bounded queue."""
+class Recorder(ThreadedSink):
+    """Writes ``<out_dir>/<name>.csv`` and ``<out_dir>/<name>.mcap`` from a bounded queue; the sink
+    named "recorder", critical. ``overflow``: ``Overflow.WAIT`` for a zenoh recording (back-pressure
+    to the network instead of loss)."""
 
     def __init__(self, out_dir: str | Path, binding: DeviceBinding, name: str = "run",
-                 queue_size: int = 20_000, flush_s: float = 0.1, metadata: dict[str, Any] | None = None) -> None:
+                 queue_size: int = 20_000, flush_s: float = 0.1, metadata: dict[str, Any] | None = None,
+                 overflow: Overflow = Overflow.DROP) -> None:
+        super().__init__("recorder", queue_size, overflow, critical=True, poll_s=flush_s, tick_s=flush_s)
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.csv_path = self.out_dir / f"{name}.csv"
@@ -115,18 +105,24 @@ class Recorder:
         self._csv_values = operator.itemgetter(*keys)  # a row dict -> its CSV values in column order
         self._csv_line = ",".join(["%.10g"] * len(keys)) + "\n"
         self.flush_s = flush_s
-        self.dropped = 0
-        self.rows = 0
+        self.rows = 0  # rows handed to the CSV (those of a failed write taken back)
         self.messages = 0
-        self._cap = queue_size
-        self._q: deque[Record | tuple[str, Any]] = deque()  # appended by the loop, taken by the writer
-        self._kick = threading.Event()
-        self._closing = False
+        self._summary: dict[str, Any] | None = None
         self._csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         os.write(self._csv_fd, (",".join(["time_s", *self.columns]) + "\n").encode())
         self._mcap_fh = open(self.mcap_path, "wb")
         self._mcap = Writer(self._mcap_fh, compression=CompressionType.NONE)
         self._mcap.start(profile="", library="rehab-hil")
+        self._register_channels()
+        if metadata:
+            self._mcap.add_metadata("rehab_hil.session", _metadata_strings(metadata))
+        self._mcap.flush()
+        self._wall0_ns = time.time_ns() - int(time.perf_counter() * 1e9)
+        self._last_time_s = -math.inf
+        self._pending: list[str] = []
+        self.start()
+
+    def _register_channels(self) -> None:
         sample_fields = ["time_s", *self.columns, *GENERIC_FIELDS]
         cmd_fields = ["host_time_s", "duty0_ratio", "duty1_ratio", "direction_bits", "enable_bool", "seq",
                       "reference_deg"]
@@ -139,159 +135,101 @@ class Recorder:
                                        "detail": {"type": "string"}}}).encode())
         self._ch_event = self._mcap.register_channel("/rig/event", "json", ev_schema)
         self._ch_cycle = self._channel("/rig/cycle", "rehab_hil.Cycle", list(CYCLE_FIELDS))
-        self._extra: dict[str, int] = {}  # topic -> channel of ``message``
-        if metadata:
-            self._mcap.add_metadata("rehab_hil.session", _metadata_strings(metadata))
-        self._mcap.flush()
-        self._wall0_ns = time.time_ns() - int(time.perf_counter() * 1e9)
-        self._last_time_s = -math.inf
-        self._pending: list[str] = []
-        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
-        self._closed = False
-        self._thread.start()
+        self._extra: dict[str, int] = {}  # topic -> channel of a ``MessageRecord``
 
     def _channel(self, topic: str, name: str, fields: list[str]) -> int:
         sid = self._mcap.register_schema(name, "jsonschema", _schema(name, fields))
         return self._mcap.register_channel(topic, "json", sid)
 
-    # -- loop side -------------------------------------------------------------------------
-    def offer(self, record: Record, block: bool = False) -> bool:
-        """Queue one record without blocking or waking the writer; False (and counted) if the queue
-        is full. ``block``: wait for room instead (a zenoh recording: back-pressure, not loss)."""
-        if len(self._q) >= self._cap:
-            if not block:
-                self.dropped += 1
-                return False
-            while len(self._q) >= self._cap and not self._closing:
-                self._kick.set()
-                time.sleep(0.001)
-        self._q.append(record)
-        return True
-
-    def wake(self) -> None:
-        """Let the writer take what is queued now (the loop: once per cycle, after its write)."""
-        self._kick.set()
-
-    def event(self, time_s: float, kind: str, detail: str = "") -> None:
-        """Log a safety or link event (from the loop thread, outside the timed section)."""
-        if len(self._q) >= self._cap:
-            self.dropped += 1
-            return
-        self._q.append(("event", (time_s, kind, detail)))
-        self._kick.set()
-
-    def cycle(self, metrics: dict[str, float]) -> None:
-        """One finished open-close cycle's figures (``session_metrics.CycleMetrics``), outside the
-        timed section."""
-        if len(self._q) >= self._cap:
-            self.dropped += 1
-            return
-        self._q.append(("cycle", metrics))
-
-    def message(self, topic: str, schema: str, body: dict[str, Any]) -> None:
-        """One message on an extra JSON channel (the live twin's ``/twin/prediction``), registered at
-        its first message with the fields of that message; from any thread, never blocks."""
-        if len(self._q) >= self._cap:
-            self.dropped += 1
-            return
-        self._q.append(("message", (topic, schema, body)))
-
-    def drain(self) -> None:
-        """Write everything queued so far and stop the writer: ``rows`` is final from here on (what
-        the run's metadata reports), the files still open for ``close``'s summary."""
-        self._closing = True
-        self._kick.set()
-        self._thread.join()
+    @property
+    def files(self) -> list[str]:
+        """The recording's two files (what the run's result lists)."""
+        return [str(self.csv_path), str(self.mcap_path)]
 
     def close(self, summary: dict[str, Any] | None = None) -> None:
         """Drain the queue, add ``summary`` as an MCAP metadata record (``rehab_hil.summary``: the
-        run's figures and safety events), write the MCAP summary and close both files; idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        self.drain()
-        if summary:
-            self._mcap.add_metadata("rehab_hil.summary", _metadata_strings(summary))
-        self._mcap.finish()
-        self._mcap_fh.close()
-        os.close(self._csv_fd)
+        run's figures and safety events), write the MCAP summary and close both files; idempotent.
+        ``drain`` before it makes ``rows`` final (what the run's metadata reports)."""
+        if not self._closed:
+            self._summary = summary
+        super().close()
+
+    def release(self) -> None:
+        """Finish the MCAP (after a failed writer too: what was written stays readable), close both files."""
+        try:
+            if self._summary:
+                self._mcap.add_metadata("rehab_hil.summary", _metadata_strings(self._summary))
+            self._mcap.finish()
+        except OSError:
+            if self.error is None:
+                raise
+        finally:
+            self._mcap_fh.close()
+            os.close(self._csv_fd)
 
     # -- writer thread ---------------------------------------------------------------------
-    def _run(self) -> None:
-        q = self._q
-        next_flush = time.perf_counter() + self.flush_s
-        while True:
-            self._kick.wait(max(0.0, next_flush - time.perf_counter()))
-            self._kick.clear()
-            closing = self._closing  # read before draining: whatever came before close() is written
-            while q:
-                self._write(q.popleft())
-            if closing:
-                self._flush()
-                return
-            if time.perf_counter() >= next_flush:
-                self._flush()
-                next_flush = time.perf_counter() + self.flush_s
+    def tick(self) -> None:
+        self._flush()
+
+    def finish(self) -> None:
+        self._flush()
 
     def _flush(self) -> None:
         if self._pending:
-            os.write(self._csv_fd, "".join(self._pending).encode())  # whole lines in one write
+            try:
+                os.write(self._csv_fd, "".join(self._pending).encode())  # whole lines in one write
+            except OSError:
+                self.rows -= len(self._pending)  # rows counts what the CSV holds
+                self._pending.clear()
+                raise
             self._pending.clear()
         self._mcap.flush()
 
     def _log_time(self, host_time_s: float) -> int:
         return self._wall0_ns + int(host_time_s * 1e9)
 
-    def _write(self, item: Record | tuple[str, Any]) -> None:
-        if type(item) is Record:
-            self._write_record(item)
-        elif item[0] == "message":
-            topic, schema, body = item[1]
-            ch = self._extra.get(topic)
+    def handle(self, item: Any) -> None:
+        t = type(item)
+        if t is SampleRecord:
+            self._write_sample(item)
+        elif t is CommandRecord:
+            self._write_command(item)
+        elif t is MessageRecord:
+            ch = self._extra.get(item.topic)
             if ch is None:
-                ch = self._extra[topic] = self._channel(topic, schema, list(body))
-            now = self._log_time(time.perf_counter())
-            self._mcap.add_message(ch, log_time=now, publish_time=now, sequence=0, data=_json(body))
-            self.messages += 1
-        elif item[0] == "cycle":
-            now = self._log_time(time.perf_counter())
-            self._mcap.add_message(self._ch_cycle, log_time=now, publish_time=now, sequence=int(item[1]["index"]),
-                                   data=_json({k: float(v) for k, v in item[1].items()}))
-            self.messages += 1
-        else:
-            t, kind, detail = item[1]
-            now = self._log_time(time.perf_counter())
-            self._mcap.add_message(self._ch_event, log_time=now, publish_time=now, sequence=0,
-                                   data=_json({"time_s": t, "kind": kind, "detail": detail}))
-            self.messages += 1
+                ch = self._extra[item.topic] = self._channel(item.topic, item.schema, list(item.body))
+            self._add(ch, self._log_time(time.perf_counter()), 0, item.body)
+        elif t is CycleRecord:
+            self._add(self._ch_cycle, self._log_time(time.perf_counter()), int(item.metrics["index"]),
+                      {k: float(v) for k, v in item.metrics.items()})
+        elif t is EventRecord:
+            self._add(self._ch_event, self._log_time(time.perf_counter()), 0,
+                      {"time_s": item.time_s, "kind": item.kind, "detail": item.detail})
 
-    def _write_record(self, item: Record) -> None:
-        lt = self._log_time(item.host_time_s)
-        if item.sample is None:  # a command the loop sent
-            self._write_command(item, lt)
-            return
+    def _add(self, channel: int, log_time: int, sequence: int, body: dict[str, Any]) -> None:
+        self._mcap.add_message(channel, log_time=log_time, publish_time=log_time, sequence=sequence, data=_json(body))
+        self.messages += 1
+
+    def _write_sample(self, item: SampleRecord) -> None:
         if item.state is None or item.time_s <= self._last_time_s:
             return
         self._last_time_s = item.time_s
         row = self._row(item)
-        self._mcap.add_message(self._ch_sample, log_time=lt, publish_time=lt,
-                               sequence=item.sample.sample_index & 0xFFFFFFFF,
-                               data=_json({**row, **generic_fields(item)}))
-        self.messages += 1
+        self._add(self._ch_sample, self._log_time(item.host_time_s), item.sample.sample_index & 0xFFFFFFFF,
+                  {**row, **generic_fields(item)})
         self._pending.append(self._csv_line % self._csv_values(row))
         self.rows += 1
 
-    def _write_command(self, item: Record, lt: int) -> None:
+    def _write_command(self, item: CommandRecord) -> None:
         c = item.command
         cmd = {"host_time_s": item.host_time_s, "duty0_ratio": c.duty[0], "duty1_ratio": c.duty[1],
                "direction_bits": c.direction, "enable_bool": int(c.enable), "seq": item.command_seq,
                "reference_deg": c.reference_deg}
-        self._mcap.add_message(self._ch_cmd, log_time=lt, publish_time=lt, sequence=item.command_seq, data=_json(cmd))
-        self.messages += 1
+        self._add(self._ch_cmd, self._log_time(item.host_time_s), item.command_seq, cmd)
 
-    def _row(self, r: Record) -> dict[str, float]:
+    def _row(self, r: SampleRecord) -> dict[str, float]:
         s, st, c, b = r.sample, r.state, r.command, self.binding
-        assert s is not None and st is not None
+        assert st is not None
         row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad, b.angle_output: st.angle_deg,
                                  b.reference_column: c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
         row.update(st.analog)
