@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.hardware import open_rig
+from rehab_hil.hardware import Arrival, open_rig
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Fault, Sample
@@ -55,19 +55,19 @@ def link_config(tmp: Path, bridge: bool, jitter_ms: float) -> Path:
 
 
 class Tap:
-    """Wraps the hardware's read_sample to keep every sample and its arrival (the runner's view)."""
+    """Wraps the hardware's ``read`` (the loop's) to keep every sample and its arrival (the runner's view)."""
 
     def __init__(self, hw: Any) -> None:
         self.hw, self.samples, self.arrivals, self.burst = hw, [], [], []
-        self._read = hw.read_sample
-        hw.read_sample = self.read_sample
+        self._read = hw.read
+        hw.read = self.read
 
-    def read_sample(self, timeout: float | None = None) -> Sample | None:
-        s = self._read(timeout)
-        if s is not None:
-            self.samples.append(s)
-            self.arrivals.append(self.hw.last_sample_time)
-        return s
+    def read(self, timeout: float | None = None) -> Arrival | None:
+        a = self._read(timeout)
+        if a is not None:
+            self.samples.append(a.sample)
+            self.arrivals.append(a.host_time_s)
+        return a
 
 
 def applied_command_gaps_ms(samples: list[Sample]) -> float:
@@ -198,6 +198,7 @@ def link_loss(kind: str, config: Path) -> dict[str, Any]:
     hw = SerialHardware(dev.port, write_timeout_s=2.0)
     try:
         hw.connect(timeout=15.0)
+        tap = Tap(hw)
         sup = assembly.build_supervisor(cfg, binding)
         clock = TripClock()
         with open_session(config, hw=hw, supervisor=sup, sinks=(clock,), realtime=True) as rig:  # [rig.session]
@@ -207,7 +208,7 @@ def link_loss(kind: str, config: Path) -> dict[str, Any]:
         ev = res.events[0] if res.events else None
         detection = float("nan")
         if ev is not None and ev.reason == "link_loss" and tripped:
-            detection = 1e3 * (tripped[0] - hw.last_sample_time)
+            detection = 1e3 * (tripped[0] - tap.arrivals[-1])
     finally:
         hw.close()
         dev.close()
