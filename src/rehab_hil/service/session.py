@@ -222,9 +222,18 @@ class RigSession:
         if self.recorder is not None and self.run_dir is not None:
             self.recorder.drain()  # rows still queued when the loop stopped (Ctrl-C on a busy machine) are counted
             end = {**result_metadata(result, self.recorder.rows), **twin_meta}
-            self.recorder.close(summary=end)
-            write_metadata(self.run_dir, {**self.metadata, **end})
-            result.files.append(str(self.run_dir / METADATA_FILE))
+            try:  # a full disk: what was written stays readable (read_mcap reads a file without its footer)
+                self.recorder.close(summary=end)
+                write_metadata(self.run_dir, {**self.metadata, **end})
+                result.files.append(str(self.run_dir / METADATA_FILE))
+            except OSError as e:
+                _recorder_error(result, f"the recording's end not written: {type(e).__name__}: {e}")
+
+
+def _recorder_error(result: RunResult, text: str) -> None:
+    """Add ``text`` to the recorder's line in ``result.sinks`` (the summary shows it)."""
+    report = result.sinks.setdefault("recorder", {"dropped": 0, "error": None})
+    report["error"] = f"{report['error']}; {text}" if report.get("error") else text
 
 
 def open_session(config: str | Path, device: str | None = None, **options: Any) -> RigSession:
