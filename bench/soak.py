@@ -46,7 +46,7 @@ from rehab_hil.plants import get_plant  # noqa: E402
 from rehab_hil.service import assembly  # noqa: E402
 from rehab_hil.service.controllers import Command  # noqa: E402
 from rehab_hil.service.estimation import State  # noqa: E402
-from rehab_hil.service.runner import LoopService  # noqa: E402
+from rehab_hil.service.session import open_session  # noqa: E402
 from rehab_hil.testing import pid_runtime  # noqa: E402
 
 # kind -> expected outcome: "continue" (the session must run on) or the host's trip reason
@@ -82,6 +82,7 @@ class Hooked:
 
     def __init__(self, inner: Any, at_s: float, action: Callable[[], None]) -> None:
         self.inner, self.at_s, self.action, self.fired = inner, at_s, action, False
+        self.claims = inner.claims
 
     def reset(self) -> None:
         self.inner.reset()
@@ -207,7 +208,6 @@ def main(argv: list[str] | None = None) -> int:
     rng = random.Random(args.seed)
     cfg = load_config(args.config)
     binding = get_plant(cfg.plant).device(cfg)
-    period = assembly.period_s(cfg)
     conf = dataclasses.replace(assembly.firmware_configure(cfg, binding), watchdog_ms=args.watchdog_ms)
     host_stall_s = args.watchdog_ms / 1000.0 + 0.3
     fault_p = min(1.0, args.faults_per_minute * args.session_s / 60.0)  # chance a session gets a fault
@@ -249,15 +249,15 @@ def main(argv: list[str] | None = None) -> int:
             controller = Hooked(pid, at_s if kind else math.inf,
                                 (lambda k=kind: inject(k, rig, host_stall_s)) if kind else (lambda: None))
             assert rig.hw is not None
-            svc = LoopService(rig.hw, conf, controller, assembly.build_estimator(cfg, binding),
-                              assembly.build_supervisor(cfg, binding), period)
-            bad0, dev0 = link_counters(rig.hw)
-            try:
-                res = svc.run(args.session_s, pacing="device", realtime=False, sample_timeout_s=0.025)
-            except Exception as e:  # a crash of the host: the soak's first figure
-                crashes.append(f"session {sessions} ({kind}): {e!r}\n{traceback.format_exc(limit=5)}")
-                rig.relink()
-                continue
+            with open_session(args.config, hw=rig.hw, controller=controller, configure=conf, realtime=False,
+                              sample_timeout_s=0.025) as session:
+                bad0, dev0 = link_counters(rig.hw)
+                try:
+                    res = session.run(args.session_s)
+                except Exception as e:  # a crash of the host: the soak's first figure
+                    crashes.append(f"session {sessions} ({kind}): {e!r}\n{traceback.format_exc(limit=5)}")
+                    rig.relink()
+                    continue
             totals["samples"] += res.samples
             totals["gaps"] += res.sample_gaps
             totals["cycles"] += res.cycles
