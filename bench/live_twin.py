@@ -2,10 +2,10 @@
 
 Every session is 60 s of the plant's own rehabilitation session (``[rig.session]`` controller and
 open-close cycles, built from the HOST config exactly as ``rehab-hil run`` builds them) through
-``LoopService`` on the in-process rig (the firmware's logic and the SIM plant config's plant in this
-process, lockstep and deterministic) with ADC noise (``ADC_NOISE_COUNTS``) and the Uno USB bridge's
-bursts of 3-5 samples per command (``BURSTS``), the twin from ``twin.session.start_twin`` beside it
-as ``rehab-hil run --twin`` has it. A change starts at ``CHANGE_S`` on the simulated rig
+a session (``open_session(..., twin=True)``) on the in-process rig (the firmware's logic and the SIM
+plant config's plant in this process, lockstep and deterministic) with ADC noise (``ADC_NOISE_COUNTS``)
+and the Uno USB bridge's bursts of 3-5 samples per command (``BURSTS``), the live twin beside it as
+``rehab-hil run --twin`` has it. A change starts at ``CHANGE_S`` on the simulated rig
 (``testing.config_with_changes``: ``[[effects]]`` with ``start_s``, ``[[changes]]``); the host's
 model never changes. How big a change is, is measured, not assumed: the RMS difference of the
 measured angle (encoder counts) from the clean session with the same seed over the rest of the
@@ -52,11 +52,9 @@ import numpy as np
 from rehab_hil.hardware.open import inprocess_hardware
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.service import assembly
-from rehab_hil.service.runner import LoopService
+from rehab_hil.service.session import open_session
 from rehab_hil.testing import config_with_changes
 from rehab_hil.twin.monitor import ResidualMonitor
-from rehab_hil.twin.session import start_twin
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
@@ -163,21 +161,17 @@ def run_session(host_path: Path, sim_path: Path, seed: int, case: str, duration_
     hw.connect()
     t0 = time.perf_counter()
     try:
-        controller = assembly.build_controller(host, None, "session", source=str(host_path))
-        ref = controller.reference
-        period = assembly.period_s(host)
-        twin = start_twin(host, binding, period, run_dir=None, cycle_s=ref.period_s if ref.kind == "session" else None)
-        # a lockstep session runs several times faster than real time: the twin's queue holds the whole
-        # session so it never drops what it would keep up with at 1 kHz (drops are counted and printed)
-        twin.live._cap = max(twin.live._cap, round(2 * duration_s / period))
-        tap = _AngleTap(binding.angle_output)
-        twin.twin.listeners.append(tap)
-        alt = _tee_alternative(twin.twin)
-        svc = LoopService(hw, assembly.firmware_configure(host, binding), controller,
-                          assembly.build_estimator(host, binding), assembly.build_supervisor(host, binding), period,
-                          sinks=[twin.live], meter=assembly.build_meter(host, controller, duration_s))
-        res = svc.run(duration_s, pacing="device", realtime=False, lockstep=True, sample_timeout_s=5.0)
-        meta = twin.close()
+        with open_session(host_path, hw=hw, twin=True, lockstep=True, realtime=False,
+                          sample_timeout_s=5.0) as session:
+            twin = session.twin
+            # a lockstep session runs several times faster than real time: the twin's queue holds the whole
+            # session so it never drops what it would keep up with at 1 kHz (drops are counted and printed)
+            twin.live._cap = max(twin.live._cap, round(2 * duration_s / session.period_s))
+            tap = _AngleTap(binding.angle_output)
+            twin.twin.listeners.append(tap)
+            alt = _tee_alternative(twin.twin)
+            res = session.run(duration_s)
+        meta = res.twin  # the twin's close(): its summary, model events and estimates
     finally:
         hw.close()
     ch = twin.twin.channels.index(binding.angle_output)
