@@ -12,8 +12,7 @@ import pytest
 from rehab_hil.loading import load_config
 from rehab_hil.models.system import Diagram
 from rehab_hil.plants import finger_extensor as fe
-from rehab_hil.plants import get_plant
-from rehab_hil.plants.registry import run_scenario
+from rehab_hil.plants import get_plant, run_scenario
 
 CFG_PATH = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"
 

@@ -12,8 +12,7 @@ import pytest
 from rehab_hil.config import ConfigError
 from rehab_hil.loading import load_config
 from rehab_hil.models.system import Diagram
-from rehab_hil.plants import get_plant
-from rehab_hil.plants.registry import run_scenario
+from rehab_hil.plants import get_plant, run_scenario
 from rehab_hil.plants.tcp_finger import (
     JOINTS,
     TcpFinger,

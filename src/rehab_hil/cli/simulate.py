@@ -6,14 +6,13 @@ import argparse
 import inspect
 import time
 from pathlib import Path
-from typing import Any
 
 from rehab_hil.cli import UserError
 from rehab_hil.interchange import write_csv
 from rehab_hil.loading import load_config
-from rehab_hil.plants import get_plant
+from rehab_hil.plants import get_plant, run_scenario
 from rehab_hil.plants.changes import scheduled
-from rehab_hil.plants.registry import run_scenario
+from rehab_hil.plants.sections import EffectSpec, PlantConfig
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -77,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _controlled(args: argparse.Namespace, cfg: Any) -> int:
+def _controlled(args: argparse.Namespace, cfg: PlantConfig) -> int:
     """A session on the model: the controller built from the config, the plant with ``--effect``."""
     from rehab_hil.controllers import Reference, build_controller, closed_loop, offline_session
 
@@ -107,11 +106,9 @@ def _controlled(args: argparse.Namespace, cfg: Any) -> int:
     return 0
 
 
-def _with_effects(cfg: Any, options: list[str]) -> Any:
+def _with_effects(cfg: PlantConfig, options: list[str]) -> PlantConfig:
     """The config with the ``--effect`` options appended to its ``effects`` list."""
     from rehab_hil.effects import applicable, not_applicable_message, parse_effect_option
-    from rehab_hil.plants import get_plant
-    from rehab_hil.plants.sections import EffectSpec
 
     added = []
     ports = get_plant(cfg.plant).ports(cfg)
