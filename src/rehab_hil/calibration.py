@@ -29,7 +29,6 @@ from pydantic import Field, model_validator
 
 from rehab_hil.config import ConfigError, Section, load_toml, validate
 from rehab_hil.interfaces import AdcChannel, DeviceBinding
-from rehab_hil.plants.registry import get_plant
 from rehab_hil.plants.sections import PlantConfig
 
 __all__ = ["ADC_MAX", "CIRCUITS", "G0", "REFERENCE_KEY", "Calibration", "CalibrationFile", "CalibrationPoint",
@@ -260,13 +259,11 @@ def force_limit_counts(cfg: PlantConfig, binding: DeviceBinding, calibration: Ca
     return math.floor(counts)
 
 
-def calibration_summary(cfg: PlantConfig, binding: DeviceBinding | None = None,
-                        base_dir: str | Path | None = None) -> dict[str, Any]:
+def calibration_summary(cfg: PlantConfig, binding: DeviceBinding, base_dir: str | Path | None = None) -> dict[str, Any]:
     """What a session's metadata records about its force sensor: the calibration in use (file,
     sensor, model, coefficients, fit, hysteresis, date) or the plant's linear map, and the
-    firmware force limit in counts (or why it cannot be set). ``binding``: the rig binding the
-    caller holds (default: the config's plant binds it again)."""
-    binding = binding if binding is not None else get_plant(cfg.plant).device(cfg)
+    firmware force limit in counts (or why it cannot be set). ``binding``: the config's rig binding,
+    which the caller holds."""
     ch = _force_channel(binding)
     out: dict[str, Any] = {"max_force_n": cfg.rig.limits.max_force_n}
     if ch is None:

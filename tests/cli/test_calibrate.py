@@ -128,10 +128,12 @@ def test_bad_calibration_files_name_the_file_and_key(tmp_path: Path) -> None:
 def test_calibration_summary_records_the_linear_map_and_the_firmware_limit() -> None:
     from rehab_hil.calibration import calibration_summary
 
-    sma = calibration_summary(load_config(ROOT / "configs" / "sma_exoskeleton.toml"))
+    sma_cfg = load_config(ROOT / "configs" / "sma_exoskeleton.toml")
+    sma = calibration_summary(sma_cfg, get_plant(sma_cfg.plant).device(sma_cfg))
     assert sma["calibration"] is None and sma["linear_map"] == {"counts_per_n": 9.3, "offset_counts": 0.0}
     assert sma["firmware_force_limit_counts"] == 186  # floor(9.3 counts/N x 20 N)
-    fe = calibration_summary(load_config(FE))
+    fe_cfg = load_config(FE)
+    fe = calibration_summary(fe_cfg, get_plant(fe_cfg.plant).device(fe_cfg))
     assert fe["force_sensor"] is None and fe["firmware_force_limit_counts"] == 1023
 
 
@@ -152,7 +154,7 @@ def test_a_config_references_its_calibration_relative_to_itself_and_the_firmware
     binding = get_plant(cfg.plant).device(cfg)
     linear = force_limit_counts(load_config(sma), binding)
     assert force_limit_counts(cfg, binding) == cal.limit_counts(cfg.rig.limits.max_force_n) != linear
-    assert calibration_summary(cfg)["calibration"]["sensor_id"] == "fs-07"
+    assert calibration_summary(cfg, get_plant(cfg.plant).device(cfg))["calibration"]["sensor_id"] == "fs-07"
     path.write_text(text.replace("fs-07.toml", "fs-99.toml"))
     with pytest.raises(ConfigError, match=r"rig\.toml: rig\.force_calibration: .*/calibrations/fs-99\.toml: no such"):
         load_config(path)

@@ -194,7 +194,7 @@ class RigSession:
         self.metadata = session_metadata(
             plant=self.cfg.plant, config_path=self.config_path, device=self.device, rig_id=self.rig_id,
             binding=self.binding, hello=self.hw.info, controller=self.controller_name, pacing=opts.pacing,
-            sim_plant=opts.sim_plant, calibration={"force": calibration_summary(self.cfg)})
+            sim_plant=opts.sim_plant, calibration={"force": calibration_summary(self.cfg, self.binding)})
         write_metadata(self.run_dir, self.metadata)
         self.recorder = Recorder(self.run_dir, self.binding, metadata=self.metadata)
         self.stack.callback(self.recorder.close)
