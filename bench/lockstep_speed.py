@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from loop_reaction import base_tree  # src/ of a commit, unpacked: the "before" of --base
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "lockstep_speed.json"
 CLI = [sys.executable, "-m", "rehab_hil.cli"]
@@ -35,15 +37,6 @@ WAYS = {  # name: extra arguments of rehab-hil run
     "inprocess (no pty)": ["--device", "inprocess"],
     "sim, real time": ["--device", "sim"],
 }
-
-
-def base_tree(tmp: Path, base: str) -> Path:
-    """``src/`` of commit ``base`` unpacked under ``tmp`` (the "before" of ``--base``)."""
-    dest = tmp / f"base-{base}"
-    dest.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", base, "src"], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
-    return dest / "src"
 
 
 def one(plant: str, way: str, duration_s: float, folder: Path, twin: bool, src: Path | None = None) -> dict:
