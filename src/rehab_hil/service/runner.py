@@ -1,7 +1,8 @@
 """The real-time loop service: read a sample, estimate, supervise, control, write the command; then,
-with the command out, hand the cycle's records to the recorder and telemetry and update the
-figures. One run = configure the device, loop for a duration (or until a trip or a stop request),
-then leave the device in the safe state (PWM 0) and report.
+with the command out, hand the cycle's records to the sinks (recording, telemetry, Foxglove, the
+twin) and update the figures. Sessions are built around it by ``service.session.open_session``.
+One run = configure the device, loop for a duration (or until a trip or a stop request), then
+leave the device in the safe state (PWM 0) and report.
 
 Pacing (docs/loop.md): ``device`` reacts to the device's sample stream (each SAMPLE starts a cycle;
 in lockstep mode each COMMAND produces the next SAMPLE); ``host`` wakes on absolute deadlines of a
@@ -9,8 +10,8 @@ monotonic clock and consumes what arrived. Samples that arrive while a cycle is 
 estimated, supervised and recorded, but only the newest is controlled: the older ones are
 coalesced (never caught up) and count as missed cycles.
 
-Nothing but the loop's own work happens before the write: the recorder's and the publisher's
-threads are woken after it and do their work while the loop waits for the next sample.
+Nothing but the loop's own work happens before the write: the sinks' threads are woken after it
+and do their work while the loop waits for the next sample.
 """
 
 from __future__ import annotations
