@@ -23,19 +23,17 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.config import Field, Section
-from rehab_hil.control.limits import TemperatureCeiling
 from rehab_hil.controllers.base import ControlContext, Controller, ControllerSpec, Plan, Reference, closed_loop_system
 from rehab_hil.controllers.feedforward import LearningSettings, cached, fingerprint, learn
-from rehab_hil.controllers.observer import OBSERVER, temperature_signal, thermal_slice
-from rehab_hil.controllers.pid import PID, feedback_parts, limit_part
+from rehab_hil.controllers.limits import observer_constants, safety_parts, temperature_budget_c, thermal_guard
+from rehab_hil.controllers.pid import PID, feedback_parts
 from rehab_hil.controllers.reachable import reachable_range
 from rehab_hil.models.sensors import Gain
-from rehab_hil.plants.registry import compose
 
 __all__ = ["ModelBased", "ModelBasedSettings"]
 
 _PERIODS = 2  # a periodic table learns on two cycles from rest: the second is the steady state
-PLAN_VERSION = 2  # part of the cache key: bump when the learning or the chain changes what a plan is
+PLAN_VERSION = 3  # part of the cache key: bump when the learning or the chain changes what a plan is
 # config tables a plan does not depend on, left out of its cache key (editing the twin's settings or an
 # import mapping relearned every plan; a host model never applies [[changes]], the simulated rig's schedule)
 NOT_IN_PLAN = ("twin", "import_", "recorded_controller", "changes")
@@ -81,9 +79,7 @@ class ModelBased(ControllerSpec):
     @classmethod
     def build(cls, ctx: ControlContext, settings: ModelBasedSettings, reference: Reference) -> Controller:
         notes: list[str] = []
-        limit_c = ctx.cfg.rig.limits.max_temperature_c
-        if settings.temperature_budget_c is not None:
-            limit_c = min(limit_c, settings.temperature_budget_c)
+        limit_c = temperature_budget_c(ctx, settings.temperature_budget_c)
         lo, hi = reachable_range(ctx, limit_c)
         reference, warning = reference.clipped(lo, hi)
         if warning:
@@ -92,41 +88,33 @@ class ModelBased(ControllerSpec):
         periods = _PERIODS if periodic else 1
         n = ctx.plant.n_steps(ctx.cfg, reference.period_s)  # the table: one period (a step: one horizon)
         ff = f"{ctx.effort}_feedforward"
-        temp = temperature_signal(ctx.ports)
-        observer = (thermal_slice(compose(ctx.plant, ctx.cfg), ctx.effort, temp, ctx.ports.constants,
-                                  _mechanical(ctx)) if temp else None)
 
         def make(table: np.ndarray, ceiling_c: float, plan_extra: dict[str, Any] | None = None) -> Controller:
             demand = f"{ctx.effort}_demand"
             span = ctx.effort_bounds[1] - ctx.effort_bounds[0]
+            thermal, cut, _ = thermal_guard(ctx, ceiling_c, settings.ceiling_band_c)
             parts = [reference.part(ctx.reference),
                      Gain("feedforward", connect={"u": ff}, rename={"y": demand}, gain=1.0),
-                     *feedback_parts(ctx, settings, demand, (-span, span))]
-            cut = None
-            if observer is not None:
-                cut = "temperature_cut"
-                parts += [*observer, TemperatureCeiling("ceiling", connect={"temperature_c": OBSERVER + temp},
-                                                        rename={"cut": cut}, ceiling_c=ceiling_c,
-                                                        band_c=settings.ceiling_band_c)]
-            parts.append(limit_part(ctx, demand, cut))
+                     *feedback_parts(ctx, settings, demand, (-span, span)), *thermal,
+                     *safety_parts(ctx, demand, [cut] if cut else [])]
             extra = plan_extra or {}
             plan = Plan(ctx.step_s, reference.period_s if periodic else ctx.step_s, {ff: table},
                         extra.get("predicted", {}),
                         extra.get("figures", {}))
-            return Controller(cls.name, ctx, reference, parts, plan=plan, constants=_read_constants(ctx, observer),
+            return Controller(cls.name, ctx, reference, parts, plan=plan, constants=observer_constants(ctx, thermal),
                               sums=(demand,), notes=notes)
 
+        _, _, t_obs = thermal_guard(ctx, limit_c, settings.ceiling_band_c)
         key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=set(NOT_IN_PLAN)),
                           settings.model_dump(), reference, reference.first_open_s, periods)
-        learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, temp,
-                                                      observer))
+        learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, t_obs))
         ceiling_c = limit_c
-        if observer is not None:
+        if t_obs is not None:
             ceiling_c = min(float(learned["peak_observed_c"][0]) + settings.temperature_margin_c, limit_c)
         figures = {k: float(learned[k][0]) for k in ("model_rmse_deg", "model_max_error_deg", "model_first_rmse_deg",
                                                      "model_first_max_error_deg", "trials", "peak_observed_c")}
         predicted = {"angle_deg": learned["angle_deg"], "effort": learned["effort"]}
-        if observer is not None:
+        if t_obs is not None:
             predicted["temperature_c"] = learned["temperature_c"]
         return make(learned["feedforward"], ceiling_c, {"predicted": predicted,
                                                         "figures": {**figures, "ceiling_c": ceiling_c,
@@ -134,25 +122,14 @@ class ModelBased(ControllerSpec):
                                                                     "reachable_hi_deg": hi}})
 
 
-def _read_constants(ctx: ControlContext, observer: list | None) -> dict[str, float]:
-    """The plant constants the observer reads (the SMA's supply voltage)."""
-    read = {s for p in observer or () for terms in p.connections.values() for s, _ in terms}
-    return {k: v for k, v in ctx.ports.constants.items() if k in read}
-
-
-def _mechanical(ctx: ControlContext) -> tuple[str, ...]:
-    return tuple(s for ax in ctx.ports.axes for s in (ax.angle, ax.velocity, ax.torque))
-
-
-def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings, temp: str | None,
-           observer: list | None) -> dict[str, np.ndarray]:
+def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings,
+           t_obs: str | None) -> dict[str, np.ndarray]:
     """Learn the feedforward on the closed loop of the provisional controller (ceiling at the rig's
     limit), then run the best table once more for the model's predictions (its last period)."""
     ctx = provisional.ctx
     system, feed = closed_loop_system(provisional)
     given = {k: v for k, v in feed(n * periods).items() if k in system.input_names}
     ff = next(iter(provisional.plan.signals)) if provisional.plan else ""
-    t_obs = OBSERVER + temp if observer is not None and temp else None
     outs = [ctx.reference, ctx.angle, ctx.effort, *([t_obs] if t_obs else [])]
 
     def run(u: np.ndarray) -> Any:
