@@ -77,7 +77,7 @@ class ModelBasedSettings(Section):
                                         "peak observed temperature (heated actuators) [C]")
     ceiling_band_c: float = Field(default=5.0, gt=0.0, le=50.0, description="the ceiling cuts the authority "
                                   "linearly over this band below it [C]")
-    rig_learning: bool = Field(default=True, description="keep learning the feedforward on the rig, cycle after "
+    rig_learning: bool = Field(default=False, description="keep learning the feedforward on the rig, cycle after "
                                "cycle, from the measured tracking error (controllers/rig_learning.py)")
     rig_learning_gain_per_deg: float | None = Field(default=None, gt=0.0, le=1000.0, description="the rig's ILC "
                                                     "gain [actuator unit / deg]; unset: learning_gain_per_deg")
@@ -121,7 +121,9 @@ class ModelBased(ControllerSpec):
                               sums=(demand,), notes=notes, rig_learning=extra.get("rig_learning"))
 
         _, _, t_obs = thermal_guard(ctx, limit_c, settings.ceiling_band_c)
-        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=set(NOT_IN_PLAN)),
+        not_in_plan: dict[str, Any] = {**dict.fromkeys(NOT_IN_PLAN, True),
+                                       "controllers": {cls.name: set(RIG_ONLY)}}
+        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=not_in_plan),
                           settings.model_dump(exclude=set(RIG_ONLY)), reference, reference.first_open_s, periods)
         learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, t_obs))
         ceiling_c = limit_c

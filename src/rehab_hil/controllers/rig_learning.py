@@ -66,13 +66,15 @@ def fit_heating_runs(table: np.ndarray, limit_steps: int, rest_steps: int) -> np
     (wrapped around the period) longer than ``limit_steps``, where the heating guard would rest."""
     on = table != 0.0
     n = len(table)
-    if on.all():
-        start = 0
-    elif on.any():
-        start = int(np.flatnonzero(~on)[0])  # begin at a rest so no run is split by the wrap
-    else:
+    if not on.any():
         return table
-    out = np.roll(table, -start)
+    out = np.array(table, float)
+    if on.all():  # a run around the whole period: its rest at the start, so the wrap joins no runs
+        out[:rest_steps] = 0.0
+        start = 0
+    else:
+        start = int(np.flatnonzero(~on)[0])  # begin at a rest so no run is split by the wrap
+    out = np.roll(out, -start)
     run = 0
     k = 0
     while k < n:
