@@ -260,6 +260,8 @@ class Controller:
     rig_learning: Any = None  # how the plan keeps learning on the rig (controllers.rig_learning.RigLearningSpec)
 
     def __post_init__(self) -> None:
+        # an entry may be a list of parts (``limit_part``: the heating guard and the effort limit)
+        self.parts = [q for p in self.parts for q in (p if isinstance(p, list | tuple) else [p])]
         self._diagram = self._build_diagram()
 
     @property
