@@ -99,15 +99,21 @@ class RigLearner:
         self.base = np.asarray(base, float).copy()  # trial 0: the model's table
         self._observer: Any = None
 
-    def update(self, table: np.ndarray, error: np.ndarray, effort: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
-        """The next table from the current ``table``, the measured ``error`` (reference - angle)
-        and the applied ``effort`` per row over one cycle, and what the update did: the cycle's
-        RMSE, the change, the share of it kept (1: all; less: scaled back for the temperature
-        budget) and the peak temperature the observer predicts."""
+    def update(self, table: np.ndarray, error: np.ndarray, effort: np.ndarray, cut: np.ndarray | None = None
+               ) -> tuple[np.ndarray, dict[str, float]]:
+        """The next table from the current ``table``, the measured ``error`` (reference - angle),
+        the applied ``effort`` and where the limit ``cut`` the demand, per row over one cycle, and
+        what the update did: the cycle's RMSE, the change, the share of it kept (1: all; less:
+        scaled back for the temperature budget) and the peak temperature the observer predicts.
+        Where the limit cut the demand (the ceiling, the guard) the table does not rise: the
+        effort there is the envelope's, and a table above it would only wind up (anti-windup)."""
         s = self.spec
         error = np.nan_to_num(np.asarray(error, float))
         kept = self.base + (1.0 - s.forgetting) * (table - self.base)
-        proposed = self._fit(ilc_step(kept, error, s.step_s, s.bounds, s.learning, True, s.gain_per_deg))
+        proposed = ilc_step(kept, error, s.step_s, s.bounds, s.learning, True, s.gain_per_deg)
+        if cut is not None:
+            proposed = np.where(cut, np.minimum(proposed, np.maximum(table, effort)), proposed)
+        proposed = self._fit(proposed)
         share, peak = self._within_budget(table, proposed, np.asarray(effort, float))
         new = self._fit(table + share * (proposed - table)) if share < 1.0 else proposed
         info = {"learn_error_rmse_deg": float(np.sqrt(np.mean(error**2))),

@@ -104,8 +104,10 @@ class ControllerRuntime:
         self._params = system.params.copy()
         self._x0, self._xd0 = system.x0, system.xd0
         self._ws = system.workspace()
-        self._slots = system.out_slots([ctx.effort, ctx.reference])
-        self._y = np.zeros(2)
+        saturation = f"{ctx.effort}_saturation"  # the effort limit's: demand the limit or a cut did not apply
+        outs = [ctx.effort, ctx.reference, *([saturation] if saturation in controller.diagram.signal_names else [])]
+        self._slots = system.out_slots(outs)
+        self._y = np.zeros(3)
         names = system.input_names
         self._period = ctx.period_s
         self._i_angle = names.index(ctx.angle) if ctx.angle in names else -1
@@ -169,7 +171,7 @@ class ControllerRuntime:
         if self.learning is not None and self._t_last is not None and self._i_angle >= 0:
             y = self._y
             new = self.learning.record(self._t_last, self._row, float(y[1]) - float(self._u_prev[self._i_angle]),
-                                       float(y[0]))
+                                       float(y[0]), float(y[2]))
             if new is not None:
                 self._set_table(new)
         if self._t_last is None or self._ahead_s:

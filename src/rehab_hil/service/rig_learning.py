@@ -97,6 +97,7 @@ class RigLearning:
             self.resumed = True
         self._error = np.zeros(n)
         self._effort = np.zeros(n)
+        self._cut = np.zeros(n, bool)
         self._next_submit = spec.swap_s - LEAD_S
         self._next_swap = spec.swap_s
         self._last_swap_t = 0.0
@@ -108,12 +109,15 @@ class RigLearning:
         self.log: list[dict[str, float]] = []  # one entry per swap: when, trial, what the update did
         self.late = 0  # updates not ready at their swap point (real time only)
 
-    def record(self, t_s: float, row: int, error_deg: float, effort: float) -> np.ndarray | None:
-        """One controlled sample (after its command is out); returns a new table to read from now
-        on at a swap point, else None."""
+    def record(self, t_s: float, row: int, error_deg: float, effort: float, saturation: float = 0.0
+               ) -> np.ndarray | None:
+        """One controlled sample (after its command is out): the error, the applied effort and the
+        demand the limit did not apply (a ceiling's or the guard's cut, the clamp); returns a new
+        table to read from now on at a swap point, else None."""
         if 0 <= row < len(self._error):
             self._error[row] = error_deg
             self._effort[row] = effort
+            self._cut[row] = saturation > 1e-9
         if t_s >= self._next_submit:
             self._next_submit += self.spec.period_s
             if t_s - self._last_swap_t >= self.spec.period_s - LEAD_S - 1e-9 and not self._pending:
@@ -129,14 +133,14 @@ class RigLearning:
             self._worker.start()
         self._pending = True
         self._done.clear()
-        self._jobs.put((self.table, self._error.copy(), self._effort.copy(), self.trials + 1))
+        self._jobs.put((self.table, self._error.copy(), self._effort.copy(), self._cut.copy(), self.trials + 1))
 
     def _work(self) -> None:
         """The worker thread: one update per job; the accepted table stored as it is made."""
         while (job := self._jobs.get()) is not None:
-            table, error, effort, trial = job
+            table, error, effort, cut, trial = job
             try:
-                new, info = self.learner.update(table, error, effort)
+                new, info = self.learner.update(table, error, effort, cut)
                 if self.store is not None:
                     self.store.save(new, trial)
                 self._result = (new, info)
