@@ -99,6 +99,16 @@ class RigLearner:
         self.base = np.asarray(base, float).copy()  # trial 0: the model's table
         self._observer: Any = None
 
+    def prepare(self) -> None:
+        """Everything slow done once, before the session's loop starts: scipy's filter import
+        (~1 s), the observer's engine (generated and compiled or loaded by numba) and one update.
+        Done later, on the worker, it would hold the GIL for a second and stall the loop (a
+        watchdog trip 0.2 s after the first update on a loaded machine, measured)."""
+        base = self.base
+        self.update(base, np.zeros_like(base), np.clip(base, *self.spec.bounds))
+        if self.spec.observer and self.spec.budget_c is not None:
+            self.predicted_peak_c(np.clip(base, *self.spec.bounds))
+
     def update(self, table: np.ndarray, error: np.ndarray, effort: np.ndarray, cut: np.ndarray | None = None
                ) -> tuple[np.ndarray, dict[str, float]]:
         """The next table from the current ``table``, the measured ``error`` (reference - angle),

@@ -87,6 +87,7 @@ class RigLearning:
                  lockstep: bool = False) -> None:
         self.spec, self.store, self.lockstep = spec, store, lockstep
         self.learner = RigLearner(spec, base)
+        self.learner.prepare()  # before the loop: nothing slow is left for the worker's first update
         n = spec.n
         self.table = np.asarray(base, float).copy()
         self.trials = 0  # updates this table has taken on the rig (across sessions, when stored)
@@ -105,9 +106,10 @@ class RigLearning:
         self._result: tuple[np.ndarray, dict[str, float]] | None = None
         self._done = threading.Event()
         self._jobs: queue.Queue[Any] = queue.Queue(maxsize=1)
-        self._worker: threading.Thread | None = None
         self.log: list[dict[str, float]] = []  # one entry per swap: when, trial, what the update did
         self.late = 0  # updates not ready at their swap point (real time only)
+        self._worker: threading.Thread | None = threading.Thread(target=self._work, name="rig-learning", daemon=True)
+        self._worker.start()
 
     def record(self, t_s: float, row: int, error_deg: float, effort: float, saturation: float = 0.0
                ) -> np.ndarray | None:
@@ -128,9 +130,6 @@ class RigLearning:
         return None
 
     def _submit(self) -> None:
-        if self._worker is None:
-            self._worker = threading.Thread(target=self._work, name="rig-learning", daemon=True)
-            self._worker.start()
         self._pending = True
         self._done.clear()
         self._jobs.put((self.table, self._error.copy(), self._effort.copy(), self._cut.copy(), self.trials + 1))
