@@ -102,6 +102,11 @@ def summary_table(r: RunResult) -> Table:
         t.add_row("per cycle: time to open / closed", f"{s['time_to_open_s']:.3g} / {s['time_to_closed_s']:.3g} s")
         t.add_row("peak est. temperature / energy per cycle",
                   f"{s['peak_temperature_c']:.4g} C / {s['energy_per_cycle_j']:.4g} J")
+        if r.learning:
+            rl, cyc = r.learning, r.session_cycles
+            t.add_row("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "
+                      f"deg; {rl['updates']} updates ({rl['trials']} in all, "
+                      f"{'resumed' if rl['resumed'] else 'from the model'}); {rl['store']}")
     tm = r.timing
     label = "lateness" if r.pacing == "host" else "reaction (sample in -> command out)"
     t.add_row(f"{label} p50/p99/p99.9/max",

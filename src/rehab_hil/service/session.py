@@ -36,7 +36,14 @@ from rehab_hil.service.errors import SessionError
 from rehab_hil.service.homing import HomingResult, home
 from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.rig_learning import RigLearning, TableStore, default_store_dir
-from rehab_hil.service.run_dir import METADATA_FILE, new_run_dir, result_metadata, session_metadata, write_metadata
+from rehab_hil.service.run_dir import (
+    METADATA_FILE,
+    config_identity,
+    new_run_dir,
+    result_metadata,
+    session_metadata,
+    write_metadata,
+)
 from rehab_hil.service.runner import PACINGS, LoopService, Progress, RunResult
 from rehab_hil.service.session_sinks import FoxgloveOptions, TelemetryOptions, foxglove_view, live_twin, zenoh_telemetry
 
@@ -169,7 +176,10 @@ class RigSession:
         if spec is None or plan is None or on is False or runtime.reference.kind != "session":
             return None
         profile = load_profile(self.options.profile).patient_id if self.options.profile is not None else None
-        store = TableStore(self.options.learning_store or default_store_dir(), self.rig_id, profile, spec.plan_key)
+        rig = self.rig_id
+        if self.options.sim_plant is not None:  # a simulated rig is its plant file: another file, another rig
+            rig += "-sim-" + config_identity(self.options.sim_plant)["config_sha256"][:12]
+        store = TableStore(self.options.learning_store or default_store_dir(), rig, profile, spec.plan_key)
         learning = RigLearning(spec, next(iter(plan.signals.values())), store, lockstep=self.lockstep)
         runtime.learn_on_rig(learning)
         self.stack.callback(learning.close)
