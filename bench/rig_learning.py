@@ -80,6 +80,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=150.0, help="session length [s] (12 s cycles: 150 s = 12)")
     ap.add_argument("--rigs", default=",".join(SMA_RIGS), help="comma-separated rig names")
     ap.add_argument("--config", type=Path, default=ROOT / "configs" / "sma_exoskeleton.toml")
+    ap.add_argument("--learning-only", action="store_true", help="skip the model-only sessions (settings trials)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "rig_learning.json")
     args = ap.parse_args()
     results: dict[str, Any] = {}
@@ -88,7 +89,7 @@ def main() -> None:
             sim = variant(args.config, SMA_RIGS[name], Path(tmp) / f"rig-{len(results)}.toml") if SMA_RIGS[name] \
                 else None
             row = {}
-            for learning in (False, True):
+            for learning in (True,) if args.learning_only else (False, True):
                 got = session(args.config, sim, args.duration, learning, Path(tmp) / f"store-{name}-{learning}")
                 got["figures"] = figures(got["cycles"])
                 row["learning" if learning else "model_only"] = got
