@@ -134,7 +134,7 @@ class ModelBased(ControllerSpec):
         predicted = {"angle_deg": learned["angle_deg"], "effort": learned["effort"]}
         if t_obs is not None:
             predicted["temperature_c"] = learned["temperature_c"]
-        spec = _rig_learning(ctx, settings, reference, limit_c, key) if periodic and settings.rig_learning else None
+        spec = _rig_learning(ctx, settings, reference, limit_c, key) if periodic else None
         return make(learned["feedforward"], ceiling_c, {"predicted": predicted, "key": key, "rig_learning": spec,
                                                         "figures": {**figures, "ceiling_c": ceiling_c,
                                                                     "reachable_lo_deg": lo,
@@ -164,7 +164,8 @@ def _rig_learning(ctx: ControlContext, settings: ModelBasedSettings, reference: 
         forgetting=settings.rig_learning_forgetting, bounds=ctx.effort_bounds, step_s=ctx.step_s,
         period_s=reference.period_s, swap_s=0.5 * reference.hold_closed_s, heating_limit_s=heating_limit_s(ctx),
         rest_s=HEATING_REST_S, budget_c=budget_c if t_obs else None, observer=observer, effort=ctx.effort,
-        temperature=t_obs or "", constants=observer_constants(ctx, observer), plan_key=key)
+        temperature=t_obs or "", constants=observer_constants(ctx, observer), plan_key=key,
+        enabled=settings.rig_learning)
 
 
 def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings,

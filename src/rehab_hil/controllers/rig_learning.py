@@ -55,6 +55,7 @@ class RigLearningSpec:
     temperature: str = ""  # the observer's temperature signal
     constants: Mapping[str, float] = field(default_factory=dict)
     plan_key: str = ""  # the model plan's fingerprint: a stored table belongs to one plan
+    enabled: bool = True  # the config's ``rig_learning``: a session learns unless told otherwise
 
     @property
     def n(self) -> int:

@@ -173,7 +173,9 @@ class RigSession:
         on = self.options.rig_learning
         if spec is None and on:
             raise SessionError("rig_learning", f"controller {runtime.name!r} has no periodic plan to learn on the rig")
-        if spec is None or plan is None or on is False or runtime.reference.kind != "session":
+        if on is None:
+            on = spec is not None and spec.enabled
+        if spec is None or plan is None or not on or runtime.reference.kind != "session":
             return None
         profile = load_profile(self.options.profile).patient_id if self.options.profile is not None else None
         rig = self.rig_id
