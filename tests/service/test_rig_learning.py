@@ -93,3 +93,34 @@ def test_the_learned_table_starts_the_next_session_on_the_same_rig_and_profile_o
     assert not other["resumed"] and other["trials"] == 0
     with_profile = session("rig-a", EXAMPLE, duration_s=5.0)
     assert not with_profile["resumed"] and with_profile["store"] != first["store"]
+
+
+class StopAfter:
+    """A sink that asks the loop to stop (a trip, as an operator's stop request is) past ``t_s``."""
+
+    name, critical, dropped, error, on_failure = "stop-after", False, 0, None, None
+
+    def __init__(self, t_s: float) -> None:
+        self.t_s, self.session = t_s, None
+
+    def offer(self, record) -> bool:
+        t = getattr(record, "time_s", None)
+        if t is not None and t > self.t_s and self.session is not None:
+            self.session.request_stop("the test's stop")
+        return True
+
+    def wake(self) -> None: ...
+
+    def drain(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def test_a_session_that_ends_in_a_safety_trip_leaves_the_store_as_it_found_it(tmp_path: Path) -> None:
+    store = tmp_path / "store"
+    stop = StopAfter(16.0)  # after the first update (swapped in at 14.4 s)
+    with open_session(SMA, "inprocess", rig_id="rig-t", learning_store=store, sinks=(stop,)) as s:
+        stop.session = s
+        r = s.run(30.0)
+    assert r.events and r.learning["updates"] == 1 and not r.learning["kept"]
+    assert not Path(r.learning["store"]).exists()  # nothing was stored before: nothing is

@@ -96,6 +96,7 @@ class RigLearning:
         if stored is not None:
             self.table, self.trials = stored
             self.resumed = True
+        self._start = (self.table, self.trials)  # what the store held: put back if the session trips
         self._error = np.zeros(n)
         self._effort = np.zeros(n)
         self._cut = np.zeros(n, bool)
@@ -108,6 +109,7 @@ class RigLearning:
         self._jobs: queue.Queue[Any] = queue.Queue(maxsize=1)
         self.log: list[dict[str, float]] = []  # one entry per swap: when, trial, what the update did
         self.late = 0  # updates not ready at their swap point (real time only)
+        self.forgotten = False  # the store put back as the session found it (it ended in a safety trip)
         self._worker: threading.Thread | None = threading.Thread(target=self._work, name="rig-learning", daemon=True)
         self._worker.start()
 
@@ -171,8 +173,20 @@ class RigLearning:
             self._worker.join(timeout=5.0)
             self._worker = None
 
+    def forget_session(self) -> None:
+        """Leave the store as this session found it (after a safety trip: what was learned in a
+        session that ended in one is not carried into the next). Call after ``close``."""
+        if self.store is None:
+            return
+        if self.resumed:
+            self.store.save(*self._start)
+        else:
+            self.store.path.unlink(missing_ok=True)
+        self.forgotten = True
+
     def summary(self) -> dict[str, Any]:
         """What the session's learning did (metadata.json ``rig_learning``)."""
         return {"enabled": True, "resumed": self.resumed, "trials": self.trials, "updates": len(self.log),
                 "late": self.late, "store": str(self.store.path) if self.store is not None else None,
+                "kept": not self.forgotten,
                 "gain_per_deg": self.spec.gain_per_deg, "forgetting": self.spec.forgetting}

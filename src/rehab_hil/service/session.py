@@ -157,6 +157,8 @@ class RigSession:
                                lockstep=self.lockstep)
         if learning is not None:
             learning.close()
+            if result.events:  # a session that ended in a safety trip teaches the next one nothing
+                learning.forget_session()
             result.learning = learning.summary()
             result.session_cycles = per_cycle_learning(result.session_cycles, learning.log,
                                                        self.controller.reference.period_s)
