@@ -122,8 +122,8 @@ def preflight(controller: Controller, sources: Sources | None = None) -> None:
     ctx = controller.ctx
     src = sources or Sources(ctx.source)
     res = closed_loop(controller, preflight_duration_s(controller.reference))
-    trips = [x for x in (_range_trip(ctx, res, src), _heating_trip(ctx, res, src), _temperature_trip(ctx, res, src))
-             if x is not None]
+    trips = [x for x in (_range_trip(ctx, res, src), _heating_trip(ctx, res, src),
+                         _temperature_trip(ctx, res, src, controller.name)) if x is not None]
     if trips:
         first = min(trips, key=lambda x: x.t_s)
         raise ControllerError(f"controller {controller.name!r} does not apply to plant {ctx.cfg.plant!r}: run on the "
@@ -169,7 +169,7 @@ def _runs(on: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
-def _temperature_trip(ctx: ControlContext, res: Any, src: Sources) -> Trip | None:
+def _temperature_trip(ctx: ControlContext, res: Any, src: Sources, name: str) -> Trip | None:
     th, lim = ctx.cfg.rig.thermal, ctx.cfg.rig.limits
     if th is None:
         return None
@@ -181,5 +181,5 @@ def _temperature_trip(ctx: ControlContext, res: Any, src: Sources) -> Trip | Non
         return None
     return Trip(float(res.t[int(over[0])]), f"heats the actuator past {lim.max_temperature_c:g} C (the host's "
                 "temperature estimate)", src.where("rig.limits.max_temperature_c"),
-                f"the estimate peaks at {float(np.max(est)):.1f} C: a session that heats less "
-                f"(controllers.<name>.temperature_budget_c, the pace) or a limit above it")
+                f"the estimate peaks at {float(np.max(est)):.1f} C: a controller that heats less "
+                f"([controllers.{name}] in {src.config}, the session's pace) or a limit above it")
