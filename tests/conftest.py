@@ -41,3 +41,10 @@ def pytest_configure(config: pytest.Config) -> None:
 @pytest.fixture
 def configs_dir() -> Path:
     return CONFIGS
+
+
+@pytest.fixture(autouse=True)
+def _own_learning_store(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test's sessions keep their tables learned on the rig in a folder of its own
+    (``REHAB_HIL_LEARNING_DIR``): no test starts from what another, or a user's sessions, learned."""
+    monkeypatch.setenv("REHAB_HIL_LEARNING_DIR", str(tmp_path_factory.mktemp("rig_learning")))

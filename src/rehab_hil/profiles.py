@@ -18,7 +18,8 @@ from pydantic import Field
 from rehab_hil.config import ConfigError, Section, load_toml, validate
 from rehab_hil.plants.sections import PlantConfig
 
-__all__ = ["Profile", "ProfileLimits", "ProfileSession", "apply_profile", "load_profile", "profile_summary"]
+__all__ = ["Profile", "ProfileLimits", "ProfileSession", "apply_profile", "load_profile", "profile_rig_keys",
+           "profile_summary"]
 
 
 class ProfileSession(Section):
@@ -96,3 +97,24 @@ def profile_summary(profile: Profile, path: str | Path) -> dict[str, Any]:
     return {"file": str(path), "patient_id": profile.patient_id, **{
         f"{section}.{k}": v for section in ("session", "limits")
         for k, v in getattr(profile, section).model_dump().items() if v is not None}}
+
+
+# the rig keys a profile's keys set (config key -> the profile's key), for messages naming the cause
+_RIG_KEYS = {"session.cycles_per_minute": ("rig.session.cycles_per_minute",),
+             "session.closed_deg": ("rig.session.closed_deg", "rig.session.open_deg"),
+             "session.amplitude_deg": ("rig.session.open_deg",),
+             "limits.min_angle_deg": ("rig.limits.min_angle_deg",),
+             "limits.max_angle_deg": ("rig.limits.max_angle_deg",),
+             "limits.max_force_n": ("rig.limits.max_force_n",)}
+
+
+def profile_rig_keys(profile: Profile) -> dict[str, str]:
+    """The plant config's keys this profile overrides -> the profile's own key (a refusal names
+    the profile's key when the profile set what causes it)."""
+    out: dict[str, str] = {}
+    for key, rig_keys in _RIG_KEYS.items():
+        section, name = key.split(".")
+        if getattr(getattr(profile, section), name) is not None:
+            for rk in rig_keys:
+                out.setdefault(rk, key)
+    return out

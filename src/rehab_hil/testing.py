@@ -71,7 +71,7 @@ def pid_runtime(cfg, target_deg: float | None = None, *, sine: tuple[float, floa
     demand = f"{ctx.effort}_demand"
     parts = [SineReference("reference", rename={"reference": ctx.reference}, offset=sine[0], amplitude=sine[1],
                            frequency_hz=sine[2]),
-             *feedback_parts(ctx, settings, demand, ctx.effort_bounds), limit_part(ctx, demand)]
+             *feedback_parts(ctx, settings, demand, ctx.effort_bounds), *limit_part(ctx, demand)]
     return ControllerRuntime(Controller("pid", ctx, ref, parts, sums=(demand,)))
 
 

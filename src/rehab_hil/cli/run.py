@@ -54,6 +54,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="react to the sample stream, or wake on host deadlines (docs/loop.md)")
     p.add_argument("--lockstep", action="store_true",
                    help="sim or avr device: virtual time, one sample period per command (deterministic)")
+    p.add_argument("--rig-learning", action=argparse.BooleanOptionalAction, default=None,
+                   help="keep learning the feedforward on the rig, cycle after cycle, from the measured error "
+                        "(default: [controllers.model_based] rig_learning; docs/controllers.md). The table is kept "
+                        "per rig id and profile under ~/.cache/rehab-hil/rig_learning; delete its file (the summary "
+                        "names it) to start again from the model")
     p.add_argument("--twin", action="store_true",
                    help="run the plant model beside the rig: predictions, residuals, model-mismatch events and the "
                         "patient's interaction estimate (docs/twin.md; [twin] in the config)")
@@ -102,6 +107,11 @@ def summary_table(r: RunResult) -> Table:
         t.add_row("per cycle: time to open / closed", f"{s['time_to_open_s']:.3g} / {s['time_to_closed_s']:.3g} s")
         t.add_row("peak est. temperature / energy per cycle",
                   f"{s['peak_temperature_c']:.4g} C / {s['energy_per_cycle_j']:.4g} J")
+        if r.learning:
+            rl, cyc = r.learning, r.session_cycles
+            t.add_row("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "
+                      f"deg; {rl['updates']} updates ({rl['trials']} in all, "
+                      f"{'resumed' if rl['resumed'] else 'from the model'}); {rl['store']}")
     tm = r.timing
     label = "lateness" if r.pacing == "host" else "reaction (sample in -> command out)"
     t.add_row(f"{label} p50/p99/p99.9/max",
@@ -186,7 +196,7 @@ def _session(args: argparse.Namespace) -> RigSession:
         return open_session(
             args.config, args.device, controller=args.controller, reference=args.reference, profile=args.profile,
             pacing=args.pacing, lockstep=args.lockstep, home=args.home, record=args.record, rig_id=args.rig_id,
-            sim_plant=args.sim_plant, twin=args.twin, telemetry=_telemetry(args),
+            sim_plant=args.sim_plant, twin=args.twin, telemetry=_telemetry(args), rig_learning=args.rig_learning,
             foxglove=FoxgloveOptions(args.foxglove_host, args.foxglove) if args.foxglove is not None else None,
             confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)
     except SessionError as e:

@@ -217,6 +217,7 @@ class Plan:
     signals: Mapping[str, np.ndarray]
     predicted: Mapping[str, np.ndarray] = field(default_factory=dict)
     figures: Mapping[str, float] = field(default_factory=dict)
+    key: str = ""  # the fingerprint of what the plan was learned from (a table learned on the rig belongs to it)
 
     @property
     def n(self) -> int:
@@ -256,8 +257,11 @@ class Controller:
     constants: Mapping[str, float] = field(default_factory=dict)
     sums: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)  # warnings for the operator (a clipped reference)
+    rig_learning: Any = None  # how the plan keeps learning on the rig (controllers.rig_learning.RigLearningSpec)
 
     def __post_init__(self) -> None:
+        # an entry may be a list of parts (``limit_part``: the heating guard and the effort limit)
+        self.parts = [q for p in self.parts for q in (p if isinstance(p, list | tuple) else [p])]
         self._diagram = self._build_diagram()
 
     @property

@@ -31,7 +31,7 @@ import numpy as np
 
 from rehab_hil.models.engine import cache_dir
 
-__all__ = ["LearningSettings", "cached", "learn"]
+__all__ = ["LearningSettings", "cached", "ilc_step", "learn"]
 
 
 class LearningSettings:
@@ -53,14 +53,8 @@ def learn(simulate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: in
     wrapping around the period, so the heating ahead of the next cycle's bend is learned from that
     bend. ``periods`` = 1: a table over a horizon of ``n`` steps (a step response). Returns the best
     trial and its figures on the learned period (RMSE, max error) and on the first, from rest."""
-    lo, hi = bounds
     periodic = periods > 1
     u = np.zeros(n)
-    lead = max(0, round(s.lead_s / step_s))
-    release = max(0, round(s.release_lead_s / step_s))
-    from scipy.signal import butter, filtfilt  # 1.1 s of import: only when a feedforward is learned
-
-    b, a = butter(2, min(s.filter_hz * 2.0 * step_s, 0.99))
     best: tuple[float, np.ndarray, dict[str, float]] = (np.inf, u.copy(), {})
     for _ in range(max(1, s.iterations)):
         ref, y = simulate(np.tile(u, periods) if periodic else u)
@@ -72,16 +66,33 @@ def learn(simulate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], n: in
             best = (rmse, u.copy(), {"model_rmse_deg": rmse, "model_max_error_deg": float(np.max(np.abs(e))),
                                      "model_first_rmse_deg": float(np.sqrt(np.mean(first**2))),
                                      "model_first_max_error_deg": float(np.max(np.abs(first)))})
-        shifted = _ahead(e, lead, periodic)
-        if release != lead:  # too far along: the effort must drop this much earlier (a wire cools slower)
-            back = _ahead(e, release, periodic)
-            shifted = np.where(back < 0.0, np.minimum(shifted, back), np.maximum(shifted, 0.0))
-        # the leak acts only where tracking is within tolerance: it finds the least effort that
-        # still tracks without biasing the error where the effort is needed
-        v = u + s.gain_per_deg * shifted - s.leak * u * (np.abs(shifted) < s.tolerance_deg)
-        v = filtfilt(b, a, np.tile(v, 3))[n:2 * n] if periodic else filtfilt(b, a, v)  # zero phase
-        u = np.clip(v, lo, hi)
+        u = ilc_step(u, e, step_s, bounds, s, periodic)
     return best[1], {**best[2], "trials": float(max(1, s.iterations))}
+
+
+def ilc_step(u: np.ndarray, e: np.ndarray, step_s: float, bounds: tuple[float, float], s: LearningSettings,
+             periodic: bool, gain_per_deg: float | None = None) -> np.ndarray:
+    """One ILC trial's update: the table ``u`` moved by the error ``e`` (reference - angle, one
+    value per table row) a lead later, the leak where within tolerance, the zero-phase Q-filter
+    (wrapped around a period when ``periodic``) and the clip to ``bounds``. The model learning and
+    the learning on the rig (``controllers/rig_learning.py``) take the same step; the rig's own
+    gain is ``gain_per_deg`` (default: ``s.gain_per_deg``)."""
+    from scipy.signal import butter, filtfilt  # 1.1 s of import: only when a feedforward is learned
+
+    n = len(u)
+    gain = s.gain_per_deg if gain_per_deg is None else gain_per_deg
+    lead = max(0, round(s.lead_s / step_s))
+    release = max(0, round(s.release_lead_s / step_s))
+    b, a = butter(2, min(s.filter_hz * 2.0 * step_s, 0.99))
+    shifted = _ahead(e, lead, periodic)
+    if release != lead:  # too far along: the effort must drop this much earlier (a wire cools slower)
+        back = _ahead(e, release, periodic)
+        shifted = np.where(back < 0.0, np.minimum(shifted, back), np.maximum(shifted, 0.0))
+    # the leak acts only where tracking is within tolerance: it finds the least effort that
+    # still tracks without biasing the error where the effort is needed
+    v = u + gain * shifted - s.leak * u * (np.abs(shifted) < s.tolerance_deg)
+    v = filtfilt(b, a, np.tile(v, 3))[n:2 * n] if periodic else filtfilt(b, a, v)  # zero phase
+    return np.clip(v, bounds[0], bounds[1])
 
 
 def _ahead(e: np.ndarray, lead: int, periodic: bool) -> np.ndarray:

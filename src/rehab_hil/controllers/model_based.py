@@ -23,22 +23,30 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.config import Field, Section
-from rehab_hil.control.limits import TemperatureCeiling
 from rehab_hil.controllers.base import ControlContext, Controller, ControllerSpec, Plan, Reference, closed_loop_system
 from rehab_hil.controllers.feedforward import LearningSettings, cached, fingerprint, learn
-from rehab_hil.controllers.observer import OBSERVER, temperature_signal, thermal_slice
-from rehab_hil.controllers.pid import PID, feedback_parts, limit_part
+from rehab_hil.controllers.limits import (
+    HEATING_REST_S,
+    heating_limit_s,
+    observer_constants,
+    safety_parts,
+    temperature_budget_c,
+    thermal_guard,
+)
+from rehab_hil.controllers.pid import PID, feedback_parts
 from rehab_hil.controllers.reachable import reachable_range
+from rehab_hil.controllers.rig_learning import RigLearningSpec
 from rehab_hil.models.sensors import Gain
-from rehab_hil.plants.registry import compose
 
 __all__ = ["ModelBased", "ModelBasedSettings"]
 
 _PERIODS = 2  # a periodic table learns on two cycles from rest: the second is the steady state
-PLAN_VERSION = 2  # part of the cache key: bump when the learning or the chain changes what a plan is
+PLAN_VERSION = 3  # part of the cache key: bump when the learning or the chain changes what a plan is
 # config tables a plan does not depend on, left out of its cache key (editing the twin's settings or an
 # import mapping relearned every plan; a host model never applies [[changes]], the simulated rig's schedule)
 NOT_IN_PLAN = ("twin", "import_", "recorded_controller", "changes")
+RIG_ONLY = ("rig_learning", "rig_learning_gain_per_deg", "rig_learning_forgetting")  # settings of the learning on the
+#                                                                                     rig, not of the model's plan
 
 
 class ModelBasedSettings(Section):
@@ -69,6 +77,12 @@ class ModelBasedSettings(Section):
                                         "peak observed temperature (heated actuators) [C]")
     ceiling_band_c: float = Field(default=5.0, gt=0.0, le=50.0, description="the ceiling cuts the authority "
                                   "linearly over this band below it [C]")
+    rig_learning: bool = Field(default=False, description="keep learning the feedforward on the rig, cycle after "
+                               "cycle, from the measured tracking error (controllers/rig_learning.py)")
+    rig_learning_gain_per_deg: float | None = Field(default=None, gt=0.0, le=1000.0, description="the rig's ILC "
+                                                    "gain [actuator unit / deg]; unset: learning_gain_per_deg")
+    rig_learning_forgetting: float = Field(default=0.02, ge=0.0, lt=1.0, description="share of the correction "
+                                           "learned on the rig forgotten per cycle, toward the model's table [0..1)")
 
 
 class ModelBased(ControllerSpec):
@@ -81,9 +95,7 @@ class ModelBased(ControllerSpec):
     @classmethod
     def build(cls, ctx: ControlContext, settings: ModelBasedSettings, reference: Reference) -> Controller:
         notes: list[str] = []
-        limit_c = ctx.cfg.rig.limits.max_temperature_c
-        if settings.temperature_budget_c is not None:
-            limit_c = min(limit_c, settings.temperature_budget_c)
+        limit_c = temperature_budget_c(ctx, settings.temperature_budget_c)
         lo, hi = reachable_range(ctx, limit_c)
         reference, warning = reference.clipped(lo, hi)
         if warning:
@@ -92,67 +104,78 @@ class ModelBased(ControllerSpec):
         periods = _PERIODS if periodic else 1
         n = ctx.plant.n_steps(ctx.cfg, reference.period_s)  # the table: one period (a step: one horizon)
         ff = f"{ctx.effort}_feedforward"
-        temp = temperature_signal(ctx.ports)
-        observer = (thermal_slice(compose(ctx.plant, ctx.cfg), ctx.effort, temp, ctx.ports.constants,
-                                  _mechanical(ctx)) if temp else None)
 
         def make(table: np.ndarray, ceiling_c: float, plan_extra: dict[str, Any] | None = None) -> Controller:
             demand = f"{ctx.effort}_demand"
             span = ctx.effort_bounds[1] - ctx.effort_bounds[0]
+            thermal, cut, _ = thermal_guard(ctx, ceiling_c, settings.ceiling_band_c)
             parts = [reference.part(ctx.reference),
                      Gain("feedforward", connect={"u": ff}, rename={"y": demand}, gain=1.0),
-                     *feedback_parts(ctx, settings, demand, (-span, span))]
-            cut = None
-            if observer is not None:
-                cut = "temperature_cut"
-                parts += [*observer, TemperatureCeiling("ceiling", connect={"temperature_c": OBSERVER + temp},
-                                                        rename={"cut": cut}, ceiling_c=ceiling_c,
-                                                        band_c=settings.ceiling_band_c)]
-            parts.append(limit_part(ctx, demand, cut))
+                     *feedback_parts(ctx, settings, demand, (-span, span)), *thermal,
+                     *safety_parts(ctx, demand, [cut] if cut else [])]
             extra = plan_extra or {}
             plan = Plan(ctx.step_s, reference.period_s if periodic else ctx.step_s, {ff: table},
                         extra.get("predicted", {}),
-                        extra.get("figures", {}))
-            return Controller(cls.name, ctx, reference, parts, plan=plan, constants=_read_constants(ctx, observer),
-                              sums=(demand,), notes=notes)
+                        extra.get("figures", {}), extra.get("key", ""))
+            return Controller(cls.name, ctx, reference, parts, plan=plan, constants=observer_constants(ctx, thermal),
+                              sums=(demand,), notes=notes, rig_learning=extra.get("rig_learning"))
 
-        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=set(NOT_IN_PLAN)),
-                          settings.model_dump(), reference, reference.first_open_s, periods)
-        learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, temp,
-                                                      observer))
+        _, _, t_obs = thermal_guard(ctx, limit_c, settings.ceiling_band_c)
+        not_in_plan: dict[str, Any] = {**dict.fromkeys(NOT_IN_PLAN, True),
+                                       "controllers": {cls.name: set(RIG_ONLY)}}
+        key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=not_in_plan),
+                          settings.model_dump(exclude=set(RIG_ONLY)), reference, reference.first_open_s, periods)
+        learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, t_obs))
         ceiling_c = limit_c
-        if observer is not None:
+        if t_obs is not None:
             ceiling_c = min(float(learned["peak_observed_c"][0]) + settings.temperature_margin_c, limit_c)
         figures = {k: float(learned[k][0]) for k in ("model_rmse_deg", "model_max_error_deg", "model_first_rmse_deg",
                                                      "model_first_max_error_deg", "trials", "peak_observed_c")}
         predicted = {"angle_deg": learned["angle_deg"], "effort": learned["effort"]}
-        if observer is not None:
+        if t_obs is not None:
             predicted["temperature_c"] = learned["temperature_c"]
-        return make(learned["feedforward"], ceiling_c, {"predicted": predicted,
+        spec = _rig_learning(ctx, settings, reference, limit_c, key) if periodic else None
+        return make(learned["feedforward"], ceiling_c, {"predicted": predicted, "key": key, "rig_learning": spec,
                                                         "figures": {**figures, "ceiling_c": ceiling_c,
                                                                     "reachable_lo_deg": lo,
                                                                     "reachable_hi_deg": hi}})
 
 
-def _read_constants(ctx: ControlContext, observer: list | None) -> dict[str, float]:
-    """The plant constants the observer reads (the SMA's supply voltage)."""
-    read = {s for p in observer or () for terms in p.connections.values() for s, _ in terms}
-    return {k: v for k, v in ctx.ports.constants.items() if k in read}
+def _learning_settings(settings: ModelBasedSettings) -> LearningSettings:
+    return LearningSettings(settings.learning_gain_per_deg, settings.learning_lead_s, settings.learning_filter_hz,
+                            settings.learning_iterations, settings.learning_leak, settings.learning_tolerance_deg,
+                            settings.learning_release_lead_s)
 
 
-def _mechanical(ctx: ControlContext) -> tuple[str, ...]:
-    return tuple(s for ax in ctx.ports.axes for s in (ax.angle, ax.velocity, ax.torque))
+def _rig_learning(ctx: ControlContext, settings: ModelBasedSettings, reference: Reference, budget_c: float,
+                  key: str) -> RigLearningSpec:
+    """How the plan keeps learning on the rig: the model learning's step, the rig's gain and
+    forgetting, the envelope (effort bounds, heating limit, the budget on the observer)."""
+    thermal, _, t_obs = thermal_guard(ctx, budget_c, settings.ceiling_band_c)
+    observer = thermal[:-1]  # without the ceiling: the model's thermal part alone
+    model = _learning_settings(settings)
+    # the rig's step: the model's leads and Q-filter, no leak (the forgetting pulls toward the model's table,
+    # which already holds the least effort that tracks; a leak on the rig drifts the nominal rig's table)
+    rig = LearningSettings(model.gain_per_deg, model.lead_s, model.filter_hz, 1, 0.0, model.tolerance_deg,
+                           model.release_lead_s)
+    return RigLearningSpec(
+        learning=rig,
+        gain_per_deg=settings.rig_learning_gain_per_deg or settings.learning_gain_per_deg,
+        forgetting=settings.rig_learning_forgetting, bounds=ctx.effort_bounds, step_s=ctx.step_s,
+        period_s=reference.period_s, swap_s=0.5 * reference.hold_closed_s, heating_limit_s=heating_limit_s(ctx),
+        rest_s=HEATING_REST_S, budget_c=budget_c if t_obs else None, observer=observer, effort=ctx.effort,
+        temperature=t_obs or "", constants=observer_constants(ctx, observer), plan_key=key,
+        enabled=settings.rig_learning)
 
 
-def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings, temp: str | None,
-           observer: list | None) -> dict[str, np.ndarray]:
+def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings,
+           t_obs: str | None) -> dict[str, np.ndarray]:
     """Learn the feedforward on the closed loop of the provisional controller (ceiling at the rig's
     limit), then run the best table once more for the model's predictions (its last period)."""
     ctx = provisional.ctx
     system, feed = closed_loop_system(provisional)
     given = {k: v for k, v in feed(n * periods).items() if k in system.input_names}
     ff = next(iter(provisional.plan.signals)) if provisional.plan else ""
-    t_obs = OBSERVER + temp if observer is not None and temp else None
     outs = [ctx.reference, ctx.angle, ctx.effort, *([t_obs] if t_obs else [])]
 
     def run(u: np.ndarray) -> Any:
@@ -162,10 +185,7 @@ def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSe
         r = run(u)
         return r[ctx.reference], r[ctx.angle]
 
-    s = LearningSettings(settings.learning_gain_per_deg, settings.learning_lead_s, settings.learning_filter_hz,
-                         settings.learning_iterations, settings.learning_leak, settings.learning_tolerance_deg,
-                         settings.learning_release_lead_s)
-    table, figures = learn(simulate, n, ctx.step_s, ctx.effort_bounds, s, periods)
+    table, figures = learn(simulate, n, ctx.step_s, ctx.effort_bounds, _learning_settings(settings), periods)
     final = run(np.tile(table, periods))
     peak = float(np.max(final[t_obs])) if t_obs else float("nan")
     out = {"feedforward": table, "angle_deg": final[ctx.angle][-n:], "effort": final[ctx.effort][-n:],

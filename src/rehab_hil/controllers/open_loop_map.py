@@ -10,7 +10,7 @@ from __future__ import annotations
 from rehab_hil.config import Field, Section, model_validator
 from rehab_hil.control.open_loop import DutyMap
 from rehab_hil.controllers.base import ControlContext, Controller, ControllerSpec, Reference
-from rehab_hil.controllers.pid import limit_part
+from rehab_hil.controllers.limits import guarded
 
 __all__ = ["OpenLoopMap", "OpenLoopMapSettings"]
 
@@ -46,9 +46,10 @@ class OpenLoopMap(ControllerSpec):
     @classmethod
     def build(cls, ctx: ControlContext, settings: OpenLoopMapSettings, reference: Reference) -> Controller:
         demand = f"{ctx.effort}_demand"
+        tail, constants = guarded(ctx, demand)
         parts = [reference.part(ctx.reference),
                  DutyMap("map", connect={"reference": ctx.reference}, rename={"effort": demand},
                          effort_min=settings.effort_min, effort_max=settings.effort_max,
                          angle_min_deg=settings.angle_min_deg, angle_max_deg=settings.angle_max_deg),
-                 limit_part(ctx, demand)]
-        return Controller(cls.name, ctx, reference, parts, sums=(demand,))
+                 *tail]
+        return Controller(cls.name, ctx, reference, parts, constants=constants, sums=(demand,))

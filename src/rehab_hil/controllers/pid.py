@@ -10,11 +10,11 @@ from __future__ import annotations
 from typing import Any
 
 from rehab_hil.config import Field, Section
-from rehab_hil.control.limits import EffortLimit
 from rehab_hil.control.pid import PIDController
 from rehab_hil.controllers.base import DT, ControlContext, Controller, ControllerSpec, Reference
+from rehab_hil.controllers.limits import guarded, safety_parts
 
-__all__ = ["PID", "PIDSettings", "feedback_parts"]
+__all__ = ["PID", "PIDSettings", "feedback_parts", "limit_part"]
 
 
 class PIDSettings(Section):
@@ -24,6 +24,10 @@ class PIDSettings(Section):
     ki_per_deg_s: float = Field(ge=0.0, le=10000.0, description="integral gain [actuator unit / (deg s)]")
     kd_s_per_deg: float = Field(ge=0.0, le=100.0, description="derivative gain [actuator unit s / deg]")
     derivative_filter_s: float = Field(ge=0.0, le=1.0, description="derivative low-pass time constant [s]")
+    temperature_budget_c: float | None = Field(default=None, gt=-50.0, le=1000.0, description="hottest the "
+                                               "model's actuator may be held (heated actuators; default: the "
+                                               "rig's temperature limit): a ceiling on the model's thermal part "
+                                               "cuts the effort below it [C]")
 
 
 def feedback_parts(ctx: ControlContext, gains: Any, demand: str, authority: tuple[float, float]) -> list:
@@ -36,12 +40,10 @@ def feedback_parts(ctx: ControlContext, gains: Any, demand: str, authority: tupl
         derivative_filter_s=gains.derivative_filter_s, output_min=authority[0], output_max=authority[1])]
 
 
-def limit_part(ctx: ControlContext, demand: str, cut: str | None = None) -> EffortLimit:
-    """The last link before the actuator: the demand clamped to what PWM may apply."""
-    lo, hi = ctx.effort_bounds
-    return EffortLimit("limit", connect={"demand": demand, "cut": cut or []},
-                       rename={"effort": ctx.effort, "saturation": f"{ctx.effort}_saturation"},
-                       effort_min=lo, effort_max=hi)
+def limit_part(ctx: ControlContext, demand: str, cut: str | None = None) -> list:
+    """The last links before the actuator (``controllers.limits.safety_parts``): the heating guard
+    and the demand clamped to what PWM may apply, cut by ``cut`` (a temperature ceiling's)."""
+    return safety_parts(ctx, demand, [cut] if cut else [])
 
 
 class PID(ControllerSpec):
@@ -58,6 +60,6 @@ class PID(ControllerSpec):
     @classmethod
     def build(cls, ctx: ControlContext, settings: PIDSettings, reference: Reference) -> Controller:
         demand = f"{ctx.effort}_demand"
-        parts = [reference.part(ctx.reference), *feedback_parts(ctx, settings, demand, ctx.effort_bounds),
-                 limit_part(ctx, demand)]
-        return Controller(cls.name, ctx, reference, parts, sums=(demand,))
+        tail, constants = guarded(ctx, demand, settings.temperature_budget_c)
+        parts = [reference.part(ctx.reference), *feedback_parts(ctx, settings, demand, ctx.effort_bounds), *tail]
+        return Controller(cls.name, ctx, reference, parts, constants=constants, sums=(demand,))

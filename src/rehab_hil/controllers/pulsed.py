@@ -10,7 +10,7 @@ from __future__ import annotations
 from rehab_hil.config import Field, Section
 from rehab_hil.control.open_loop import PulseTrain
 from rehab_hil.controllers.base import ControlContext, Controller, ControllerSpec, Reference
-from rehab_hil.controllers.pid import limit_part
+from rehab_hil.controllers.limits import guarded
 
 __all__ = ["Pulsed", "PulsedSettings"]
 
@@ -29,8 +29,9 @@ class Pulsed(ControllerSpec):
     @classmethod
     def build(cls, ctx: ControlContext, settings: PulsedSettings, reference: Reference) -> Controller:
         demand = f"{ctx.effort}_demand"
+        tail, constants = guarded(ctx, demand)
         parts = [reference.part(ctx.reference),
                  PulseTrain("pulses", rename={"effort": demand}, effort=settings.effort, on_s=settings.on_s,
                             off_s=settings.off_s, alternate=1.0 if ctx.signed else 0.0),
-                 limit_part(ctx, demand)]
-        return Controller(cls.name, ctx, reference, parts, sums=(demand,))
+                 *tail]
+        return Controller(cls.name, ctx, reference, parts, constants=constants, sums=(demand,))

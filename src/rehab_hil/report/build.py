@@ -65,7 +65,23 @@ def _cycle_table(run: RunData) -> str:
     rows = [[int(c["index"]), c["start_s"], c["rom_deg"], c["peak_force"], c["rmse_deg"], c["max_error_deg"],
              c["time_to_open_s"], c["time_to_closed_s"], c["peak_temperature_c"], c["energy_j"]]
             for c in run.cycles]
+    if any("learn_trial" in c for c in run.cycles):  # the learning on the rig: the table each cycle ran, its update
+        header += ["learned table (trial)", "update kept [share]", "update's predicted peak [C]"]
+        for row, c in zip(rows, run.cycles, strict=True):
+            row += [c.get("learn_trial"), c.get("learn_share"), c.get("learn_predicted_peak_c")]
     return table(header, rows)
+
+
+def learning_text(meta: dict[str, Any]) -> str | None:
+    """One line on the learning on the rig (metadata.json ``rig_learning``), or None when it was off."""
+    rl = meta.get("rig_learning")
+    if not rl:
+        return None
+    cycles = meta.get("session_cycles") or []
+    rmse = " -> ".join(f"{c['rmse_deg']:.2f}" for c in cycles[:1] + cycles[-1:]) if cycles else "–"
+    start = "the table learned in earlier sessions" if rl.get("resumed") else "the model's table"
+    return (f"Learning on the rig: from {start}, {rl.get('updates')} updates this session ({rl.get('trials')} in "
+            f"all); per-cycle RMSE {rmse} deg; the table is kept in {rl.get('store')}.")
 
 
 def _run_section(page: Page, run: RunData) -> None:
@@ -90,6 +106,8 @@ def _run_section(page: Page, run: RunData) -> None:
         page.figure(figures.cycle_figure(run))
         page.figure(figures.cycle_trend_figure(run))
         page.raw(_cycle_table(run))
+        if learning_text(run.meta):
+            page.text(learning_text(run.meta))
     else:
         page.text("No complete open-close cycle in this run.")
 

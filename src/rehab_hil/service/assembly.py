@@ -12,6 +12,7 @@ from rehab_hil.config import ConfigError
 from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.controllers import ControllerError, Reference
 from rehab_hil.controllers import build_controller as build
+from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware.interface import configure_from_config
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.plants.registry import get_plant
@@ -42,7 +43,7 @@ def force_channels(binding: DeviceBinding) -> tuple[str, ...]:
 
 
 def build_controller(cfg: PlantConfig, name: str | None = None, reference: str = "session",
-                     source: str = "<config>") -> ControllerRuntime:
+                     source: str = "<config>", sources: Sources | None = None) -> ControllerRuntime:
     """The controller ``name`` (default: ``[rig.session] controller``) built for the config's
     plant (``rehab_hil.controllers``: refused in one line if it does not apply) and ready for the
     loop; ``reference`` is the session's cycles or a step to ``[rig.session] step_deg``."""
@@ -52,7 +53,7 @@ def build_controller(cfg: PlantConfig, name: str | None = None, reference: str =
         raise ServiceSetupError(f"unknown reference {reference!r}; choose from {list(REFERENCES)}")
     ref = Reference.session(cfg) if reference == "session" else Reference.step(cfg)
     try:
-        return ControllerRuntime(build(cfg, name, ref, source=source))
+        return ControllerRuntime(build(cfg, name, ref, source=source, sources=sources))
     except (ControllerError, ConfigError) as e:
         raise ServiceSetupError(str(e)) from None
 

@@ -20,6 +20,7 @@ import numpy as np
 from rehab_hil.controllers.base import DT, Controller, Reference
 from rehab_hil.interfaces import Claims, CommandInterface, DeviceBinding
 from rehab_hil.service.estimation import State
+from rehab_hil.service.rig_learning import RigLearning
 
 __all__ = ["SAFE_COMMAND", "Actuator", "Command", "ControllerRuntime", "LoopController"]
 
@@ -103,8 +104,10 @@ class ControllerRuntime:
         self._params = system.params.copy()
         self._x0, self._xd0 = system.x0, system.xd0
         self._ws = system.workspace()
-        self._slots = system.out_slots([ctx.effort, ctx.reference])
-        self._y = np.zeros(2)
+        saturation = f"{ctx.effort}_saturation"  # the effort limit's: demand the limit or a cut did not apply
+        outs = [ctx.effort, ctx.reference, *([saturation] if saturation in controller.diagram.signal_names else [])]
+        self._slots = system.out_slots(outs)
+        self._y = np.zeros(3)
         names = system.input_names
         self._period = ctx.period_s
         self._i_angle = names.index(ctx.angle) if ctx.angle in names else -1
@@ -120,7 +123,25 @@ class ControllerRuntime:
             if name in names:
                 self._u[names.index(name)] = value
         self._u_prev = self._u.copy()
+        self._row = -1  # the plan row the last step read
+        self._table_slot = 0  # the learned table's place in ``_tables``
+        self.learning: RigLearning | None = None
         self.reset()
+
+    def learn_on_rig(self, learning: RigLearning) -> None:
+        """Keep learning the feedforward on the rig (``service/rig_learning.py``): the table read
+        from now on is the learning's (a stored one when the rig and profile have learned before)."""
+        plan = self._plan
+        assert plan is not None and self._tables, "learning on the rig needs a plan table"
+        names = self.controller.diagram.input_names
+        slots = [j for j, (i, _) in enumerate(self._tables) if names[i] in plan.signals]
+        self._table_slot = slots[0]
+        self.learning = learning
+        self._set_table(learning.table)
+
+    def _set_table(self, table: np.ndarray) -> None:
+        i, _ = self._tables[self._table_slot]
+        self._tables[self._table_slot] = (i, np.asarray(table, float))
 
     @property
     def name(self) -> str:
@@ -144,8 +165,15 @@ class ControllerRuntime:
         self._ahead_s = 0.0  # of the interval after the last step, already integrated by ``advance``
 
     def advance(self) -> None:
-        """After the command is out: integrate one period ahead with the effort just applied (the
-        interval to the next sample, when none is lost), so the next call only takes the sample."""
+        """After the command is out: the learning's record of this sample (a new table at a swap
+        point), then integrate one period ahead with the effort just applied (the interval to the
+        next sample, when none is lost), so the next call only takes the sample."""
+        if self.learning is not None and self._t_last is not None and self._i_angle >= 0:
+            y = self._y
+            new = self.learning.record(self._t_last, self._row, float(y[1]) - float(self._u_prev[self._i_angle]),
+                                       float(y[0]), float(y[2]))
+            if new is not None:
+                self._set_table(new)
         if self._t_last is None or self._ahead_s:
             return
         sig, w, stage, _ = self._ws
@@ -171,7 +199,7 @@ class ControllerRuntime:
         if self._i_dt >= 0:
             u[self._i_dt] = dt
         if self._tables:
-            k = self._plan.index(t_s)
+            k = self._row = self._plan.index(t_s)
             for i, table in self._tables:
                 u[i] = table[k]
         e.sample(t_s, self._x, self._xd, u, self._params, sig, w, xdn)

@@ -119,4 +119,5 @@ def result_metadata(result: Any, rows: int) -> dict[str, Any]:
         "pwm_off_at_end": result.pwm_off_at_end,
         "sinks": result.sinks,  # each sink's drops and error (None, or the one line it failed with)
         "session": result.session, "session_cycles": result.session_cycles,
+        "rig_learning": getattr(result, "learning", None) or None,
     }

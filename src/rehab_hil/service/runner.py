@@ -87,6 +87,7 @@ class RunResult:
     session: dict[str, float] = field(default_factory=dict)  # per-cycle figures summed up (session_metrics)
     session_cycles: list[dict[str, float]] = field(default_factory=list)
     twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
+    learning: dict[str, Any] = field(default_factory=dict)  # the learning on the rig (service/rig_learning.py)
 
     @property
     def recorder_dropped(self) -> int:

@@ -24,17 +24,26 @@ from types import TracebackType
 from typing import Any
 
 from rehab_hil.calibration import calibration_summary
+from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
-from rehab_hil.profiles import apply_profile, load_profile
+from rehab_hil.profiles import apply_profile, load_profile, profile_rig_keys
 from rehab_hil.protocol import Configure
 from rehab_hil.service import assembly
 from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.errors import SessionError
 from rehab_hil.service.homing import HomingResult, home
 from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.run_dir import METADATA_FILE, new_run_dir, result_metadata, session_metadata, write_metadata
+from rehab_hil.service.rig_learning import RigLearning, TableStore, default_store_dir
+from rehab_hil.service.run_dir import (
+    METADATA_FILE,
+    config_identity,
+    new_run_dir,
+    result_metadata,
+    session_metadata,
+    write_metadata,
+)
 from rehab_hil.service.runner import PACINGS, LoopService, Progress, RunResult
 from rehab_hil.service.session_sinks import FoxgloveOptions, TelemetryOptions, foxglove_view, live_twin, zenoh_telemetry
 
@@ -73,6 +82,8 @@ class SessionOptions:
     configure: Configure | None = None  # a CONFIGURE instead of the config's (tests of the link only)
     sinks: tuple[Any, ...] = ()  # more sinks after the loop's write (``service.sinks.Sink``), beside the above
     sample_timeout_s: float | None = None  # how long a cycle waits for its sample (None: a period; lockstep 5 s)
+    rig_learning: bool | None = None  # learn the feedforward on the rig (None: [controllers.model_based] rig_learning)
+    learning_store: Path | None = None  # where learned tables are kept (None: ~/.cache/rehab-hil/rig_learning)
 
 
 class RigSession:
@@ -135,16 +146,48 @@ class RigSession:
             raise SessionError("duration", f"must be in (0, {MAX_DURATION_S:.0f}] s, got {duration_s}")
         if self.result is not None or self.loop is None:
             raise SessionError(None, "a session runs once, after open_session; open a new one")
+        learning = None
         if isinstance(self.controller, ControllerRuntime):  # per-cycle figures of a session's open-close cycles
             self.loop.meter = assembly.build_meter(self.cfg, self.controller, duration_s)
+            learning = self._learning(self.controller)
         realtime = self.options.realtime if self.options.realtime is not None else not self.lockstep
         result = self.loop.run(duration_s, pacing=self.options.pacing, realtime=realtime,
                                sample_timeout_s=self.options.sample_timeout_s or (
                                    LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None),
                                lockstep=self.lockstep)
+        if learning is not None:
+            learning.close()
+            if result.events:  # a session that ended in a safety trip teaches the next one nothing
+                learning.forget_session()
+            result.learning = learning.summary()
+            result.session_cycles = per_cycle_learning(result.session_cycles, learning.log,
+                                                       self.controller.reference.period_s)
         self.result = result
         self._finish(result)
         return result
+
+    def _learning(self, runtime: ControllerRuntime) -> RigLearning | None:
+        """The learning on the rig, when the controller plans a periodic table and it is on
+        (``[controllers.model_based] rig_learning``, or the ``rig_learning`` option); its table
+        kept per rig id, patient profile and plan (``TableStore``)."""
+        spec = runtime.controller.rig_learning
+        plan = runtime.controller.plan
+        on = self.options.rig_learning
+        if spec is None and on:
+            raise SessionError("rig_learning", f"controller {runtime.name!r} has no periodic plan to learn on the rig")
+        if on is None:
+            on = spec is not None and spec.enabled
+        if spec is None or plan is None or not on or runtime.reference.kind != "session":
+            return None
+        profile = load_profile(self.options.profile).patient_id if self.options.profile is not None else None
+        rig = self.rig_id
+        if self.options.sim_plant is not None:  # a simulated rig is its plant file: another file, another rig
+            rig += "-sim-" + config_identity(self.options.sim_plant)["config_sha256"][:12]
+        store = TableStore(self.options.learning_store or default_store_dir(), rig, profile, spec.plan_key)
+        learning = RigLearning(spec, next(iter(plan.signals.values())), store, lockstep=self.lockstep)
+        runtime.learn_on_rig(learning)
+        self.stack.callback(learning.close)
+        return learning
 
     # ---- building, in the order things must happen ------------------------------------------------
     def _open(self) -> None:
@@ -230,6 +273,24 @@ class RigSession:
                 _recorder_error(result, f"the recording's end not written: {type(e).__name__}: {e}")
 
 
+def per_cycle_learning(cycles: list[dict[str, float]], log: list[dict[str, Any]],
+                       period_s: float) -> list[dict[str, Any]]:
+    """Each cycle's figures with what the learning did: ``learn_trial``, the table in force when
+    the cycle started (0: the model's, or the stored one's count), and the update made from it
+    (swapped in during its closed hold: the share kept, the change, the predicted peak)."""
+    out = []
+    for c in cycles:
+        start = c["start_s"]
+        before = [e for e in log if e["t_s"] <= start]
+        made = next((e for e in log if start < e["t_s"] <= start + period_s), None)
+        row: dict[str, Any] = {**c, "learn_trial": before[-1]["trial"] if before else (log[0]["trial"] - 1 if log
+                                                                                         else 0.0)}
+        if made is not None:
+            row.update({k: v for k, v in made.items() if k.startswith("learn_") and k != "learn_error_rmse_deg"})
+        out.append(row)
+    return out
+
+
 def _recorder_error(result: RunResult, text: str) -> None:
     """Add ``text`` to the recorder's line in ``result.sinks`` (the summary shows it)."""
     report = result.sinks.setdefault("recorder", {"dropped": 0, "error": None})
@@ -277,9 +338,17 @@ def _controller(cfg: Any, config: Path, opts: SessionOptions) -> Any:
     if opts.controller is not None and not isinstance(opts.controller, str):
         return opts.controller
     try:
-        return assembly.build_controller(cfg, opts.controller, opts.reference, source=str(config))
+        return assembly.build_controller(cfg, opts.controller, opts.reference, source=str(config),
+                                         sources=_sources(config, opts.profile))
     except assembly.ServiceSetupError as e:
         raise SessionError(None, f"{config}: {e}") from None
+
+
+def _sources(config: Path, profile: Path | None) -> Sources:
+    """Where the session's settings come from: the config, and the keys the profile overrides."""
+    if profile is None:
+        return Sources(str(config))
+    return Sources(str(config), str(profile), profile_rig_keys(load_profile(profile)))
 
 
 def _rig(stack: ExitStack, cfg: Any, config: Path, device: str, opts: SessionOptions) -> HardwareInterface:

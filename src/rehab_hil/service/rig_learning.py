@@ -1,0 +1,192 @@
+"""The loop's side of learning on the rig: collect each cycle's error, update off the loop, swap at a boundary.
+
+``controllers/rig_learning.py`` computes an update; here ``RigLearning`` runs it in a session
+without costing the real-time loop anything but a few array writes per sample:
+
+- after each command is out (``ControllerRuntime.advance``), the sample's tracking error and the
+  applied effort are written into the row of the table that was read (``record``);
+- ``lead_s`` before each swap point, once a whole cycle has been seen since the last swap, a copy
+  of that cycle goes to a worker thread, which computes the next table (the numba engine of the
+  envelope's thermal check releases the GIL);
+- at the swap point (``swap_s`` into each period: the middle of the closed hold, where the wire
+  is cold and the table idle) the loop takes the new table if it is ready, between two samples.
+  A real-time session never waits for it (a late update is counted and taken at the next swap
+  point); a lockstep session does (its time is virtual: nothing is lost, and the run is the same
+  every time).
+
+Each accepted table is written to ``store`` (``TableStore``) by the worker, so the next session
+on the same rig, patient profile and plan starts from it. ``log`` says what each update did.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import queue
+import re
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rehab_hil.controllers.rig_learning import RigLearner, RigLearningSpec
+from rehab_hil.models.engine import cache_dir
+
+__all__ = ["LEAD_S", "RigLearning", "TableStore", "default_store_dir"]
+
+LEAD_S = 0.5  # a cycle's copy goes to the worker this long before the swap point [s]: the update takes ~10-50 ms
+LOCKSTEP_WAIT_S = 30.0  # a lockstep session waits at most this long (wall time) for an update
+
+
+def default_store_dir() -> Path:
+    """Where learned tables are kept: ``~/.cache/rehab-hil/rig_learning`` (``REHAB_HIL_CACHE_DIR``
+    or ``XDG_CACHE_HOME`` move it with the plan cache; ``REHAB_HIL_LEARNING_DIR`` moves it alone:
+    the test suite gives each test its own)."""
+    env = os.environ.get("REHAB_HIL_LEARNING_DIR")
+    return Path(env) if env else cache_dir().parent / "rig_learning"
+
+
+class TableStore:
+    """One learned table per rig id, patient profile and plan: ``<dir>/<rig>/<profile>-<plan>.npz``
+    holding the table, the trials it took and the plan's key (a table for another plan is never
+    used). Writes are atomic (a killed session leaves the previous table)."""
+
+    def __init__(self, directory: Path, rig_id: str, profile_id: str | None, plan_key: str) -> None:
+        slug = _slug(rig_id)
+        who = _slug(profile_id) if profile_id else "no-profile"
+        self.plan_key = plan_key
+        self.path = Path(directory) / slug / f"{who}-{hashlib.sha1(plan_key.encode()).hexdigest()[:16]}.npz"
+
+    def load(self, n: int) -> tuple[np.ndarray, int] | None:
+        """The stored table and its trial count, or None (none, damaged, another plan or length)."""
+        try:
+            with np.load(self.path) as z:
+                if str(z["plan_key"]) != self.plan_key or z["table"].shape != (n,):
+                    return None
+                return np.asarray(z["table"], float), int(z["trials"])
+        except (OSError, ValueError, KeyError):
+            return None
+
+    def save(self, table: np.ndarray, trials: int) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp.npz")
+        np.savez(tmp, table=table, trials=np.array(trials), plan_key=np.array(self.plan_key))
+        os.replace(tmp, self.path)
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "x"
+
+
+class RigLearning:
+    """One session's learning on the rig; see the module docstring. ``table`` is the array the
+    runtime reads (replaced, never written in place, at a swap)."""
+
+    def __init__(self, spec: RigLearningSpec, base: np.ndarray, store: TableStore | None = None,
+                 lockstep: bool = False) -> None:
+        self.spec, self.store, self.lockstep = spec, store, lockstep
+        self.learner = RigLearner(spec, base)
+        self.learner.prepare()  # before the loop: nothing slow is left for the worker's first update
+        n = spec.n
+        self.table = np.asarray(base, float).copy()
+        self.trials = 0  # updates this table has taken on the rig (across sessions, when stored)
+        self.resumed = False
+        stored = store.load(n) if store is not None else None
+        if stored is not None:
+            self.table, self.trials = stored
+            self.resumed = True
+        self._start = (self.table, self.trials)  # what the store held: put back if the session trips
+        self._error = np.zeros(n)
+        self._effort = np.zeros(n)
+        self._cut = np.zeros(n, bool)
+        self._next_submit = spec.swap_s - LEAD_S
+        self._next_swap = spec.swap_s
+        self._last_swap_t = 0.0
+        self._pending = False
+        self._result: tuple[np.ndarray, dict[str, float]] | None = None
+        self._done = threading.Event()
+        self._jobs: queue.Queue[Any] = queue.Queue(maxsize=1)
+        self.log: list[dict[str, float]] = []  # one entry per swap: when, trial, what the update did
+        self.late = 0  # updates not ready at their swap point (real time only)
+        self.forgotten = False  # the store put back as the session found it (it ended in a safety trip)
+        self._worker: threading.Thread | None = threading.Thread(target=self._work, name="rig-learning", daemon=True)
+        self._worker.start()
+
+    def record(self, t_s: float, row: int, error_deg: float, effort: float, saturation: float = 0.0
+               ) -> np.ndarray | None:
+        """One controlled sample (after its command is out): the error, the applied effort and the
+        demand the limit did not apply (a ceiling's or the guard's cut, the clamp); returns a new
+        table to read from now on at a swap point, else None."""
+        if 0 <= row < len(self._error):
+            self._error[row] = error_deg
+            self._effort[row] = effort
+            self._cut[row] = saturation > 1e-9
+        if t_s >= self._next_submit:
+            self._next_submit += self.spec.period_s
+            if t_s - self._last_swap_t >= self.spec.period_s - LEAD_S - 1e-9 and not self._pending:
+                self._submit()
+        if t_s >= self._next_swap:
+            self._next_swap += self.spec.period_s
+            return self._swap(t_s)
+        return None
+
+    def _submit(self) -> None:
+        self._pending = True
+        self._done.clear()
+        self._jobs.put((self.table, self._error.copy(), self._effort.copy(), self._cut.copy(), self.trials + 1))
+
+    def _work(self) -> None:
+        """The worker thread: one update per job; the accepted table stored as it is made."""
+        while (job := self._jobs.get()) is not None:
+            table, error, effort, cut, trial = job
+            try:
+                new, info = self.learner.update(table, error, effort, cut)
+                if self.store is not None:
+                    self.store.save(new, trial)
+                self._result = (new, info)
+            except Exception as e:  # a failed update leaves the table as it is, said so
+                self._result = (table, {"learn_failed": 1.0, "learn_error": str(e)})  # type: ignore[dict-item]
+            self._done.set()
+
+    def _swap(self, t_s: float) -> np.ndarray | None:
+        """At a swap point: the worker's table, if there is one (a lockstep session waits for it)."""
+        if not self._pending:
+            return None
+        if not self._done.is_set() and not (self.lockstep and self._done.wait(LOCKSTEP_WAIT_S)):
+            self.late += 1
+            return None  # real time: never wait; it is taken at the next swap point
+        self._pending = False
+        assert self._result is not None
+        new, info = self._result
+        self._result = None
+        self.trials += 1
+        self.table = new
+        self._last_swap_t = t_s
+        self.log.append({"t_s": t_s, "trial": float(self.trials), **info})
+        return new
+
+    def close(self) -> None:
+        """Stop the worker (its last update, if any, is already stored)."""
+        if self._worker is not None:
+            self._jobs.put(None)
+            self._worker.join(timeout=5.0)
+            self._worker = None
+
+    def forget_session(self) -> None:
+        """Leave the store as this session found it (after a safety trip: what was learned in a
+        session that ended in one is not carried into the next). Call after ``close``."""
+        if self.store is None:
+            return
+        if self.resumed:
+            self.store.save(*self._start)
+        else:
+            self.store.path.unlink(missing_ok=True)
+        self.forgotten = True
+
+    def summary(self) -> dict[str, Any]:
+        """What the session's learning did (metadata.json ``rig_learning``)."""
+        return {"enabled": True, "resumed": self.resumed, "trials": self.trials, "updates": len(self.log),
+                "late": self.late, "store": str(self.store.path) if self.store is not None else None,
+                "kept": not self.forgotten,
+                "gain_per_deg": self.spec.gain_per_deg, "forgetting": self.spec.forgetting}
