@@ -47,6 +47,8 @@ THERMAL_EVENT = "thermal_change"
 NUDGE = 0.02  # finite-difference step of a relative quantity
 MAX_ITER = 12  # Levenberg-Marquardt steps per window at most ...
 TOL = 1e-3  # ... while the estimate moves more than this (relative)
+START_SPREAD = 1.5  # the fit's other starts: each quantity moved by this many prior spreads
+DESCENTS = 2  # descents from the best of the starts; the lowest cost is kept
 MU0, MU_MAX = 1e-3, 1e4  # Levenberg-Marquardt damping: its start (and floor) and where a step is given up
 BOUNDS = (0.3, 3.0)  # the estimate stays within these multiples of the config value
 SUBSAMPLE_S = 0.02  # the fit reads a sample every this long (neighbours carry the same information) [s]
@@ -219,9 +221,11 @@ class ThermalEstimator:
             m.P = self.P0
 
     def _fit(self, index: np.ndarray, U: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Levenberg-Marquardt on the window's prediction error with the previous estimate as prior (a
-        step is taken only where it lowers the cost: the hysteresis makes the error far from smooth):
-        the new estimate and its covariance, or None (nothing to fit: too few finite samples)."""
+        """The window's fit with the previous estimate as prior: Levenberg-Marquardt from the best of a
+        few starts (the prior and each quantity moved by its spread, ``_starts``: the angle is flat
+        outside the wire's transformation band, and a descent from one start can stop where the wire
+        crosses the band at the wrong times), the lowest cost kept. The new estimate and its
+        covariance, or None (too few finite samples)."""
         m = self.model
         keep = np.arange(0, index.size, max(1, round(SUBSAMPLE_S / m.period_s)))
         z = Y[keep] / m.resolution
@@ -230,8 +234,45 @@ class ThermalEstimator:
             return None
         prior = self.theta.copy()
         prior_info = np.linalg.inv(self.cov / self.lam)
-        theta, mu = prior.copy(), MU0
-        y = self._run(theta, index, U, Y)[keep] / m.resolution
+        data = (index, U, Y, keep, z, ok)
+        starts = self._starts(prior, prior_info, data)[:DESCENTS]
+        ends = [self._descend(start, prior, prior_info, data) for start in starts]
+        # the ends compared with one set of weights: those of the end that predicts the samples best
+        sse = [float(np.nansum((z - y) ** 2)) for _, y in ends]
+        w = self._weights(z - ends[int(np.argmin(sse))][1], ok)
+        theta, y = min(ends, key=lambda ty: self._cost(z - ty[1], ok, w, ty[0] - prior, prior_info))
+        w = self._weights(z - y, ok)
+        J = self._jacobian(theta, index, U, Y, keep, y)
+        A = np.vstack([J[ok[:, c], c, :] * math.sqrt(w[c]) for c in range(z.shape[1])])
+        return theta, np.linalg.inv(A.T @ A + prior_info)
+
+    def _predicted(self, theta: np.ndarray, data: tuple[np.ndarray, ...]) -> np.ndarray:
+        index, U, Y, keep = data[:4]
+        return self._run(theta, index, U, Y)[keep] / self.model.resolution
+
+    def _starts(self, prior: np.ndarray, prior_info: np.ndarray, data: tuple[np.ndarray, ...]) -> list[np.ndarray]:
+        """The prior and each quantity alone moved by +-START_SPREAD of its prior spread, best first
+        (cost with the prior point's residual weights)."""
+        z, ok = data[4], data[5]
+        e0 = z - self._predicted(prior, data)
+        w = self._weights(e0, ok)
+        sd = np.sqrt(np.diag(np.linalg.inv(prior_info)))
+        cands = [prior.copy()]
+        for j in range(prior.size):
+            for sign in (-1.0, 1.0):
+                th = prior.copy()
+                th[j] = np.clip(th[j] + sign * START_SPREAD * sd[j], *BOUNDS)
+                cands.append(th)
+        costs = [self._cost(z - self._predicted(th, data), ok, w, th - prior, prior_info) for th in cands]
+        return [cands[k] for k in np.argsort(costs)]
+
+    def _descend(self, theta: np.ndarray, prior: np.ndarray, prior_info: np.ndarray,
+                 data: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Levenberg-Marquardt from ``theta``: a step is taken only where it lowers the cost (the
+        hysteresis makes the error far from smooth). The end point and its predicted samples."""
+        index, U, Y, keep, z, ok = data
+        mu = MU0
+        y = self._predicted(theta, data)
         for _ in range(MAX_ITER):
             w = self._weights(z - y, ok)  # this point's residual variance weighs the data against the prior
             J = self._jacobian(theta, index, U, Y, keep, y)
@@ -241,7 +282,7 @@ class ThermalEstimator:
             cost = self._cost(z - y, ok, w, theta - prior, prior_info)
             while mu < MU_MAX:
                 new = np.clip(theta + np.linalg.solve(H + mu * np.diag(np.diag(H)), g), *BOUNDS)
-                y_new = self._run(new, index, U, Y)[keep] / m.resolution
+                y_new = self._predicted(new, data)
                 if self._cost(z - y_new, ok, w, new - prior, prior_info) < cost:
                     break
                 mu *= 4.0
@@ -251,10 +292,7 @@ class ThermalEstimator:
             theta, y, mu = new, y_new, max(mu / 4.0, MU0)
             if moved < TOL:
                 break
-        w = self._weights(z - y, ok)
-        J = self._jacobian(theta, index, U, Y, keep, y)
-        A = np.vstack([J[ok[:, c], c, :] * math.sqrt(w[c]) for c in range(z.shape[1])])
-        return theta, np.linalg.inv(A.T @ A + prior_info)
+        return theta, y
 
     @staticmethod
     def _cost(e: np.ndarray, ok: np.ndarray, w: np.ndarray, d: np.ndarray, prior_info: np.ndarray) -> float:
