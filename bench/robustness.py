@@ -178,6 +178,7 @@ class CaseResult:
     thermal_events: list[str] = field(default_factory=list)
     model_events: int = 0
     wall_s: float = 0.0
+    thermal_cpu_s_per_window: float = math.nan
 
 
 def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp: Path) -> CaseResult:
@@ -214,7 +215,8 @@ def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp:
         thermal={k: {"value": e["value"], "ci95": e["ci95"], "config": e["config"], "truth": config_value(sim, k)}
                  for k, e in thermal.get("estimates", {}).items()},
         thermal_events=[f"{e['label']} {e['value']:.4g} at {e['t_s']:.0f} s" for e in thermal.get("events", [])],
-        model_events=len(res.twin.get("model_events", [])) if res.twin else 0, wall_s=time.perf_counter() - t0)
+        model_events=len(res.twin.get("model_events", [])) if res.twin else 0, wall_s=time.perf_counter() - t0,
+        thermal_cpu_s_per_window=thermal.get("cpu_s_per_window", math.nan))
 
 
 # -- the figures ----------------------------------------------------------------------------------

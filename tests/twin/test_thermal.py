@@ -117,3 +117,17 @@ def test_bench_rigs_are_valid_configs_that_differ_in_their_key_only(tmp_path, pl
         assert changed == ({case.key} if case.key else set()), case.name
         if case.key:
             assert flat[case.key] == pytest.approx(case.value(flat0[case.key]))
+
+
+def test_thermal_event_goes_to_the_recording_and_zenoh():
+    from rehab_hil.twin.outputs import SinkOutput, ZenohOutput
+    from rehab_hil.twin.thermal import ThermalEvent
+
+    ev = ThermalEvent(24.0, "sma.ambient_c", "ambient", 29.9, 0.1, 23.0, {"sma.ambient_c": 29.9})
+    offered: list[Any] = []
+    SinkOutput(type("Sink", (), {"offer": lambda self, r: offered.append(r)})()).thermal(ev)
+    assert offered[0].kind == THERMAL_EVENT and "29.9" in offered[0].detail
+    published: list[tuple[str, dict]] = []
+    ZenohOutput(type("Pub", (), {"offer_twin": lambda self, k, b: published.append((k, b))})()).thermal(ev)
+    kind, body = published[0]
+    assert kind == THERMAL_EVENT and body["updates"] == {"sma.ambient_c": 29.9} and "kind" not in body
