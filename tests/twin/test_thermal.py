@@ -131,3 +131,15 @@ def test_thermal_event_goes_to_the_recording_and_zenoh():
     ZenohOutput(type("Pub", (), {"offer_twin": lambda self, k, b: published.append((k, b))})()).thermal(ev)
     kind, body = published[0]
     assert kind == THERMAL_EVENT and body["updates"] == {"sma.ambient_c": 29.9} and "kind" not in body
+
+
+def test_an_unknown_thermal_quantity_is_refused():
+    from rehab_hil.config import TwinSection
+    from rehab_hil.twin.live import thermal_estimator
+    from rehab_hil.twin.model import TwinSetupError
+
+    cfg = load_config(SMA)
+    with pytest.raises(TwinSetupError, match=r"sma\.length_m.*sma\.ambient_c"):
+        thermal_estimator(cfg, get_plant(cfg.plant).device(cfg), 0.001, TwinSection(thermal=["sma.length_m"]), 12.0)
+    fe = load_config(CONFIGS / "finger_extensor.toml")  # no thermal actuator: nothing to estimate, no error
+    assert thermal_estimator(fe, get_plant(fe.plant).device(fe), 0.001, TwinSection(), None) is None

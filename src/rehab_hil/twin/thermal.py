@@ -225,6 +225,7 @@ class ThermalEstimator:
             return m.advance(index, Uq, Y).predicted
         finally:
             m.P = self.P0
+            time.sleep(0)  # the interpreter back to the loop between two runs (a fit is ~100 of them)
 
     def _fit(self, index: np.ndarray, U: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The window's fit with the previous estimate as prior: Levenberg-Marquardt from the best of a
