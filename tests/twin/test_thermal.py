@@ -94,6 +94,15 @@ def test_nominal_rig_raises_no_thermal_event(tmp_path):
         assert abs(e["value"] - e["config"]) <= max(e["ci95"], floors[key]), key
 
 
+def test_a_difference_that_is_not_thermal_is_not_handed_to_the_controller(tmp_path):
+    # the wire's pre-strain 15 % lower moves the bend as a thermal difference would; the fit leaves
+    # 13 counts RMS where a thermal one leaves < 1: the event says so and the hook is not called
+    res, calls, _ = _session(tmp_path, "sma.prestrain", 0.85 * 0.0117, CYCLE_S + 0.5)
+    th = res.twin["twin"]["thermal"]
+    assert th["events"] and not any(e["explained"] for e in th["events"])
+    assert calls == []
+
+
 def _flat(obj: Any, prefix: str = "") -> dict[str, Any]:
     if isinstance(obj, dict):
         out: dict[str, Any] = {}

@@ -49,10 +49,10 @@ class TwinRun:
             self.on_stop(event.text())
 
     def thermal(self, event: ThermalEvent) -> None:
-        """A thermal quantity left its interval: the controller's hook gets the updated config values
-        (a failing hook is recorded, never stops the twin)."""
-        if self.on_thermal_change is None:
-            return
+        """A thermal quantity left its interval: the controller's hook gets the updated config values,
+        when the fit explains the window (a failing hook is recorded, never stops the twin)."""
+        if self.on_thermal_change is None or not event.explained:  # a window the thermal quantities do not
+            return                                                   # explain is another difference
         try:
             self.on_thermal_change(dict(event.updates))
         except Exception as e:
