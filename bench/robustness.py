@@ -291,7 +291,11 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for plant in [p.strip() for p in a.plants.split(",") if p.strip()]:
-            host = host_config(CONFIGS / f"{plant}.toml", a.controller, settings, tmp / f"host_{plant}.toml")
+            try:
+                host = host_config(CONFIGS / f"{plant}.toml", a.controller, settings, tmp / f"host_{plant}.toml")
+            except ValueError as e:  # a ConfigError: the setting's key or value, named
+                print(f"{plant}: {e}", file=sys.stderr)
+                return 2
             s = load_config(host).rig.session
             range_deg = abs(s.open_deg - s.closed_deg)
             n = a.cycles or (QUICK_CYCLES if a.quick else CYCLES)[plant]
