@@ -88,9 +88,10 @@ def thermal_quantities(cfg: Any) -> list[ThermalQuantity]:
     if cfg.plant == "tcp_finger":
         out = [ThermalQuantity("muscle.max_power_w", "supply", 0.15 * cfg.muscle.max_power_w,
                                0.03 * cfg.muscle.max_power_w, input="power_w")]
-        if cfg.muscle.model == "lumped":  # eq 1a has them; the TFs of Table 1 are deviations from rest
-            out += [ThermalQuantity("muscle.ambient_c", "ambient", 5.0, 1.0, params=("thermal.ambient_c",)),
-                    ThermalQuantity("muscle.lumped.convection_w_per_m2_k", "convection",
+        # the room does not enter either model: Table 1's TFs are deviations from rest, and TF2 reads the
+        # lumped model's temperature less the room's (tcp_finger._muscle); eq 1a's convection is a parameter
+        if cfg.muscle.model == "lumped":
+            out += [ThermalQuantity("muscle.lumped.convection_w_per_m2_k", "convection",
                                     0.3 * cfg.muscle.lumped.convection_w_per_m2_k,
                                     0.05 * cfg.muscle.lumped.convection_w_per_m2_k,
                                     params=("thermal.convection_w_per_m2_k",))]
@@ -159,6 +160,7 @@ class ThermalEstimator:
         self.lam = math.exp(-window_s / memory_s)
         self.theta = np.ones(len(self.quantities))
         self.cov = np.diag((np.array([q.prior_sd for q in self.quantities]) / np.abs(self.config)) ** 2)
+        self._prior_cov = self.cov.copy()
         self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._start = model.snapshot()
         self._start_theta = self.theta.copy()
@@ -256,7 +258,7 @@ class ThermalEstimator:
         if ok.sum() < 10:
             return None
         prior = self.theta.copy()
-        prior_info = np.linalg.inv(self.cov / self.lam)
+        prior_info = np.linalg.inv(self._grown())
         data = (index, U, Y, keep, z, ok)
         starts = self._starts(prior, prior_info, data)[:DESCENTS]
         ends = [self._descend(start, prior, prior_info, data) for start in starts]
@@ -269,6 +271,13 @@ class ThermalEstimator:
         J = self._jacobian(theta, index, U, Y, keep, y)
         A = np.vstack([J[ok[:, c], c, :] * math.sqrt(w[c]) for c in range(z.shape[1])])
         return theta, np.linalg.inv(A.T @ A + prior_info), before, after
+
+    def _grown(self) -> np.ndarray:
+        """The previous covariance grown by the forgetting factor, each variance at most the prior's (a
+        quantity the windows say nothing about keeps its prior spread instead of growing without end)."""
+        C = self.cov / self.lam
+        d = np.sqrt(np.minimum(1.0, np.diag(self._prior_cov) / np.maximum(np.diag(C), 1e-300)))
+        return C * np.outer(d, d)
 
     def _predicted(self, theta: np.ndarray, data: tuple[np.ndarray, ...]) -> np.ndarray:
         index, U, Y, keep = data[:4]
