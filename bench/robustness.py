@@ -214,7 +214,9 @@ def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp:
         safety_events=[f"{e.reason} at {e.t_s:.1f} s" for e in res.events if e.reason != "stop_request"],
         thermal={k: {"value": e["value"], "ci95": e["ci95"], "config": e["config"], "truth": config_value(sim, k)}
                  for k, e in thermal.get("estimates", {}).items()},
-        thermal_events=[f"{e['label']} {e['value']:.4g} at {e['t_s']:.0f} s" for e in thermal.get("events", [])],
+        thermal_events=[f"{e['label']} {e['value']:.4g} at {e['t_s']:.0f} s"
+                        + ("" if e.get("explained", True) else " (not explained: not handed to the controller)")
+                        for e in thermal.get("events", [])],
         model_events=len(res.twin.get("model_events", [])) if res.twin else 0, wall_s=time.perf_counter() - t0,
         thermal_cpu_s_per_window=thermal.get("cpu_s_per_window", math.nan))
 
