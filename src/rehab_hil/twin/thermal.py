@@ -12,10 +12,13 @@ angle (and force) over seconds. The estimate is therefore an output-error fit ov
 session (by default one open-close cycle): the twin's own model, run on the estimate with the
 applied inputs from the window's start and re-anchored on the measured angle every segment (the
 multiple shooting of ``model.py``; the temperature is not anchored, it is carried through the whole
-window), predicts every measured sample; Gauss-Newton with finite-difference sensitivities through
-the whole model moves the estimate to the prediction error's least squares, weighed against the
-previous window's estimate (a recursive, iterated least squares across windows; the previous
-covariance grows by the forgetting factor exp(window / memory) between windows). The 95 % interval
+window), predicts every measured sample; Levenberg-Marquardt with finite-difference sensitivities
+through the whole model (from the best two of seven starts: the angle is flat outside the wire's
+band, and one descent can stop in a wrong valley) moves the estimate to the prediction error's least
+squares, weighed against the previous window's estimate (a recursive, iterated least squares across
+windows; the previous covariance grows by the forgetting factor exp(window / memory) between
+windows, never beyond the prior). The window ``finish`` fits when a session ends inside one counts
+if it is at least half a window. The 95 % interval
 comes from the posterior covariance with each channel's residual variance, widened for the
 correlation of neighbouring residuals (AR(1), lag-one autocorrelation rho: x (1 + rho) / (1 - rho)).
 
