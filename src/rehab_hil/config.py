@@ -247,6 +247,15 @@ class TwinSection(Section):
                                              "estimate's own model [s] (default: segment_s); a slow plant's "
                                              "monitor may look over longer segments than its estimate needs")
     forgetting_s: float = Field(2.0, gt=0.0, description="memory of the online estimate (RLS forgetting) [s]")
+    thermal: list[str] | None = Field(None, description="thermal quantities estimated online, as config keys "
+                                      "(sma.ambient_c, sma.h1_w_per_m2_c, drive.supply_voltage_v; the TCP's "
+                                      "muscle.max_power_w ...); default: every one the plant's model has "
+                                      "(twin/thermal.py); [] turns the thermal estimate off")
+    thermal_window_s: float | None = Field(None, gt=0.0, le=600.0, description="the thermal estimate fits its "
+                                           "model over windows this long [s] (default: the session's open-close "
+                                           "cycle, else 12 s)")
+    thermal_memory_s: float = Field(60.0, gt=0.0, description="memory of the thermal estimate across windows "
+                                    "(forgetting exp(-window / memory)) [s]")
     min_realtime_factor: float = Field(5.0, gt=0.0, description="the model must run this many times faster than "
                                        "real time here, per model run a segment needs (the twin, the estimate and "
                                        "one per estimated parameter), or the twin is refused at start")

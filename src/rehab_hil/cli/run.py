@@ -158,6 +158,13 @@ def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
                   f"{ev['cause'] or 'no cause named'}")
     if not meta.get("model_events"):
         t.add_row("model events", "none")
+    thermal = tw.get("thermal") or {}
+    for ev in thermal.get("events", []):  # the thermal quantities first: they move the bend, the contact barely
+        t.add_row(f"[yellow]thermal_change {ev['label']}", f"{ev['key']} = {ev['value']:.4g} +/- {ev['ci95']:.2g} "
+                  f"(config {ev['config']:.4g}) at {ev['t_s']:.1f} s")
+    for key, est in thermal.get("estimates", {}).items():
+        t.add_row(f"thermal {est['label']}", f"{key} = {est['value']:.4g} +/- {est['ci95']:.2g} "
+                  f"(config {est['config']:.4g})")
     for name, est in meta.get("patient", {}).get("session", {}).items():
         since = f"; fitted from {est['since_s']:.2f} s, after a change" if est.get("since_s") else ""
         if est["ci95"] > 0.5 * abs(est["value"]):

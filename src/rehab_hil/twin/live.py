@@ -34,12 +34,14 @@ from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.service.records import SampleRecord
 from rehab_hil.service.sinks import Overflow, ThreadedSink
 from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
-from rehab_hil.twin.model import TwinModel, check_rate
+from rehab_hil.twin.model import TwinModel, TwinSetupError, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
+from rehab_hil.twin.thermal import ThermalEstimator, ThermalEvent, thermal_quantities
 
 __all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener", "patient_column"]
 
 PREDICTION_EVERY = 10  # one prediction message per this many samples (100 Hz at 1 kHz): plots, not data
+DEFAULT_THERMAL_WINDOW_S = 12.0  # the thermal estimate's window without a session cycle (the SMA's) [s]
 HISTORY_S = 30.0  # how much of the session the twin keeps for a diagnosis
 YIELD_EVERY = 32  # records taken between two releases of the interpreter
 
@@ -54,13 +56,16 @@ class TwinListener(Protocol):
 
     def mismatch(self, event: MismatchEvent, final: bool) -> None: ...
 
+    # optional: ``thermal(event: ThermalEvent)``, a thermal quantity beyond its interval (``twin.thermal``)
+
 
 class Twin:
     """The model, its residual test and the interaction estimate, fed with the loop's records."""
 
     def __init__(self, cfg: Any, binding: DeviceBinding, period_s: float, settings: TwinSection | None = None,
                  out_dir: str | Path | None = None, listeners: Sequence[TwinListener] = (),
-                 check_speed: bool = True) -> None:
+                 check_speed: bool = True, cycle_s: float | None = None) -> None:
+        """``cycle_s``: the session's open-close period, the thermal estimate's default window."""
         self.settings = settings or TwinSection()
         self.cfg, self.binding, self.period_s = cfg, binding, period_s
         self.model = TwinModel(cfg, binding, period_s, self.settings.segment_s, self.settings.channels or None)
@@ -73,6 +78,7 @@ class Twin:
                                                          self.settings.channels or None, smooth=True),
                                                names, self.settings.forgetting_s) if names else None)
         self.estimate_history: list[tuple[float, list[Estimate]]] = []  # (segment end, estimates)
+        self.thermal = thermal_estimator(cfg, binding, period_s, self.settings, cycle_s)
         runs = 1 + (2 + len(names) if self.estimator is not None else 0)
         self.rtf = check_rate(self.model, runs, self.settings.min_realtime_factor) if check_speed else math.nan
         n_in = len(self.model.system.input_names)
@@ -143,6 +149,7 @@ class Twin:
         if self.estimator is not None:
             self.estimator.update(index, U, Y)
             self.estimate_history.append((float(index[-1] * self.period_s), self.estimator.estimates()))
+        thermal_events = self.thermal.update(index, U, Y) if self.thermal is not None else []
         r = block.residual
         events: list[MismatchEvent] = []
         ends = set(np.flatnonzero(block.anchored).tolist())
@@ -166,6 +173,7 @@ class Twin:
             self.estimator.restart(min(ev.t_s for ev in events))
         self.busy_s += time.thread_time() - t0
         self._write(block)
+        self._tell_thermal(thermal_events)
         for ev in events:
             for lst in self.listeners:
                 lst.mismatch(ev, final=not self.settings.diagnose)
@@ -207,6 +215,14 @@ class Twin:
                 for lst in self.listeners:
                     lst.prediction(msg)
             time.sleep(0)
+
+    def _tell_thermal(self, events: list[ThermalEvent]) -> None:
+        """Thermal events to the listeners that take them (``thermal``)."""
+        for ev in events:
+            for lst in self.listeners:
+                fn = getattr(lst, "thermal", None)
+                if fn is not None:
+                    fn(ev)
 
     # -- diagnosis -----------------------------------------------------------------------------
     def _diagnose_due(self, now_s: float) -> None:
@@ -260,8 +276,10 @@ class Twin:
         return Recording(t, signals, rig=True), x0, xd0
 
     def finish(self) -> None:
-        """Process what is buffered and close the CSV."""
+        """Process what is buffered (the thermal estimate's last part of a window too) and close the CSV."""
         self.process()
+        if self.thermal is not None:
+            self._tell_thermal(self.thermal.finish())
         if self._csv_fd >= 0:
             os.close(self._csv_fd)
             self._csv_fd = -1
@@ -294,7 +312,8 @@ class Twin:
                 "cpu_per_sample_us": 1e6 * self.busy_s / max(self.samples, 1),
                 # None: the session ended before the normal level was learned (settle_s + learn_s)
                 "normal_residual": {ch.name: ch.first_mu * ch.resolution if math.isfinite(ch.first_mu) else None
-                                    for ch in self.monitor.channels}}
+                                    for ch in self.monitor.channels},
+                "thermal": self.thermal.summary() if self.thermal is not None else None}
 
 
 class LiveTwin(ThreadedSink):
@@ -324,3 +343,20 @@ class LiveTwin(ThreadedSink):
 def normal_residual_text(normal: dict[str, float | None]) -> str:
     """``summary()["normal_residual"]`` in one line: each channel's level, or that it is still learning."""
     return ", ".join(f"{c} {v:.3g}" if v is not None else f"{c} still learning" for c, v in normal.items())
+
+
+def thermal_estimator(cfg: Any, binding: DeviceBinding, period_s: float, settings: TwinSection,
+                      cycle_s: float | None) -> ThermalEstimator | None:
+    """The thermal estimate ``[twin] thermal`` asks for (default: every thermal quantity of the plant's
+    model), on a smooth model of its own; None when there is none or it is turned off."""
+    found = {q.key: q for q in thermal_quantities(cfg)}
+    keys = list(found) if settings.thermal is None else settings.thermal
+    unknown = [k for k in keys if k not in found]
+    if unknown:
+        raise TwinSetupError(f"[twin] thermal: {unknown[0]!r} is not a thermal quantity of the {cfg.plant} "
+                             f"model (it has {', '.join(found) or 'none'})")
+    if not keys:
+        return None
+    window = settings.thermal_window_s or cycle_s or DEFAULT_THERMAL_WINDOW_S
+    model = TwinModel(cfg, binding, period_s, settings.segment_s, settings.channels or None, smooth=True)
+    return ThermalEstimator(model, [found[k] for k in keys], cfg, window, settings.thermal_memory_s)

@@ -129,6 +129,17 @@ class TwinModel:
         self._u_last = self._u_const.copy()
         self.last_correction = np.zeros(len(self.channels))  # per channel, at the last anchor (sensor units)
 
+    def snapshot(self) -> tuple[Any, ...]:
+        """Everything ``advance`` changes, copied: a fit can run the model over a window again and again
+        from one start (``restore``)."""
+        return (self.x.copy(), self.xd.copy(), self.anchored, self._since_anchor, self._last_index,
+                self._u_last.copy(), self.last_correction.copy())
+
+    def restore(self, snap: tuple[Any, ...]) -> None:
+        """Back to a ``snapshot`` (its arrays copied again: the snapshot stays reusable)."""
+        x, xd, self.anchored, self._since_anchor, self._last_index, u_last, corr = snap
+        self.x, self.xd, self._u_last, self.last_correction = x.copy(), xd.copy(), u_last.copy(), corr.copy()
+
     def _anchor_gain(self) -> np.ndarray:
         """States x channels: a measured error -> the state correction (the states each channel
         is, found as ``initial_state`` finds them: the output Jacobian's dominant entry)."""

@@ -3,8 +3,8 @@
 Each is a ``TwinListener`` (``prediction``, ``mismatch``) called from the twin's thread; none
 blocks. ``SinkOutput`` offers records to a sink (the recorder, the Foxglove feed): ``MessageRecord``
 s on ``/twin/prediction`` (measured, predicted, residual and CUSUM per channel, 100 Hz) and
-model-mismatch ``EventRecord`` s, which go on ``/rig/event`` beside the safety events.
-``ZenohOutput``: ``rehab/<rig>/twin`` with kinds ``prediction`` and ``model_mismatch``
+model-mismatch and thermal-change ``EventRecord`` s, which go on ``/rig/event`` beside the safety events.
+``ZenohOutput``: ``rehab/<rig>/twin`` with kinds ``prediction``, ``model_mismatch`` and ``thermal_change``
 (docs/telemetry.md).
 """
 
@@ -15,6 +15,7 @@ from typing import Any
 
 from rehab_hil.service.records import EventRecord, MessageRecord
 from rehab_hil.twin.monitor import MismatchEvent
+from rehab_hil.twin.thermal import THERMAL_EVENT, ThermalEvent
 
 __all__ = ["EVENT_KIND", "GENERIC_TWIN_FIELDS", "PREDICTION_TOPIC", "SinkOutput", "ZenohOutput", "prediction_topic"]
 
@@ -45,6 +46,9 @@ class SinkOutput:
         if final:  # one event per mismatch, with its cause once diagnosed
             self.sink.offer(EventRecord(event.t_s, EVENT_KIND, event.text()))
 
+    def thermal(self, event: ThermalEvent) -> None:
+        self.sink.offer(EventRecord(event.t_s, THERMAL_EVENT, event.text()))
+
 
 class ZenohOutput:
     """Predictions and events on ``rehab/<rig>/twin`` (``TelemetryPublisher.offer_twin``)."""
@@ -58,3 +62,7 @@ class ZenohOutput:
     def mismatch(self, event: MismatchEvent, final: bool) -> None:
         body = {k: v for k, v in event.as_dict().items() if k != "kind"}  # the envelope carries the kind
         self.publisher.offer_twin(EVENT_KIND, {**body, "final": final, "text": event.text()})
+
+    def thermal(self, event: ThermalEvent) -> None:
+        body = {k: v for k, v in event.as_dict().items() if k != "kind"}
+        self.publisher.offer_twin(THERMAL_EVENT, {**body, "text": event.text()})

@@ -16,6 +16,7 @@ from rehab_hil.twin.live import LiveTwin, Twin
 from rehab_hil.twin.model import TwinSetupError
 from rehab_hil.twin.monitor import MismatchEvent
 from rehab_hil.twin.outputs import SinkOutput, ZenohOutput
+from rehab_hil.twin.thermal import ThermalEvent
 
 __all__ = ["TwinRun", "start_twin"]
 
@@ -31,6 +32,10 @@ class TwinRun:
         self.twin = live.twin
         self._threads: list[threading.Thread] = []
         self.on_stop: Callable[[str], None] | None = None
+        # the hook a controller re-plans on (docs/twin.md, "Thermal quantities"): called on the twin's thread
+        # with {config key: estimate} of every thermal quantity beyond its interval, when one leaves it
+        self.on_thermal_change: Callable[[dict[str, float]], None] | None = None
+        self.thermal_hook_errors: list[str] = []
         self.twin.diagnose_fn = self._diagnose if self.twin.settings.diagnose else None
         self.twin.listeners.append(self)
 
@@ -42,6 +47,16 @@ class TwinRun:
         """Called once, when the monitor fires (its diagnosis is announced to the others only)."""
         if self.twin.settings.stop_on_mismatch and self.on_stop is not None:
             self.on_stop(event.text())
+
+    def thermal(self, event: ThermalEvent) -> None:
+        """A thermal quantity left its interval: the controller's hook gets the updated config values,
+        when the fit explains the window (a failing hook is recorded, never stops the twin)."""
+        if self.on_thermal_change is None or not event.explained:  # a window the thermal quantities do not
+            return                                                   # explain is another difference
+        try:
+            self.on_thermal_change(dict(event.updates))
+        except Exception as e:
+            self.thermal_hook_errors.append(f"{type(e).__name__}: {e}")
 
     def _diagnose(self, event: MismatchEvent, rec: Any, x0: Any, xd0: Any) -> None:
         th = threading.Thread(target=self._run_diagnosis, args=(event, rec, x0, xd0), name="twin-diagnosis",
@@ -82,6 +97,8 @@ class TwinRun:
                 self._announce(ev)
         summary = self.twin.summary()
         summary["dropped_records"] = self.live.dropped
+        if self.thermal_hook_errors:
+            summary["thermal_hook_errors"] = self.thermal_hook_errors
         if self.live.error is not None:
             summary["error"] = f"{type(self.live.error).__name__}: {self.live.error}"
         out = {"twin": summary, "model_events": [model_event(ev) for ev in self.twin.monitor.events]}
@@ -111,7 +128,7 @@ def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str |
     if zenoh is not None:
         listeners.append(ZenohOutput(zenoh))
     try:
-        twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners)
+        twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners, cycle_s=cycle_s)
     except ValueError as e:  # a TwinSetupError, or a model the twin cannot bind: one line either way
         raise TwinSetupError(str(e)) from None
     return TwinRun(LiveTwin(twin, wait_when_full=lockstep), cfg, cycle_s)
