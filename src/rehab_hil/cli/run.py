@@ -257,7 +257,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
     console = Console()
     with _session(args) as session:
-        for note in getattr(session.controller, "controller", session.controller).notes:
+        for note in getattr(session.controller, "notes", ()):  # a declared controller's warnings
             print(f"warning: {note}")
         if session.homed is not None:
             print(f"homed ({session.homed.mode}): encoder count {session.homed.count} at the home pose")

@@ -120,8 +120,7 @@ class RigSession:
 
     @property
     def controller_name(self) -> str:
-        declared = getattr(self.controller, "controller", self.controller)  # a built controller's declaration
-        return getattr(declared, "name", None) or type(self.controller).__name__
+        return getattr(self.controller, "name", None) or type(self.controller).__name__  # a test's own: its class
 
     def request_stop(self, reason: str, kind: str = "stop_request") -> None:
         """Stop at the next cycle through the safe state (a signal handler's call; any thread)."""
@@ -209,10 +208,9 @@ class RigSession:
             self.foxglove = foxglove_view(opts.foxglove, self.binding)
             self.stack.callback(self.foxglove.close)
         if opts.twin or (self.cfg.twin is not None and self.cfg.twin.enabled):
-            declared = getattr(self.controller, "controller", self.controller)  # a built controller's declaration
             outputs = [x for x in (self.recorder, self.foxglove and self.foxglove.sink) if x is not None]
             self.twin = live_twin(self.cfg, self.binding, self.run_dir, outputs, self.telemetry and self.telemetry.sink,
-                                  getattr(declared, "reference", None), self.lockstep, str(self.config_path))
+                                  getattr(self.controller, "reference", None), self.lockstep, str(self.config_path))
             self.stack.callback(self.twin.live.close)  # the twin's thread, if the session never ran (idempotent)
         self._loop()
 

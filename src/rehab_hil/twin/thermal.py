@@ -192,20 +192,18 @@ class ThermalEstimator:
         self._n += index.size
         if self._n < self.window_samples:
             return []
-        index = np.concatenate([b[0] for b in self._blocks])
-        U = np.concatenate([b[1] for b in self._blocks])
-        Y = np.concatenate([b[2] for b in self._blocks])
-        self._blocks, self._n = [], 0
-        return self.fit_window(index, U, Y)
+        return self._fit_buffered()
 
     def finish(self) -> list[ThermalEvent]:
         """The session ended: the part of a window it has is fitted too, when it is at least half a
         window long (a session that trips in its first cycle still says what it saw)."""
         if self._n < self.window_samples // 2:
             return []
-        index = np.concatenate([b[0] for b in self._blocks])
-        U = np.concatenate([b[1] for b in self._blocks])
-        Y = np.concatenate([b[2] for b in self._blocks])
+        return self._fit_buffered()
+
+    def _fit_buffered(self) -> list[ThermalEvent]:
+        """Fit the blocks gathered so far as one window, and start gathering the next."""
+        index, U, Y = (np.concatenate([b[k] for b in self._blocks]) for k in range(3))
         self._blocks, self._n = [], 0
         return self.fit_window(index, U, Y)
 
