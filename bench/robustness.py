@@ -179,9 +179,11 @@ class CaseResult:
     model_events: int = 0
     wall_s: float = 0.0
     thermal_cpu_s_per_window: float = math.nan
+    replans: list[str] = field(default_factory=list)  # the feedforward re-planned on the twin's estimates
 
 
-def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp: Path) -> CaseResult:
+def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp: Path,
+             replan: bool = True) -> CaseResult:
     """The case's session: ``n_cycles`` open-close cycles on its rig, lockstep, the twin beside it."""
     from rehab_hil.hardware.open import inprocess_hardware
     from rehab_hil.loading import load_config
@@ -198,7 +200,8 @@ def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp:
     t0 = time.perf_counter()
     try:
         with open_session(host, hw=hw, twin=True, lockstep=True, realtime=False, sample_timeout_s=5.0,
-                          controller=controller) as session:
+                          controller=controller, thermal_replan=replan,
+                          learning_store=tmp / "learning" / re.sub(r"\W+", "_", case.name)) as session:
             session.twin.live._cap = max(session.twin.live._cap, round(2 * duration / session.period_s))
             res = session.run(duration)
     finally:
@@ -218,7 +221,16 @@ def run_case(case: Case, host: Path, n_cycles: int, controller: str | None, tmp:
                         + ("" if e.get("explained", True) else " (not explained: not handed to the controller)")
                         for e in thermal.get("events", [])],
         model_events=len(res.twin.get("model_events", [])) if res.twin else 0, wall_s=time.perf_counter() - t0,
-        thermal_cpu_s_per_window=thermal.get("cpu_s_per_window", math.nan))
+        thermal_cpu_s_per_window=thermal.get("cpu_s_per_window", math.nan),
+        replans=[replan_text(e) for e in (res.learning or {}).get("replans", [])])
+
+
+def replan_text(e: dict[str, Any]) -> str:
+    """One re-plan, short: on what, when it was taken, how long it took."""
+    if "replan_error" in e:
+        return f"re-plan failed: {e['replan_error']}"
+    on = ", ".join(f"{k.split('.')[-1]} {v:.4g}" for k, v in e["replan_updates"].items())
+    return f"re-planned on {on} ({e['replan_s']:.1f} s), taken at {e['t_s']:.0f} s"
 
 
 # -- the figures ----------------------------------------------------------------------------------
@@ -272,6 +284,8 @@ def table(plant: str, results: list[CaseResult], range_deg: float) -> str:
         if r.thermal:
             lines.append(f"{'':<22}   twin: {thermal_text(r)}"
                          + (f"; events: {', '.join(r.thermal_events)}" if r.thermal_events else ""))
+        if r.replans:
+            lines.append(f"{'':<22}   {'; '.join(r.replans)}")
     return "\n".join(lines)
 
 
@@ -283,13 +297,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--setting", action="append", default=[], help="key=value in [controllers.<controller>]")
     ap.add_argument("--cycles", type=int, default=None)
     ap.add_argument("--quick", action="store_true", help="fewer cycles (SMA, FE 4; TCP 2)")
+    ap.add_argument("--no-replan", action="store_true", help="the feedforward is not re-planned on the twin's "
+                    "thermal estimates (the session option thermal_replan=False)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     a = ap.parse_args(argv)
     from rehab_hil.loading import load_config
 
     settings = dict(s.split("=", 1) for s in a.setting)
     only = {c.strip() for c in a.cases.split(",") if c.strip()}
-    out: dict[str, Any] = {"controller": a.controller, "settings": settings, "quick": a.quick, "plants": {}}
+    out: dict[str, Any] = {"controller": a.controller, "settings": settings, "quick": a.quick,
+                           "replan": not a.no_replan, "plants": {}}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for plant in [p.strip() for p in a.plants.split(",") if p.strip()]:
@@ -303,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
             n = a.cycles or (QUICK_CYCLES if a.quick else CYCLES)[plant]
             results = []
             for case in (c for c in CASES if c.plant == plant and (not only or c.name in only)):
-                results.append(run_case(case, host, n, a.controller, tmp))
+                results.append(run_case(case, host, n, a.controller, tmp, replan=not a.no_replan))
                 print(f"  {plant} {case.name}: {results[-1].wall_s:.0f} s", file=sys.stderr, flush=True)
             print(table(plant, results, range_deg), flush=True)
             out["plants"][plant] = {"range_deg": range_deg, "cases": [

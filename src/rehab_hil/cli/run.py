@@ -161,7 +161,8 @@ def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
     thermal = tw.get("thermal") or {}
     for ev in thermal.get("events", []):  # the thermal quantities first: they move the bend, the contact barely
         t.add_row(f"[yellow]thermal_change {ev['label']}", f"{ev['key']} = {ev['value']:.4g} +/- {ev['ci95']:.2g} "
-                  f"(config {ev['config']:.4g}) at {ev['t_s']:.1f} s")
+                  f"(config {ev['config']:.4g}) at {ev['t_s']:.1f} s"
+                  + (f"; {ev['action']}" if ev.get("action") else ""))
     for key, est in thermal.get("estimates", {}).items():
         t.add_row(f"thermal {est['label']}", f"{key} = {est['value']:.4g} +/- {est['ci95']:.2g} "
                   f"(config {est['config']:.4g})")

@@ -124,16 +124,17 @@ class RigLearner:
         proposed = ilc_step(kept, error, s.step_s, s.bounds, s.learning, True, s.gain_per_deg)
         if cut is not None:
             proposed = np.where(cut, np.minimum(proposed, np.maximum(table, effort)), proposed)
-        proposed = self._fit(proposed)
+        proposed = self.fit(proposed)
         share, peak = self._within_budget(table, proposed, np.asarray(effort, float))
-        new = self._fit(table + share * (proposed - table)) if share < 1.0 else proposed
+        new = self.fit(table + share * (proposed - table)) if share < 1.0 else proposed
         info = {"learn_error_rmse_deg": float(np.sqrt(np.mean(error**2))),
                 "learn_change_rms": float(np.sqrt(np.mean((new - table) ** 2))),
                 "learn_share": float(share), "learn_predicted_peak_c": float(peak),
                 "learn_longest_run_s": longest_run_s(new, s.step_s)}
         return new, info
 
-    def _fit(self, table: np.ndarray) -> np.ndarray:
+    def fit(self, table: np.ndarray) -> np.ndarray:
+        """``table`` inside the effort bounds, with a rest planned into every run longer than the heating limit."""
         s = self.spec
         return fit_heating_runs(np.clip(table, *s.bounds), max(1, int(s.heating_limit_s / s.step_s)),
                                 max(1, round(s.rest_s / s.step_s)))

@@ -15,7 +15,7 @@ from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.models.schedule import ScheduleError, build_schedule
 from rehab_hil.plants.sections import EffectSpec, PlantConfig
 
-__all__ = ["NOT_CHANGEABLE", "changeable_keys", "scheduled", "scheduled_binding", "with_change"]
+__all__ = ["NOT_CHANGEABLE", "changeable_keys", "scheduled", "scheduled_binding", "with_change", "with_values"]
 
 # the shared tables: not the plant's model, so no [[changes]] key points into them
 NOT_CHANGEABLE = ("plant", "simulation", "rig", "effects", "changes", "controllers", "recorded_controller", "import",
@@ -56,6 +56,14 @@ def _replaced(obj: Any, parts: Sequence[str], value: float) -> Any:
     data = {a: getattr(obj, k) for a, k in fields.items()}
     data[head] = value if not rest else _replaced(data[head], rest, value)
     return type(obj).model_validate(data)
+
+
+def with_values(cfg: PlantConfig, values: dict[str, float]) -> PlantConfig:
+    """``cfg`` with each dotted key of ``values`` set (every table on the way validated again): a
+    model updated on estimates, such as the twin's thermal quantities."""
+    for key, value in values.items():
+        cfg = _replaced(cfg, key.split("."), float(value))
+    return cfg
 
 
 def with_change(cfg: PlantConfig, i: int) -> PlantConfig:

@@ -139,6 +139,17 @@ class ControllerRuntime:
         self.learning = learning
         self._set_table(learning.table)
 
+    def retune(self, params: np.ndarray, constants: dict[str, float]) -> None:
+        """The same diagram with other parameter values and plant constants (the controller built
+        again on a model updated by estimates: its thermal observer and ceiling), between two samples."""
+        if np.shape(params) != np.shape(self._params):
+            raise ValueError("a retune must come from the same controller's diagram")
+        self._params = np.array(params, float)
+        names = self.controller.diagram.input_names
+        for name, value in constants.items():
+            if name in names:
+                self._u[names.index(name)] = self._u_prev[names.index(name)] = value
+
     def _set_table(self, table: np.ndarray) -> None:
         i, _ = self._tables[self._table_slot]
         self._tables[self._table_slot] = (i, np.asarray(table, float))
@@ -174,6 +185,9 @@ class ControllerRuntime:
                                        float(y[0]), float(y[2]))
             if new is not None:
                 self._set_table(new)
+                retuned = self.learning.take_retune()
+                if retuned is not None:
+                    self.retune(*retuned)
         if self._t_last is None or self._ahead_s:
             return
         sig, w, stage, _ = self._ws

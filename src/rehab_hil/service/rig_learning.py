@@ -14,6 +14,10 @@ without costing the real-time loop anything but a few array writes per sample:
   point); a lockstep session does (its time is virtual: nothing is lost, and the run is the same
   every time).
 
+A re-plan on the model updated by the twin's thermal estimates (``service/replan.py``) hands a
+new model table to ``rebase``: at the next swap point it becomes both the table in force and the
+one the forgetting pulls toward (an update computed from the old table meanwhile is dropped).
+
 Each accepted table is written to ``store`` (``TableStore``) by the worker, so the next session
 on the same rig, patient profile and plan starts from it. ``log`` says what each update did.
 """
@@ -33,10 +37,11 @@ import numpy as np
 from rehab_hil.controllers.rig_learning import RigLearner, RigLearningSpec
 from rehab_hil.models.engine import cache_dir
 
-__all__ = ["LEAD_S", "RigLearning", "TableStore", "default_store_dir"]
+__all__ = ["LEAD_S", "LOCKSTEP_REPLAN_WAIT_S", "RigLearning", "TableStore", "default_store_dir"]
 
 LEAD_S = 0.5  # a cycle's copy goes to the worker this long before the swap point [s]: the update takes ~10-50 ms
 LOCKSTEP_WAIT_S = 30.0  # a lockstep session waits at most this long (wall time) for an update
+LOCKSTEP_REPLAN_WAIT_S = 120.0  # ... and for a re-plan (a model learning: ~6 s idle, a minute on a busy machine)
 
 
 def default_store_dir() -> Path:
@@ -110,6 +115,13 @@ class RigLearning:
         self.log: list[dict[str, float]] = []  # one entry per swap: when, trial, what the update did
         self.late = 0  # updates not ready at their swap point (real time only)
         self.forgotten = False  # the store put back as the session found it (it ended in a safety trip)
+        self._rebase: tuple[np.ndarray, dict[str, Any]] | None = None  # a re-planned model table, to take
+        self._rebase_due = threading.Event()  # set while a re-plan runs: a lockstep swap waits for it
+        self._rebase_ready = threading.Event()
+        self._drop_result = False  # the worker's update in flight was made from a table a re-plan replaced
+        self._retune_next: Any = None  # the re-plan's controller parameters, taken with its table ...
+        self._retune: Any = None  # ... and handed to the runtime (``take_retune``) once
+        self.catch_up: Any = None  # lockstep: called at each swap point, returns once the twin has caught up
         self._worker: threading.Thread | None = threading.Thread(target=self._work, name="rig-learning", daemon=True)
         self._worker.start()
 
@@ -149,8 +161,53 @@ class RigLearning:
                 self._result = (table, {"learn_failed": 1.0, "learn_error": str(e)})  # type: ignore[dict-item]
             self._done.set()
 
+    def expect_rebase(self) -> None:
+        """A re-plan has started (a lockstep session's next swap waits for its table)."""
+        self._rebase_ready.clear()
+        self._rebase_due.set()
+
+    def rebase(self, table: np.ndarray | None, info: dict[str, Any], retune: Any = None) -> None:
+        """A re-planned model table (from any thread), taken at the next swap point with ``retune``
+        (the re-built controller's parameters and constants, for ``ControllerRuntime.retune``);
+        None: the re-plan failed (``info`` says why) and the table stays."""
+        if table is not None:
+            self._rebase = (self.learner.fit(np.asarray(table, float)), info)
+            self._retune_next = retune
+        else:
+            self.log.append({"t_s": float("nan"), "trial": float(self.trials), **info})
+        self._rebase_due.clear()
+        self._rebase_ready.set()
+
+    def take_retune(self) -> Any:
+        """The re-planned controller's (parameters, constants) that came with the table just swapped in, once."""
+        out, self._retune = self._retune, None
+        return out
+
+    def _take_rebase(self, t_s: float) -> np.ndarray | None:
+        """At a swap point: the re-planned table, if one is ready (a lockstep session waits for a
+        re-plan that is running)."""
+        if self.lockstep and self.catch_up is not None:
+            self.catch_up()  # what the twin makes of the samples so far is known at the same point every run
+        if self.lockstep and self._rebase_due.is_set():
+            self._rebase_ready.wait(LOCKSTEP_REPLAN_WAIT_S)
+        taken, self._rebase = self._rebase, None
+        if taken is None:
+            return None
+        self._retune, self._retune_next = self._retune_next, None
+        table, info = taken
+        self.learner.base = table.copy()  # the forgetting now pulls toward the re-planned model's table
+        self.table = table
+        self._last_swap_t = t_s
+        self._drop_result = self._pending  # an update from the replaced table is not used
+        self.log.append({"t_s": t_s, "trial": float(self.trials), "learn_replanned": 1.0, **info})
+        return table
+
     def _swap(self, t_s: float) -> np.ndarray | None:
-        """At a swap point: the worker's table, if there is one (a lockstep session waits for it)."""
+        """At a swap point: a re-planned table, else the worker's table, if there is one (a lockstep
+        session waits for it)."""
+        rebased = self._take_rebase(t_s)
+        if rebased is not None:
+            return rebased
         if not self._pending:
             return None
         if not self._done.is_set() and not (self.lockstep and self._done.wait(LOCKSTEP_WAIT_S)):
@@ -160,6 +217,9 @@ class RigLearning:
         assert self._result is not None
         new, info = self._result
         self._result = None
+        if self._drop_result:
+            self._drop_result = False
+            return None
         self.trials += 1
         self.table = new
         self._last_swap_t = t_s
@@ -186,7 +246,9 @@ class RigLearning:
 
     def summary(self) -> dict[str, Any]:
         """What the session's learning did (metadata.json ``rig_learning``)."""
-        return {"enabled": True, "resumed": self.resumed, "trials": self.trials, "updates": len(self.log),
+        replans = [e for e in self.log if "learn_replanned" in e or "replan_error" in e]
+        return {"enabled": True, "resumed": self.resumed, "trials": self.trials,
+                "updates": len(self.log) - len(replans), "replans": replans,
                 "late": self.late, "store": str(self.store.path) if self.store is not None else None,
                 "kept": not self.forgotten,
                 "gain_per_deg": self.spec.gain_per_deg, "forgetting": self.spec.forgetting}

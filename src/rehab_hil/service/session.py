@@ -17,6 +17,7 @@ does not match, a homing that fails) raise ``SessionError`` with one line.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -35,7 +36,8 @@ from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.errors import SessionError
 from rehab_hil.service.homing import HomingResult, home
 from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.rig_learning import RigLearning, TableStore, default_store_dir
+from rehab_hil.service.replan import ThermalReplan
+from rehab_hil.service.rig_learning import LOCKSTEP_REPLAN_WAIT_S, RigLearning, TableStore, default_store_dir
 from rehab_hil.service.run_dir import (
     METADATA_FILE,
     config_identity,
@@ -84,6 +86,7 @@ class SessionOptions:
     sample_timeout_s: float | None = None  # how long a cycle waits for its sample (None: a period; lockstep 5 s)
     rig_learning: bool | None = None  # learn the feedforward on the rig (None: [controllers.model_based] rig_learning)
     learning_store: Path | None = None  # where learned tables are kept (None: ~/.cache/rehab-hil/rig_learning)
+    thermal_replan: bool = True  # re-plan the learned feedforward on the twin's thermal estimates (service/replan.py)
 
 
 class RigSession:
@@ -104,6 +107,7 @@ class RigSession:
         self.telemetry: Any = None  # the zenoh publisher's owner (RigTelemetry), or None
         self.foxglove: Any = None  # the Foxglove live view (LiveView), or None
         self.twin: Any = None  # the live twin's run (TwinRun), or None
+        self.replan: ThermalReplan | None = None  # the re-plan on the twin's thermal estimates, or None
         self.loop: LoopService | None = None
         self.result: RunResult | None = None
 
@@ -155,6 +159,8 @@ class RigSession:
                                    LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None),
                                lockstep=self.lockstep)
         if learning is not None:
+            if self.replan is not None:
+                self.replan.close()
             learning.close()
             if result.events:  # a session that ended in a safety trip teaches the next one nothing
                 learning.forget_session()
@@ -186,6 +192,13 @@ class RigSession:
         learning = RigLearning(spec, next(iter(plan.signals.values())), store, lockstep=self.lockstep)
         runtime.learn_on_rig(learning)
         self.stack.callback(learning.close)
+        if self.options.thermal_replan and self.twin is not None and self.twin.twin.thermal is not None:
+            self.replan = ThermalReplan(self.cfg, self.controller_name, runtime.reference, learning,
+                                        str(self.config_path))
+            self.twin.on_thermal_change = _chained(self.twin.on_thermal_change, self.replan.request)
+            live = self.twin.live
+            learning.catch_up = lambda: live.catch_up(LOCKSTEP_REPLAN_WAIT_S)
+            self.stack.callback(self.replan.close)
         return learning
 
     # ---- building, in the order things must happen ------------------------------------------------
@@ -280,13 +293,24 @@ def per_cycle_learning(cycles: list[dict[str, float]], log: list[dict[str, Any]]
     for c in cycles:
         start = c["start_s"]
         before = [e for e in log if e["t_s"] <= start]
-        made = next((e for e in log if start < e["t_s"] <= start + period_s), None)
         row: dict[str, Any] = {**c, "learn_trial": before[-1]["trial"] if before else (log[0]["trial"] - 1 if log
                                                                                          else 0.0)}
-        if made is not None:
+        for made in (e for e in log if start < e["t_s"] <= start + period_s):  # an update, a re-plan
             row.update({k: v for k, v in made.items() if k.startswith("learn_") and k != "learn_error_rmse_deg"})
         out.append(row)
     return out
+
+
+def _chained(first: Callable[[dict[str, float]], Any] | None, then: Callable[[dict[str, float]], str]
+             ) -> Callable[[dict[str, float]], str]:
+    """A thermal-change hook that calls a user's own hook (set before ``run``) and then the re-plan."""
+    if first is None:
+        return then
+
+    def hook(updates: dict[str, float]) -> str:
+        first(updates)
+        return then(updates)
+    return hook
 
 
 def _recorder_error(result: RunResult, text: str) -> None:

@@ -64,6 +64,10 @@ def sink_report(sink: Sink) -> dict[str, Any]:
     return {"dropped": int(sink.dropped), "error": None if err is None else f"{type(err).__name__}: {err}"}
 
 
+class _CaughtUp(threading.Event):
+    """A mark in a sink's queue, set when the worker reaches it (``ThreadedSink.catch_up``)."""
+
+
 class ThreadedSink:
     """A bounded queue drained by a worker thread; subclasses implement ``handle`` (and may implement
     ``tick``, ``finish`` and ``release``). ``poll_s``: the longest the worker sleeps when nobody wakes
@@ -145,6 +149,16 @@ class ThreadedSink:
         self.drain(timeout_s)
         self.release()
 
+    def catch_up(self, timeout_s: float) -> bool:
+        """Wait until every record offered before this call is handled (a lockstep session that must
+        see what its twin made of the samples so far); False on a timeout or a stopped worker."""
+        if self._cap < 0 or not self._thread.is_alive():
+            return False
+        mark = _CaughtUp()
+        self._q.append(mark)
+        self._kick.set()
+        return mark.wait(timeout_s)
+
     @property
     def queued(self) -> int:
         """Records waiting for the worker."""
@@ -184,7 +198,11 @@ class ThreadedSink:
             kick.clear()
             closing = self._closing  # read before taking: whatever came before drain() is handled
             while q:
-                self.handle(q.popleft())
+                record = q.popleft()
+                if type(record) is _CaughtUp:
+                    record.set()
+                else:
+                    self.handle(record)
             if closing:
                 self.finish()
                 return

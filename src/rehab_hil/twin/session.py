@@ -33,11 +33,12 @@ class TwinRun:
         self._threads: list[threading.Thread] = []
         self.on_stop: Callable[[str], None] | None = None
         # the hook a controller re-plans on (docs/twin.md, "Thermal quantities"): called on the twin's thread
-        # with {config key: estimate} of every thermal quantity beyond its interval, when one leaves it
-        self.on_thermal_change: Callable[[dict[str, float]], None] | None = None
+        # with {config key: estimate} of every thermal quantity beyond its interval, when one leaves it; what it
+        # returns (what the controller does about it) is added to the event before the other listeners see it
+        self.on_thermal_change: Callable[[dict[str, float]], str | None] | None = None
         self.thermal_hook_errors: list[str] = []
         self.twin.diagnose_fn = self._diagnose if self.twin.settings.diagnose else None
-        self.twin.listeners.append(self)
+        self.twin.listeners.insert(0, self)  # first: the event reaches the sinks with what the controller did
 
     # a listener of its own twin: a mismatch may stop the rig (``[twin] stop_on_mismatch``)
     def prediction(self, msg: dict[str, float]) -> None:
@@ -54,7 +55,7 @@ class TwinRun:
         if self.on_thermal_change is None or not event.explained:  # a window the thermal quantities do not
             return                                                   # explain is another difference
         try:
-            self.on_thermal_change(dict(event.updates))
+            event.action = self.on_thermal_change(dict(event.updates)) or ""
         except Exception as e:
             self.thermal_hook_errors.append(f"{type(e).__name__}: {e}")
 

@@ -123,6 +123,7 @@ class ThermalEvent:
     updates: dict[str, float] = field(default_factory=dict)  # every quantity beyond its interval now
     explained: bool = True  # the fitted quantities explain the window (``ThermalEstimator.explains``)
     residual_counts: list[float] = field(default_factory=list)  # per channel: RMS after the fit [counts]
+    action: str = ""  # what the controller does about it (``TwinRun.on_thermal_change``), if anything
     kind: str = THERMAL_EVENT
 
     def as_dict(self) -> dict[str, Any]:
@@ -133,7 +134,7 @@ class ThermalEvent:
         head = (f"{self.label} {self.key} = {self.value:.4g} +/- {self.ci95:.2g} (config {self.config:.4g}) "
                 f"at {self.t_s:.1f} s")
         if self.explained:
-            return head
+            return f"{head}; {self.action}" if self.action else head
         rms = ", ".join(f"{r:.1f}" for r in self.residual_counts)
         return (f"{head}; not explained by the thermal quantities alone ({rms} counts RMS left after the fit): "
                 "another difference, the controller is not told")
