@@ -102,4 +102,5 @@ def recorded_step(t: np.ndarray, reference: np.ndarray, angle: np.ndarray, start
     keep = (t >= 0.0) & (np.arange(t.size) <= has[-1]) & np.isfinite(a)
     if keep.sum() < 2:
         return {}
-    return {"target": float(r[has[-1]]), "start": float(start), **step_metrics(t[keep], a[keep], start, float(r[has[-1]]))}
+    target = float(r[has[-1]])
+    return {"target": target, "start": float(start), **step_metrics(t[keep], a[keep], start, target)}
