@@ -68,7 +68,7 @@ def test_a_change_across_cycles_below_one_encoder_count_is_a_band_not_a_slope(tm
     fig = figures.cycle_trend_figure(load_run(d))
     bands = [s for s in fig.layout.shapes if s.type == "rect"]
     assert len(bands) == 1 and bands[0].xref == "x domain"  # the range of motion's plot only
-    assert bands[0].y1 - bands[0].y0 == pytest.approx(2 * 360 / 4096)
+    assert bands[0].y1 - bands[0].y0 == pytest.approx(360 / 4096) and bands[0].y0 < 30.0 < 30.004 < bands[0].y1
     assert any("one encoder count: 0.0879 deg" in (a.text or "") for a in fig.layout.annotations)
 
 

@@ -136,8 +136,8 @@ def trend_keys(run: RunData) -> list[tuple[str, str, str, float | None, str]]:
 
 def cycle_trend_figure(run: RunData) -> go.Figure:
     """Per-cycle figures against the cycle number, on zero-based axes with whole-cycle ticks: a change
-    across cycles smaller than the rig can see (one encoder or ADC count) is drawn as a band of that
-    size around the mean, not autoscaled into a slope."""
+    across cycles smaller than the rig can see (one encoder or ADC count) gets a band one count wide
+    around it, so it is not read as a slope."""
     keys = trend_keys(run)
     fig = make_subplots(rows=1, cols=len(keys), subplot_titles=[f"{k[1]} [{k[2]}]" for k in keys],
                         horizontal_spacing=0.07)
@@ -150,8 +150,9 @@ def cycle_trend_figure(run: RunData) -> go.Figure:
         fig.update_yaxes(title_text=u, rangemode="tozero", row=1, col=i + 1)
         vals = [v for v in y if v is not None]
         if resolution and vals and max(vals) - min(vals) <= resolution:
-            mid = 0.5 * (max(vals) + min(vals))
-            fig.add_hrect(y0=mid - resolution, y1=mid + resolution, row=1, col=i + 1, line_width=0,
+            mid = 0.5 * (max(vals) + min(vals))  # a band one count wide, on these non-negative figures' side of 0
+            lo = max(0.0, mid - 0.5 * resolution) if min(vals) >= 0 else mid - 0.5 * resolution
+            fig.add_hrect(y0=lo, y1=lo + resolution, row=1, col=i + 1, line_width=0,
                           fillcolor="rgba(120,120,120,0.18)", annotation_text=f"{what}: {resolution:.3g} {u}",
                           annotation_position="top left", annotation_font_size=10)
     fig.update_layout(**{**_LAYOUT, "hovermode": "closest"}, height=300, title="Per cycle")
