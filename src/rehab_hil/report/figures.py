@@ -149,7 +149,7 @@ def cycle_trend_figure(run: RunData) -> go.Figure:
         fig.update_xaxes(title_text="cycle", dtick=step, tick0=idx[0] if idx else 0, row=1, col=i + 1)
         fig.update_yaxes(title_text=u, rangemode="tozero", row=1, col=i + 1)
         vals = [v for v in y if v is not None]
-        if resolution and vals and max(vals) - min(vals) <= resolution:
+        if resolution and len(vals) >= 2 and max(vals) - min(vals) <= resolution:
             mid = 0.5 * (max(vals) + min(vals))  # a band one count wide, on these non-negative figures' side of 0
             lo = max(0.0, mid - 0.5 * resolution) if min(vals) >= 0 else mid - 0.5 * resolution
             fig.add_hrect(y0=lo, y1=lo + resolution, row=1, col=i + 1, line_width=0,
