@@ -56,7 +56,7 @@ def read_mcap_recording(path: str | Path) -> tuple[Recording, bool]:
     t = np.array([r["time_s"] for r in rows], float)
     keep = np.concatenate([[True], np.diff(t) > 0])  # strictly increasing time, as the CSV
     signals = {k: np.array([np.nan if r.get(k) is None else r[k] for r in rows], float)[keep] for k in names}
-    kept = {k: v for k, v in signals.items() if np.all(np.isfinite(v)) or (may_be_empty(k) and np.isfinite(v).any())}
+    kept = {k: v for k, v in signals.items() if np.all(np.isfinite(v)) or may_be_empty(k)}
     return Recording(t[keep], kept), tail != MCAP_MAGIC
 
 
