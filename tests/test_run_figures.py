@@ -51,10 +51,13 @@ def test_a_step_run_reports_overshoot_rise_and_settling_as_its_file_gives_them(t
     assert run_figures(run)["step_response"] == pytest.approx(step, rel=1e-8)
 
 
-def test_a_session_of_cycles_has_no_step_figures(tmp_path):
-    result, run, meta = _session(tmp_path, 0.5)
-    assert result.step == {} and meta["step_response"] is None and run_figures(run)["step_response"] is None
-    assert meta["reference"]["kind"] == "session" and meta["reference"]["period_s"] > 0
+def test_a_session_of_cycles_has_each_cycles_figures_as_its_file_gives_them_and_no_step(tmp_path):
+    result, run, meta = _session(tmp_path, 16.0)  # one 12 s cycle after a 3 s rest
+    assert result.step == {} and meta["step_response"] is None and meta["reference"]["kind"] == "session"
+    figures = run_figures(run)
+    assert figures["step_response"] is None and len(meta["session_cycles"]) == len(figures["cycles"]) == 1
+    for key, value in figures["cycles"][0].items():  # the meter's figures are the file's
+        assert meta["session_cycles"][0][key] == pytest.approx(value, rel=1e-8, abs=1e-12), key
 
 
 def test_a_stopped_session_records_the_time_it_ran_not_the_time_asked(tmp_path):

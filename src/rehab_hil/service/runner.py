@@ -391,19 +391,24 @@ class LoopService:
         s.cycles += 1
         self._hand_over(_new_record(CommandRecord, (now, t_s, cmd, s.command_seq, self.supervisor.temperature_c)))
         if self.meter is not None:
-            self._meter(t_s, state, cmd)
+            self._meter()
         if s.cycles % PROGRESS_EVERY == 0:
             self._update_progress(t_s, state, cmd)
 
     def _hand_over(self, command_record: CommandRecord | None = None) -> None:
         """Offer the samples' records (then the command's) to every sink, and wake each once: they
-        work while the loop waits for the next sample."""
-        s = self.run_state
+        work while the loop waits for the next sample. Each record is also a row of the session's
+        figures, as the recorder writes it (reference of the command in force, the sample's angle)."""
+        s, meter = self.run_state, self.meter
         cols, n = s.row_cols, s.rows
         for rec in s.pending:
+            st, cmd = rec.state, rec.command
             if n < cols.shape[1]:
-                cols[0, n], cols[1, n], cols[2, n] = rec.time_s, rec.command.reference_deg, rec.state.angle_deg
+                cols[0, n], cols[1, n], cols[2, n] = rec.time_s, cmd.reference_deg, st.angle_deg
                 n += 1
+            if meter is not None:
+                meter.add(rec.time_s, cmd.reference_deg, st.angle_deg, self._effort_of(cmd), st.velocity_rad_s,
+                          rec.temperature_c)
         s.rows = n
         sinks = self._sinks
         if sinks:
@@ -417,12 +422,10 @@ class LoopService:
                 wake()
         s.pending.clear()
 
-    def _meter(self, t_s: float, state: State, cmd: Command) -> None:
-        """The session meter's sample, and a finished cycle's figures to the recording (MCAP
-        ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
+    def _meter(self) -> None:
+        """A finished cycle's figures (the meter has this cycle's rows from ``_hand_over``) to the
+        recording (MCAP ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
         assert self.meter is not None
-        self.meter.add(t_s, cmd.reference_deg, state.angle_deg, self._effort_of(cmd), state.velocity_rad_s,
-                       self.supervisor.temperature_c)
         cycle = self.meter.poll()
         if cycle is not None:
             self.progress.last_cycle = cycle.as_dict()
