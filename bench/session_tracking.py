@@ -122,16 +122,16 @@ def table(title: str, rows: dict[str, dict]) -> None:
 
 
 def step_figures(meta: dict, target: float) -> dict:
-    from rehab_hil import metrics
-    from rehab_hil.interchange import read_csv
+    """The step's figures from the run's files (rehab_hil.run_figures: the function the run's own
+    summary and metadata.json use, so the two agree)."""
+    from rehab_hil.run_figures import run_figures
 
     if "refused" in meta:
         return {"refused": meta["refused"]}
-    rec = read_csv(Path(meta["run_dir"]) / "run.csv")
-    t = rec.t - rec.t[0]
-    m = metrics.step_metrics(t, rec["iris_angle_deg"], 0.0, target)
-    return {"overshoot_deg": m["overshoot"], "rise_time_s": m["rise_time_s"],
-            "settling_time_s": m["settling_time_s"], "safety": [e["reason"] for e in meta["safety_events"]]}
+    m = run_figures(Path(meta["run_dir"]))["step_response"] or {}
+    return {"overshoot_deg": m.get("overshoot", math.nan), "rise_time_s": m.get("rise_time_s", math.nan),
+            "settling_time_s": m.get("settling_time_s", math.nan), "target_deg": m.get("target", target),
+            "safety": [e["reason"] for e in meta["safety_events"]]}
 
 
 def step_time(plant: str, controller: str, n: int = 20_000) -> dict:

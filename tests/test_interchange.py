@@ -54,3 +54,20 @@ def test_malformed_csv_names_the_line(tmp_path, text, line, fragment):
 def test_writer_refuses_names_without_units(tmp_path):
     with pytest.raises(ValueError, match="quantity"):
         write_csv(tmp_path / "x.csv", np.arange(3.0), {"angle": np.zeros(3)})
+
+
+def test_a_reference_column_may_be_empty_where_nothing_was_tracked(tmp_path):
+    t = np.arange(5) * 1e-3
+    ref = np.array([np.nan, 7.89, 7.89, np.nan, np.nan])  # before the first command, the stop's rows
+    p = write_csv(tmp_path / "run.csv", t, {"iris_angle_deg": np.full(5, 1.0), "iris_angle_reference_deg": ref})
+    assert p.read_text().splitlines()[1:3] == ["0,1,", "0.001,1,7.89"]  # empty, neither 0 nor "nan"
+    rec = read_csv(p)
+    np.testing.assert_array_equal(np.isnan(rec["iris_angle_reference_deg"]), np.isnan(ref))
+
+
+def test_an_empty_cell_of_any_other_column_names_the_line(tmp_path):
+    p = tmp_path / "x.csv"
+    p.write_text("time_s,iris_angle_deg,iris_angle_reference_deg\n0,1,\n0.001,,2\n")
+    with pytest.raises(CsvError, match="column iris_angle_deg: not a number") as exc:
+        read_csv(p)
+    assert exc.value.line == 3

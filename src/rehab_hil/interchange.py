@@ -1,7 +1,10 @@
 """The interchange CSV: ``time_s`` then one ``<quantity>_<unit>`` column per signal.
 
 Written by ``simulate`` and by rig recordings, read by the discrepancy workflow. Readers accept
-extra columns; malformed files raise ``CsvError`` with the line number.
+extra columns; malformed files raise ``CsvError`` with the line number. A reference column
+(``<name>_reference_<unit>``, ``reference_<unit>``) may be empty where nothing was tracked (a
+recording's rows before the first command and after the stop): read as NaN. Every other cell is
+a finite number.
 """
 
 from __future__ import annotations
@@ -16,9 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SIGNAL_NAME", "CsvError", "Recording", "read_csv", "write_csv"]
+__all__ = ["SIGNAL_NAME", "CsvError", "Recording", "may_be_empty", "read_csv", "write_csv"]
 
 SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9]*(_[a-z0-9]+)+$")
+REFERENCE_NAME = re.compile(r"(^|_)reference_[a-z0-9]+$")
+
+
+def may_be_empty(name: str) -> bool:
+    """A reference column: empty (NaN) in the rows where no reference was tracked."""
+    return REFERENCE_NAME.search(name) is not None
 
 
 class CsvError(ValueError):
@@ -48,7 +57,8 @@ class Recording:
 
 
 def write_csv(path: str | Path, t: np.ndarray, signals: Mapping[str, np.ndarray]) -> Path:
-    """Write ``time_s`` and the signals, with full float precision (``%.10g``)."""
+    """Write ``time_s`` and the signals, with full float precision (``%.10g``); a reference's NaN
+    as an empty cell."""
     path = Path(path)
     t = np.asarray(t, float)
     names = list(signals)
@@ -61,7 +71,20 @@ def write_csv(path: str | Path, t: np.ndarray, signals: Mapping[str, np.ndarray]
             raise ValueError(f"column {n!r} has {c.shape[0]} rows, time has {t.shape[0]}")
     path.parent.mkdir(parents=True, exist_ok=True)
     data = np.column_stack([t, *cols]) if cols else t[:, None]
-    np.savetxt(path, data, delimiter=",", header=",".join(["time_s", *names]), comments="", fmt="%.10g")
+    header = ",".join(["time_s", *names])
+    gaps = [i + 1 for i, (n, c) in enumerate(zip(names, cols, strict=True)) if may_be_empty(n) and np.isnan(c).any()]
+    if not gaps:
+        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.10g")
+        return path
+    fmt = ",".join(["%.10g"] * data.shape[1])
+    with path.open("w", encoding="utf-8") as fh:
+        fh.write(header + "\n")
+        for row in data:
+            line = fmt % tuple(row)
+            if np.isnan(row[gaps]).any():
+                line = ",".join("" if i in gaps and v != v else c
+                                for i, (c, v) in enumerate(zip(line.split(","), row, strict=True)))
+            fh.write(line + "\n")
     return path
 
 
@@ -118,6 +141,9 @@ def _parse(path: Path, raw: bytes) -> Recording:
                     raise CsvError(path, line, f"expected {len(header)} cells, got {len(row)}")
                 vals = []
                 for name, cell in zip(header, row, strict=True):
+                    if not cell.strip() and may_be_empty(name):
+                        vals.append(math.nan)
+                        continue
                     try:
                         v = float(cell)
                     except ValueError:

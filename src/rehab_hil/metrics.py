@@ -1,10 +1,15 @@
-"""Tracking and step-response metrics (shared by simulate, the loop summary and discrepancy)."""
+"""Tracking and step-response metrics (shared by simulate, the loop summary and discrepancy).
+
+``recorded_tracking`` and ``recorded_step`` are a session's figures over its recorded rows: the
+loop's summary and an analysis of run.csv / run.mcap (``rehab_hil.run_figures``) both call them, on
+the same rows, so they give the same numbers."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["mae", "max_abs_error", "relative_error_pct", "rmse", "step_metrics", "tracking_metrics"]
+__all__ = ["mae", "max_abs_error", "recorded_step", "recorded_tracking", "relative_error_pct", "rmse", "step_metrics",
+           "tracking_metrics"]
 
 
 def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -76,3 +81,26 @@ def step_metrics(t: np.ndarray, y: np.ndarray, start: float, target: float,
         "settling_time_s": settling,
         "final_error": float(y[-1] - target),
     }
+
+
+def recorded_tracking(reference: np.ndarray, angle: np.ndarray) -> dict[str, float]:
+    """``tracking_metrics`` over the rows that carry a reference (a recording's rows before the
+    first command and after the stop carry none: NaN); {} when no row does."""
+    r, a = np.asarray(reference, float), np.asarray(angle, float)
+    ok = np.isfinite(r) & np.isfinite(a)
+    return tracking_metrics(r[ok], a[ok]) if ok.any() else {}
+
+
+def recorded_step(t: np.ndarray, reference: np.ndarray, angle: np.ndarray, start: float) -> dict[str, float]:
+    """A step run's figures (``step_metrics``, the step at t = 0 from ``start`` to the reference's
+    value) over the rows up to the last one with a reference (the stop's rows are not the
+    response); {} when no row has one. Overshoot in the angle's unit and in % of the step."""
+    t, r, a = (np.asarray(x, float) for x in (t, reference, angle))
+    has = np.flatnonzero(np.isfinite(r))
+    if has.size == 0 or r[has[-1]] == start:
+        return {}
+    keep = (t >= 0.0) & (np.arange(t.size) <= has[-1]) & np.isfinite(a)
+    if keep.sum() < 2:
+        return {}
+    target = float(r[has[-1]])
+    return {"target": target, "start": float(start), **step_metrics(t[keep], a[keep], start, target)}

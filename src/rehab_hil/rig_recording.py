@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from rehab_hil.interchange import CsvError, Recording, read_csv
+from rehab_hil.interchange import CsvError, Recording, may_be_empty, read_csv
 from rehab_hil.service.run_dir import METADATA_FILE, read_metadata
 
 __all__ = ["LoadedRecording", "load_recording", "read_mcap_recording", "read_recording"]
@@ -35,7 +35,8 @@ class LoadedRecording:
 
 def read_mcap_recording(path: str | Path) -> tuple[Recording, bool]:
     """The ``/rig/sample`` messages of a session MCAP as columns, and whether the file was cut short
-    (no footer: a killed run; everything up to the last complete message is kept)."""
+    (no footer: a killed run; everything up to the last complete message is kept). A column with a
+    null is left out, except a reference column: NaN where no reference was tracked, as in run.csv."""
     from rehab_hil.service.recorder import read_mcap
 
     path = Path(path)
@@ -51,11 +52,12 @@ def read_mcap_recording(path: str | Path) -> tuple[Recording, bool]:
     rows = [msg for topic, _, msg in read_mcap(path) if topic == "/rig/sample"]
     if not rows:
         raise CsvError(path, None, "no /rig/sample messages: the run recorded no sample")
-    names = [k for k, v in rows[0].items() if k != "time_s" and isinstance(v, int | float)]
+    names = [k for k, v in rows[0].items() if k != "time_s" and (isinstance(v, int | float) or v is None)]
     t = np.array([r["time_s"] for r in rows], float)
     keep = np.concatenate([[True], np.diff(t) > 0])  # strictly increasing time, as the CSV
     signals = {k: np.array([np.nan if r.get(k) is None else r[k] for r in rows], float)[keep] for k in names}
-    return Recording(t[keep], {k: v for k, v in signals.items() if np.all(np.isfinite(v))}), tail != MCAP_MAGIC
+    kept = {k: v for k, v in signals.items() if np.all(np.isfinite(v)) or may_be_empty(k)}
+    return Recording(t[keep], kept), tail != MCAP_MAGIC
 
 
 def _run_files(run_dir: Path) -> tuple[Path | None, Path | None]:

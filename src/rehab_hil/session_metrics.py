@@ -108,8 +108,9 @@ def session_summary(cycles: Sequence[CycleMetrics]) -> dict[str, float]:
 
 
 class SessionMeter:
-    """Per-cycle figures while a session runs: the loop adds each controlled sample (after its
-    command is out) and ``poll`` returns a cycle's metrics once that cycle has ended. Arrays are
+    """Per-cycle figures while a session runs: the loop adds each recorded row (the sample's angle,
+    the reference of the command in force when it arrived: run.csv's row; after the command is out)
+    and ``poll`` returns a cycle's metrics once that cycle has ended. Arrays are
     preallocated for the session; one cycle's figures cost a few numpy passes every cycle period."""
 
     def __init__(self, capacity: int, period_s: float, move_s: float, first_open_s: float, closed_deg: float,

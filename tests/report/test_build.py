@@ -80,3 +80,84 @@ def test_progress_follows_the_interaction_stiffness_across_sessions(tmp_path, ma
             [("20261101T0900Z-a", 1.0), ("20261108T0900Z-a", 1.6)]]
     assert [r["stiffness"] for r in progress_rows(runs)] == [1.0, 1.6]
     assert "no session ran the live twin" not in report_page(runs).html()
+
+
+def test_a_tripped_runs_report_says_when_and_why_it_stopped_not_the_time_asked(tmp_path, make_run):
+    trip = {"t_s": 11.02, "reason": "watchdog", "detail": "no command for 120 ms"}
+    text = report_page([load_run(make_run(tmp_path, "r", events=[trip], requested_s=30.0))]).html()
+    assert "11.02 s of the 30 s asked" in text and "30.00 s" not in text
+    assert "safety trip: watchdog at 11.02 s (no command for 120 ms)" in text
+    assert 'class="note">This session ran 11.02 s of the 30 s asked' in text  # said before the plots
+
+
+def test_a_run_stopped_on_request_says_so_with_the_time(tmp_path, make_run):
+    stop = {"t_s": 7.8, "reason": "stop_request", "detail": "SIGINT"}
+    text = report_page([load_run(make_run(tmp_path, "r", events=[stop], requested_s=30.0))]).html()
+    assert "stop request (SIGINT) at 7.80 s" in text and "7.80 s of the 30 s asked" in text
+
+
+def test_a_run_recorded_before_the_time_ran_was_kept_reports_its_first_events_time(tmp_path, make_run):
+    trip = {"t_s": 6.5, "reason": "force_limit", "detail": "9 N"}
+    text = report_page([load_run(make_run(tmp_path, "r", events=[trip]))]).html()  # duration_s: as asked
+    assert "6.50 s of the 13.496 s asked" in text  # the record's end: 3 cycles of 4 s after 1 s, and 0.5 s
+
+
+def test_a_torque_sensor_is_named_as_one_and_a_flat_one_is_said_not_drawn(tmp_path, make_run):
+    run = load_run(make_run(tmp_path, "r", plant="finger_extensor", sensor=("patient_torque_nm", "torque", "nm"),
+                            flat_sensor=True))
+    page = report_page([run])
+    text = page.html()
+    assert run.sensors == {} and run.flat_sensors == {"patient_torque_nm": 0.0}
+    assert "patient torque [N m]: 0 N m throughout the session (not drawn" in text
+    head = text.split("<table>")[-1].split("</thead>")[0]
+    assert "peak patient" not in head and "peak contact" not in head  # no column of a sensor that never moved
+    assert "force / sensor" not in text and "contact_force_n" not in text
+    assert "patient torque [N m] on adc0 (20 counts per N m, offset 0 counts)" in text
+
+
+def test_names_in_the_report_are_words_with_units_not_column_names(tmp_path, make_run):
+    text = report_page([load_run(make_run(tmp_path, "r"))]).html()
+    head = text.split("<table>")[-1].split("</thead>")[0]
+    assert "peak contact force [N]" in head and "contact_force_n" not in head
+    assert "applied_duty0_ratio" not in text.split('<script type="application/octet-stream"')[0].split("</div>")[-1]
+    import json
+    figs = [json.loads(part.split(">", 1)[1].split("</script>")[0].replace("<\\/", "</"))
+            for part in text.split('<script type="application/json"')[1:]]
+    names = {tr.get("name") for f in figs for tr in f["data"]}
+    assert "applied duty, channel 0" in names and "applied_duty0_ratio" not in names
+    for f in figs:  # every y axis has a unit
+        yaxes = [v for k, v in f["layout"].items() if k.startswith("yaxis")]
+        assert yaxes and all(y.get("title", {}).get("text") for y in yaxes), f["layout"].get("title")
+
+
+@pytest.mark.parametrize(("force", "says", "never"), [
+    ({"max_force_n": 40.0, "force_sensor": None, "firmware_force_limit_counts": 1023,
+      "note": "A0 is not a force sensor: the firmware force limit is off"},
+     "no force sensor: A0 is not a force sensor", "1023"),
+    ({"max_force_n": 10.0, "force_sensor": "contact_force_n", "calibration": None,
+      "linear_map": {"counts_per_n": 51.2, "offset_counts": 3.0}, "firmware_force_limit_counts": 515},
+     "linear map of the config: 51.2 counts/N, offset 3 counts (no calibration file); limit 10 N = 515 counts", "{"),
+    ({"max_force_n": 10.0, "force_sensor": "contact_force_n", "firmware_force_limit_counts": 600,
+      "calibration": {"file": "calibrations/fsr7.toml", "sensor_id": "fsr-7", "circuit": "divider",
+                      "model": "power_law", "coefficients": [1.0, 2.0], "tare_counts": 4, "fit_rms_n": 0.0812,
+                      "hysteresis_pct_fs": 4.5, "max_calibrated_force_n": 20.0, "calibrated_at": "2026-10-30"}},
+     "calibrations/fsr7.toml: sensor fsr-7, power_law model, fit RMS 0.0812 N, hysteresis 4.5 % FS, calibrated up to "
+     "20 N, calibrated 2026-10-30; limit 10 N = 600 counts", "'file'"),
+])
+def test_the_force_calibration_reads_as_a_sentence(force, says, never):
+    from rehab_hil.report.build import force_calibration_text
+
+    text = force_calibration_text(force)
+    assert says in text and never not in text and "{" not in text
+
+
+def test_the_progress_table_has_each_sessions_stop_and_the_stiffness_unit(tmp_path, make_run):
+    trip = {"t_s": 6.5, "reason": "force_limit", "detail": "9 N"}
+    runs = [
+        load_run(_with_twin(make_run(tmp_path, "20261101T0900Z-a", requested_s=13.5), 1.0)),
+        load_run(_with_twin(make_run(tmp_path, "20261108T0900Z-a", events=[trip], requested_s=30.0), 1.6))]
+    rows = progress_rows(runs)
+    assert [r["stopped"] for r in rows] == ["the duration was reached", "safety trip: force_limit at 6.50 s (9 N)"]
+    assert rows[1]["ran_s"] == 6.5
+    head = report_page(runs).html().split("<table>")[1].split("</thead>")[0]
+    assert "<th class=\"l\">stopped</th>" in head and "interaction stiffness [N m/rad]" in head

@@ -96,9 +96,15 @@ def summary_table(r: RunResult) -> Table:
     """The final summary: tracking, loop timing, link and safety."""
     t = Table(title=f"rehab-hil run: {r.stop_reason}", show_header=False)
     t.add_row("pacing / scheduler", f"{r.pacing} / {r.realtime.scheduler if r.realtime else 'not real-time'}")
+    t.add_row("ran", f"{r.ran_s:.2f} s of {r.duration_s:g} s asked")
     t.add_row("cycles / samples / gaps / reboots", f"{r.cycles} / {r.samples} / {r.sample_gaps} / {r.reboots}")
     for k, v in r.tracking.items():
         t.add_row(f"tracking {k}", f"{v:.4g}" + (" deg" if k in ("mae", "rmse", "max_abs_error") else ""))
+    if r.step:
+        st = r.step
+        t.add_row(f"step {st['start']:g} -> {st['target']:g} deg: overshoot",
+                  f"{st['overshoot']:.3g} deg ({st['overshoot_pct']:.3g} %)")
+        t.add_row("step: rise (10-90 %) / settling (2 %)", f"{st['rise_time_s']:.3g} / {st['settling_time_s']:.3g} s")
     s = r.session
     if s.get("cycles"):
         t.add_row("open-close cycles", f"{s['cycles']:.0f} complete")

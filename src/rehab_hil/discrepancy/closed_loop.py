@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from rehab_hil.control.cascade import RecordedControllerSection
 from rehab_hil.interchange import Recording
 
@@ -20,9 +22,12 @@ __all__ = ["describe_loop", "recorded_loop"]
 
 
 def recorded_loop(cfg: Any, rec: Recording) -> RecordedControllerSection | None:
-    """The config's recorded controller if the record carries its reference and its effort."""
+    """The config's recorded controller if the record carries its reference (in every row: a rig
+    recording's stop rows have none, and the loop cannot be replayed from nothing) and its effort."""
     rc = getattr(cfg, "recorded_controller", None)
     if rc is None or rc.reference not in rec.signals or rc.effort not in rec.signals:
+        return None
+    if not np.all(np.isfinite(rec.signals[rc.reference])):
         return None
     return rc  # type: ignore[no-any-return]
 

@@ -37,22 +37,36 @@ class RunData:
     t: np.ndarray
     angle_name: str
     angle: np.ndarray
-    reference: np.ndarray
-    forces: dict[str, np.ndarray]  # calibrated ADC signals (force, torque ...) by name
+    reference: np.ndarray  # NaN where no reference was tracked (before the first command, after the stop)
+    sensors: dict[str, np.ndarray]  # calibrated ADC signals (force, torque ...) that vary, by name
     temperature: np.ndarray | None  # estimated actuator temperature; None when the rig has none
     duty: dict[str, np.ndarray]
     events: list[dict[str, Any]]  # {"t_s", "reason", "detail"}
     cycles: list[dict[str, float]]  # session_cycles + peak_force and end_s
     period_s: float
     notes: list[str] = field(default_factory=list)
+    flat_sensors: dict[str, float] = field(default_factory=dict)  # sensors that read one value throughout
+    sensor_info: dict[str, dict[str, Any]] = field(default_factory=dict)  # metadata's ADC calibration by signal
 
     @property
     def label(self) -> str:
         return self.path.name
 
     @property
-    def force_name(self) -> str | None:
-        return next(iter(self.forces), None)
+    def sensor_name(self) -> str | None:
+        """The first sensor that varies (its per-cycle peak is in the table), or None."""
+        return next(iter(self.sensors), None)
+
+    @property
+    def angle_resolution_deg(self) -> float | None:
+        """One encoder count [deg] (metadata's calibration), or None when unknown."""
+        cpr = (self.meta.get("calibration") or {}).get("encoder_counts_per_rev")
+        return 360.0 / cpr if isinstance(cpr, int | float) and cpr > 0 else None
+
+    def sensor_resolution(self, name: str) -> float | None:
+        """One ADC count in the sensor's unit, or None when unknown."""
+        per = self.sensor_info.get(name, {}).get("counts_per_unit")
+        return 1.0 / abs(per) if isinstance(per, int | float) and per else None
 
 
 def is_run_dir(path: Path) -> bool:
@@ -129,7 +143,8 @@ def load_run(run_dir: str | Path) -> RunData:
         raise ReportError(str(e)) from None
     notes: list[str] = []
     csv, mcap = run_dir / "run.csv", run_dir / "run.mcap"
-    forces = [a["signal"] for a in meta.get("calibration", {}).get("adc", []) if "signal" in a]
+    info = {a["signal"]: a for a in (meta.get("calibration") or {}).get("adc", []) if "signal" in a}
+    forces = list(info)
     if csv.is_file():
         with csv.open("rb") as fh:
             header = fh.readline().decode("utf-8", "replace").strip().split(",")
@@ -163,12 +178,29 @@ def load_run(run_dir: str | Path) -> RunData:
     events = list(meta.get("safety_events") or [])
     cycles = [dict(c) for c in meta.get("session_cycles") or []]
     period = _period_s(meta, cycles)
-    force_sig = cols.get(forces[0]) if forces else None
     t = cols["time_s"]
+    sensors = {f: cols[f] for f in forces if f in cols}
+    flat = {f: float(v[0]) for f, v in sensors.items() if not np.any(v != v[0])}
+    sensors = {f: v for f, v in sensors.items() if f not in flat}
+    force_sig = next(iter(sensors.values()), None)
+    reference = _without_stop_rows(meta, t, cols[ref_name])
     for c in cycles:
         c["end_s"] = c["start_s"] + period
         sel = (t >= c["start_s"]) & (t < c["end_s"])
         c["peak_force"] = float(np.max(force_sig[sel])) if force_sig is not None and sel.any() else math.nan
-    return RunData(path=run_dir, meta=meta, t=t, angle_name=angle_name, angle=cols[angle_name],
-                   reference=cols[ref_name], forces={f: cols[f] for f in forces if f in cols}, temperature=temp,
-                   duty=duty, events=events, cycles=cycles, period_s=period, notes=notes)
+    return RunData(path=run_dir, meta=meta, t=t, angle_name=angle_name, angle=cols[angle_name], reference=reference,
+                   sensors=sensors, temperature=temp, duty=duty, events=events, cycles=cycles, period_s=period,
+                   notes=notes, flat_sensors=flat, sensor_info=info)
+
+
+def _without_stop_rows(meta: dict[str, Any], t: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """The reference with its stop rows empty: a run recorded before they were written empty
+    (no ``requested_duration_s`` in its metadata) carries 0 deg there, which is no release."""
+    if "requested_duration_s" in meta or "end_time_utc" not in meta:
+        return reference
+    events = meta.get("safety_events") or []
+    stop = events[0].get("t_s") if events else meta.get("duration_s")
+    if not isinstance(stop, int | float):
+        return reference
+    after = t > stop if events else t >= stop - 1e-9  # a trip's own row may still carry its command
+    return np.where(after, np.nan, reference)

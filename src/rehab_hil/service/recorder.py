@@ -7,7 +7,9 @@ the loop waits for its next sample, and otherwise every ``flush_s`` (a producer 
 raw columns) and MCAP messages on JSON-schema channels (``/rig/sample``, ``/rig/command``,
 ``/rig/event``, ``/rig/cycle``, and extra channels such as the twin's ``/twin/prediction``; Foxglove
 and PlotJuggler open them), and flushes both files at least every ``flush_s``: a killed run leaves
-files that hold everything up to the last flush. ``read_mcap`` reads such a file even without its
+files that hold everything up to the last flush. A row's reference is that of the command in force
+when its sample arrived; a row with none (before the first command, the stop's rows) leaves it
+empty in the CSV and null in MCAP, never 0. ``read_mcap`` reads such a file even without its
 footer. The session's metadata (``service/run_dir.py``) goes into MCAP metadata records at the
 start and the end. A write that fails (a full disk) stops the writer with its error kept; the loop,
 told so, stops the session: a session must not go on unrecorded.
@@ -104,6 +106,9 @@ class Recorder(ThreadedSink):
         keys = ["time_s", *self.columns]
         self._csv_values = operator.itemgetter(*keys)  # a row dict -> its CSV values in column order
         self._csv_line = ",".join(["%.10g"] * len(keys)) + "\n"
+        # a row with no reference (before the first command, after the stop) leaves that cell empty
+        self._csv_values_noref = operator.itemgetter(*(k for k in keys if k != binding.reference_column))
+        self._csv_line_noref = ",".join("" if k == binding.reference_column else "%.10g" for k in keys) + "\n"
         self.flush_s = flush_s
         self.rows = 0  # rows handed to the CSV (those of a failed write taken back)
         self.messages = 0
@@ -217,7 +222,10 @@ class Recorder(ThreadedSink):
         row = self._row(item)
         self._add(self._ch_sample, self._log_time(item.host_time_s), item.sample.sample_index & 0xFFFFFFFF,
                   {**row, **generic_fields(item)})
-        self._pending.append(self._csv_line % self._csv_values(row))
+        if math.isnan(row[self.binding.reference_column]):
+            self._pending.append(self._csv_line_noref % self._csv_values_noref(row))
+        else:
+            self._pending.append(self._csv_line % self._csv_values(row))
         self.rows += 1
 
     def _write_command(self, item: CommandRecord) -> None:
@@ -231,7 +239,7 @@ class Recorder(ThreadedSink):
         s, st, c, b = r.sample, r.state, r.command, self.binding
         assert st is not None
         row: dict[str, float] = {"time_s": r.time_s, b.encoder_signal: st.angle_rad, b.angle_output: st.angle_deg,
-                                 b.reference_column: c.reference_deg if math.isfinite(c.reference_deg) else 0.0}
+                                 b.reference_column: c.reference_deg if math.isfinite(c.reference_deg) else math.nan}
         row.update(st.analog)
         applied = (s.duty0 / DUTY_FULL, s.duty1 / DUTY_FULL)
         for name, inp in b.duty_inputs.items():

@@ -19,8 +19,8 @@ from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "config_identity", "new_run_dir", "read_metadata", "result_metadata",
-           "session_metadata", "write_metadata"]
+__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "config_identity", "new_run_dir", "read_metadata", "reference_metadata",
+           "result_metadata", "session_metadata", "write_metadata"]
 
 METADATA_FILE = "metadata.json"
 METADATA_SCHEMA = "rehab-hil/run-metadata/1"
@@ -82,7 +82,8 @@ def _version() -> str:
 
 def session_metadata(*, plant: str, config_path: str | Path, device: str, rig_id: str, binding: Any,
                      hello: Any | None, controller: str, pacing: str, sim_plant: str | Path | None = None,
-                     calibration: dict[str, Any] | None = None) -> dict[str, Any]:
+                     calibration: dict[str, Any] | None = None,
+                     reference: dict[str, Any] | None = None) -> dict[str, Any]:
     """What is known when a run starts: the model, the device and its firmware, the calibration."""
     fw = None
     if hello is not None:
@@ -94,7 +95,7 @@ def session_metadata(*, plant: str, config_path: str | Path, device: str, rig_id
         "plant": plant, **config_identity(config_path),
         "sim_plant": config_identity(sim_plant) if sim_plant else None,
         "device": {"kind": device if simulated else "serial", "port": None if simulated else device},
-        "firmware": fw, "rig_id": rig_id, "controller": controller, "pacing": pacing,
+        "firmware": fw, "rig_id": rig_id, "controller": controller, "pacing": pacing, "reference": reference,
         "calibration": {
             "encoder_counts_per_rev": binding.encoder_counts_per_rev,
             "adc": [{"signal": ch.signal, "source": f"adc{i}", "kind": ch.kind, "unit": ch.unit,
@@ -107,12 +108,25 @@ def session_metadata(*, plant: str, config_path: str | Path, device: str, rig_id
     }
 
 
+def reference_metadata(reference: Any) -> dict[str, Any] | None:
+    """What the controller tracked (``controllers.Reference``): its kind and values [deg, s]; None
+    for a controller without one."""
+    if reference is None:
+        return None
+    keys = (("start_deg", "open_deg") if reference.kind == "step" else
+            ("closed_deg", "open_deg", "move_s", "hold_open_s", "hold_closed_s", "first_open_s", "period_s"))
+    return {"kind": reference.kind, **{k: float(getattr(reference, k)) for k in keys}}
+
+
 def result_metadata(result: Any, rows: int) -> dict[str, Any]:
-    """What is known when it ends: duration, summary figures, the safety events and the sinks'
-    drops and errors."""
+    """What is known when it ends: the time it ran (``duration_s``; ``requested_duration_s`` what was
+    asked), summary figures, a step run's response, the safety events and the sinks' drops and errors."""
+    ran = getattr(result, "ran_s", None)
     return {
         "end_time_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
-        "duration_s": result.duration_s, "stop_reason": result.stop_reason, "rows": rows,
+        "duration_s": ran if isinstance(ran, int | float) and ran == ran else result.duration_s,
+        "requested_duration_s": result.duration_s, "stop_reason": result.stop_reason, "rows": rows,
+        "step_response": getattr(result, "step", None) or None,
         "cycles": result.cycles, "samples": result.samples, "sample_gaps": result.sample_gaps,
         "reboots": result.reboots, "tracking": result.tracking, "timing": result.timing, "link": result.link,
         "safety_events": [{"t_s": e.t_s, "reason": e.reason, "detail": e.detail} for e in result.events],

@@ -70,7 +70,7 @@ class RunResult:
 
     pacing: str
     realtime: RealtimeReport | None
-    duration_s: float
+    duration_s: float  # asked for
     cycles: int
     samples: int
     sample_gaps: int  # samples missing from the device's sample_index sequence
@@ -88,6 +88,8 @@ class RunResult:
     session_cycles: list[dict[str, float]] = field(default_factory=list)
     twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
     learning: dict[str, Any] = field(default_factory=dict)  # the learning on the rig (service/rig_learning.py)
+    ran_s: float = math.nan  # device time the session ran until it stopped (a trip, a stop request, the duration)
+    step: dict[str, float] = field(default_factory=dict)  # a step run's response (metrics.recorded_step)
 
     @property
     def recorder_dropped(self) -> int:
@@ -129,8 +131,16 @@ class RunState:
         self.reaction = TimingStats(n_max)  # sample arrival -> command written
         self.arrival_s = 0.0  # host clock when the newest sample arrived (perf_counter)
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
-        self.references = np.full(n_max, np.nan)
-        self.angles = np.full(n_max, np.nan)
+        self.ran_s = 0.0  # device time covered when the loop stopped (before the shutdown's samples)
+        # each recorded row's time, reference (of the command in force; NaN: none) and angle, as the
+        # recorder writes them: the summary's tracking figures are run.csv's
+        self.rows = 0
+        self.row_cols = np.full((3, n_max + CONFIRM_CYCLES + 64), np.nan)
+
+    def recorded_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(time, reference, angle) of the rows taken so far (the recording's rows, in order)."""
+        t, r, a = self.row_cols[:, :self.rows]
+        return t, r, a
 
     @property
     def t_s(self) -> float:
@@ -283,6 +293,7 @@ class LoopService:
                 self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
             finally:
                 s.wall_s = time.perf_counter() - t0
+                s.ran_s = (s.index + 1) * s.period_s
         finally:
             if realtime:
                 realtime_teardown()
@@ -377,19 +388,28 @@ class LoopService:
         s.reaction.add(now - s.arrival_s)
         if self._advance is not None:
             self._advance()
-        if s.cycles < s.n_max:
-            s.references[s.cycles], s.angles[s.cycles] = cmd.reference_deg, state.angle_deg
         s.cycles += 1
         self._hand_over(_new_record(CommandRecord, (now, t_s, cmd, s.command_seq, self.supervisor.temperature_c)))
         if self.meter is not None:
-            self._meter(t_s, state, cmd)
+            self._meter()
         if s.cycles % PROGRESS_EVERY == 0:
             self._update_progress(t_s, state, cmd)
 
     def _hand_over(self, command_record: CommandRecord | None = None) -> None:
         """Offer the samples' records (then the command's) to every sink, and wake each once: they
-        work while the loop waits for the next sample."""
-        s = self.run_state
+        work while the loop waits for the next sample. Each record is also a row of the session's
+        figures, as the recorder writes it (reference of the command in force, the sample's angle)."""
+        s, meter = self.run_state, self.meter
+        cols, n = s.row_cols, s.rows
+        for rec in s.pending:
+            st, cmd = rec.state, rec.command
+            if n < cols.shape[1]:
+                cols[0, n], cols[1, n], cols[2, n] = rec.time_s, cmd.reference_deg, st.angle_deg
+                n += 1
+            if meter is not None:
+                meter.add(rec.time_s, cmd.reference_deg, st.angle_deg, self._effort_of(cmd), st.velocity_rad_s,
+                          rec.temperature_c)
+        s.rows = n
         sinks = self._sinks
         if sinks:
             for rec in s.pending:
@@ -402,12 +422,10 @@ class LoopService:
                 wake()
         s.pending.clear()
 
-    def _meter(self, t_s: float, state: State, cmd: Command) -> None:
-        """The session meter's sample, and a finished cycle's figures to the recording (MCAP
-        ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
+    def _meter(self) -> None:
+        """A finished cycle's figures (the meter has this cycle's rows from ``_hand_over``) to the
+        recording (MCAP ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
         assert self.meter is not None
-        self.meter.add(t_s, cmd.reference_deg, state.angle_deg, self._effort_of(cmd), state.velocity_rad_s,
-                       self.supervisor.temperature_c)
         cycle = self.meter.poll()
         if cycle is not None:
             self.progress.last_cycle = cycle.as_dict()
@@ -471,14 +489,12 @@ class LoopService:
 
     def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
         s, sup = self.run_state, self.supervisor
-        n = min(s.cycles, s.n_max)
-        refs, angles = s.references[:n], s.angles[:n]
-        ok = np.isfinite(refs) & np.isfinite(angles)
+        _, refs, angles = s.recorded_rows()
         return RunResult(
             pacing=pace.name, realtime=rt, duration_s=duration_s, cycles=s.cycles, samples=s.samples,
             sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **_speed(s)},
             reaction=s.reaction.summary(),
-            tracking=metrics.tracking_metrics(refs[ok], angles[ok]) if ok.any() else {},
+            tracking=metrics.recorded_tracking(refs, angles), ran_s=s.ran_s,
             link=self.hw.stats.as_dict(), events=list(sup.events),
             final_sample=s.final, sinks=self._sink_reports(),
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",

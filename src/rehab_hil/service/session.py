@@ -24,6 +24,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from rehab_hil import metrics
 from rehab_hil.calibration import calibration_summary
 from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
@@ -42,6 +43,7 @@ from rehab_hil.service.run_dir import (
     METADATA_FILE,
     config_identity,
     new_run_dir,
+    reference_metadata,
     result_metadata,
     session_metadata,
     write_metadata,
@@ -167,9 +169,18 @@ class RigSession:
             result.learning = learning.summary()
             result.session_cycles = per_cycle_learning(result.session_cycles, learning.log,
                                                        self.controller.reference.period_s)
+        result.step = self._step_figures()
         self.result = result
         self._finish(result)
         return result
+
+    def _step_figures(self) -> dict[str, float]:
+        """A step run's overshoot, rise and settling time over the recorded rows (``metrics.recorded_step``:
+        the same function an analysis of run.csv calls); {} for a session's cycles."""
+        ref = getattr(self.controller, "reference", None)
+        if ref is None or ref.kind != "step" or self.loop is None:
+            return {}
+        return metrics.recorded_step(*self.loop.run_state.recorded_rows(), start=ref.start_deg)
 
     def _learning(self, runtime: ControllerRuntime) -> RigLearning | None:
         """The learning on the rig, when the controller plans a periodic table and it is on
@@ -248,7 +259,8 @@ class RigSession:
         self.metadata = session_metadata(
             plant=self.cfg.plant, config_path=self.config_path, device=self.device, rig_id=self.rig_id,
             binding=self.binding, hello=self.hw.info, controller=self.controller_name, pacing=opts.pacing,
-            sim_plant=opts.sim_plant, calibration={"force": calibration_summary(self.cfg, self.binding)})
+            sim_plant=opts.sim_plant, calibration={"force": calibration_summary(self.cfg, self.binding)},
+            reference=reference_metadata(getattr(self.controller, "reference", None)))
         write_metadata(self.run_dir, self.metadata)
         self.recorder = Recorder(self.run_dir, self.binding, metadata=self.metadata)
         self.stack.callback(self.recorder.close)
