@@ -5,10 +5,13 @@ to the loop's ``Recorder`` unchanged, so both paths share one writer (docs/telem
 
 Nothing is lost silently. The rig publishes reliably with congestion control BLOCK and the
 recorder's queue blocks instead of dropping, so a busy recorder slows the rig's publisher thread
-(whose own queue counts any overflow) rather than losing samples on the way. What still goes
-missing is stated: gaps in ``sample_index`` as samples arrive, and, once the rig's last ``stats``
-message (``final``, sent after its last batch) has arrived, exactly how many of the samples the rig
-published this recording did not receive (``accounting()``; run metadata and MCAP summary).
+(whose own queue counts any overflow) rather than losing samples on the way; the subscription
+begins with the publisher's history (a recorder that joins late gets the session from its first
+sample) and recovers misses from its cache. What still goes missing is named where it went, once
+the rig's last ``stats`` message (``final``, sent after its last batch) has arrived: dropped at the
+rig's publisher, older than the publisher's history when the recorder joined, lost in transit, or
+refused by the writer; the four add up to what the recording lacks (``accounting()``; run metadata
+and MCAP summary).
 """
 
 from __future__ import annotations
@@ -68,6 +71,7 @@ class ZenohRecorder:
         self.period_s = period_s
         self.samples = 0  # records received and written (samples and commands)
         self.samples_received = 0  # of those, records that carry a device SAMPLE
+        self.writer_refused = 0  # device samples received that the writer did not take
         self.sample_index_gaps = 0  # samples missing between received ones (sample_index steps > 1)
         self.first_time_s: float | None = None  # session time of the first sample received
         self.rig_final: dict[str, Any] | None = None  # the publisher's counters in its final stats
@@ -96,7 +100,8 @@ class ZenohRecorder:
                 return
             if s.has_sample:
                 self._count(s)
-            self.recorder.offer(rec)
+            if not self.recorder.offer(rec) and s.has_sample:
+                self.writer_refused += 1
             self.samples += 1
 
     def _count(self, s: StateSample) -> None:
@@ -143,6 +148,27 @@ class ZenohRecorder:
             return None
         return int(final["samples_offered"]) - self.samples_received
 
+    def losses(self) -> dict[str, int | None]:
+        """The rig's device samples this recording lacks, by where they went (None: not known, e.g.
+        before the rig's final word): ``at_publisher`` (its queue was full, counted by the rig),
+        ``before_history`` (older than the publisher's history when this recorder joined),
+        ``in_transit`` (missed on the way and not recovered from the publisher's cache),
+        ``in_writer`` (received, refused by the writer), ``unexplained`` (what the four leave over:
+        0 when the accounting is whole)."""
+        final, ledger = self.rig_final, self.subscription.ledger
+        at_pub = int(final["samples_dropped"]) if final and "samples_dropped" in final else None
+        rig = int(final["samples_offered"]) if final and "samples_offered" in final else None
+        tail = None
+        if final is not None and rig is not None and at_pub is not None:
+            tail = ledger.tail(int(final.get("published_batches", 0)), rig - at_pub)[1]
+        in_transit = None if tail is None or ledger.samples_lost is None else ledger.samples_lost + tail
+        out: dict[str, int | None] = {"at_publisher": at_pub, "before_history": ledger.samples_before_first,
+                                      "in_transit": in_transit, "in_writer": self.writer_refused}
+        parts = list(out.values())
+        written = self.samples_received - self.writer_refused
+        out["unexplained"] = None if rig is None or None in parts else rig - written - sum(parts)  # type: ignore[arg-type]
+        return out
+
     def accounting(self) -> dict[str, Any]:
         """What this recording holds and what it lacks, in samples (for its metadata and summary)."""
         before = None
@@ -150,22 +176,29 @@ class ZenohRecorder:
             before = round(self.first_time_s / self.period_s)
         final = self.rig_final
         missing = self.samples_not_received
+        lost = self.losses()
         return {
             "samples_received": self.samples_received,
             "rig_samples": int(final["samples_offered"]) if final and "samples_offered" in final else None,
             "samples_not_received": missing,
             # of those, dropped at the rig's own publisher queue (the rest went missing on the way)
-            "rig_samples_dropped": int(final["samples_dropped"]) if final and "samples_dropped" in final else None,
+            "rig_samples_dropped": lost["at_publisher"],
+            "lost": lost,
             "samples_before_first": before,
             "sample_index_gaps": self.sample_index_gaps,
+            "batches": {"received": self.subscription.ledger.batches,
+                        "before_history": self.subscription.ledger.batches_before_first,
+                        "lost_in_transit": self.subscription.ledger.batches_lost,
+                        "zenoh_reported_missed": self.subscription.zenoh_missed},
             "rig_final_word": final is not None,
-            "complete": missing == 0 and self.recorder.dropped == 0,
+            "complete": missing == 0 and self.writer_refused == 0,
         }
 
     @property
     def dropped(self) -> int:
-        """Samples lost on the way: publisher drops, missing batches (as reported) and recorder drops."""
-        return self.subscription.publisher_dropped + self.subscription.missing_batches + self.recorder.dropped
+        """Device samples lost on the way, as far as known now: at the rig's publisher, before its
+        history, in transit and at the writer."""
+        return sum(v for k, v in self.losses().items() if k != "unexplained" and v)
 
     def close(self, summary: dict[str, Any] | None = None) -> None:
         """Stop listening and finish both files (``summary``: an MCAP metadata record); idempotent."""
