@@ -26,6 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    "every recorded rig has stopped)")
     p.add_argument("--wait", type=float, default=10.0,
                    help="how long to wait for the hub and a matching rig to appear [s] (default 10)")
+    p.add_argument("--no-history", dest="history", action="store_false",
+                   help="record from the moment of subscribing, without the rig publisher's history and recovery")
     add_network_args(p)
     return p
 
@@ -51,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.25)
     lab = None
     try:
-        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config)
+        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config, history=args.history)
         started = False
         end = None
         try:

@@ -122,7 +122,8 @@ def _said(acc: dict[str, Any]) -> str:
                 "after the last one received unknown")
     lacks = missing + lost["in_writer"]
     where = ", ".join(f"{lost[k] if lost[k] is not None else '?'} {what}" for k, what in (
-        ("at_publisher", "dropped at the rig's publisher"), ("before_history", "older than the publisher's history"),
+        ("at_publisher", "dropped at the rig's publisher"),
+        ("before_joining", "from before it joined, not in the publisher's history"),
         ("in_transit", "lost in transit"), ("in_writer", "refused by the writer")))
     extra = f", {lost['unexplained']} unexplained" if lost["unexplained"] else ""
     got = f"{acc['samples_received']} of the rig's {acc['rig_samples']} samples received"
@@ -133,9 +134,10 @@ class LabRecorder:
     """Record every rig matching ``pattern`` under ``out_root``, one run directory per rig."""
 
     def __init__(self, session: zenoh.Session, pattern: str, out_root: str | Path, config: Path | None = None,
-                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0) -> None:
+                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0, history: bool = True) -> None:
         self.session, self.pattern, self.out_root, self.config = session, pattern, Path(out_root), config
         self.info_timeout_s = info_timeout_s
+        self.history = history  # begin with the publisher's history and recover misses (zenoh ext)
         self.final_timeout_s = final_timeout_s  # how long a stopped rig's last batches may take to arrive
         self.runs: dict[str, _Run] = {}
         self.finished: list[_Run] = []
@@ -167,7 +169,8 @@ class LabRecorder:
         meta = _identity(rig, dict(info or {}), dt.datetime.now(dt.UTC))
         period = (info or {}).get("period_s")
         zrec = ZenohRecorder(self.session, rig, run_dir, binding, metadata=meta,
-                             period_s=float(period) if isinstance(period, (int, float)) else None)
+                             period_s=float(period) if isinstance(period, (int, float)) else None,
+                             history=self.history)
         run = _Run(rig, run_dir, zrec, meta)
         self.runs[rig] = run
         return run

@@ -52,7 +52,8 @@ COMMAND_OPS = ("setpoint", "start", "stop")
 # cycle, 10 records per batch: 200 batches/s), about 16 MB of 1.3 kB puts. A recorder that joins up to
 # a minute late still gets the session from its first sample (docs/telemetry.md, "History").
 CACHE_BATCHES = 12_000
-HEARTBEAT_S = 0.2  # the last put's number, sent when it changed: a subscriber recovers a lost tail
+HEARTBEAT_S = 0.1  # the last put's number, sent when it changed: a subscriber recovers a lost tail
+LINGER_S = 0.5  # the cache stays this long after the last batch while anyone subscribes (a lost tail)
 
 
 class TelemetryPublisher(ThreadedSink):
@@ -224,11 +225,14 @@ class TelemetryPublisher(ThreadedSink):
             self._put_stats(final=False)
 
     def finish(self) -> None:
-        """The last batch, the side messages, then the final stats (a recording's last word)."""
+        """The last batch, the side messages, then the final stats (a recording's last word); the
+        history is kept ``LINGER_S`` longer while anyone subscribes."""
         if self._pending:
             self._put_pending()
         self._put_events()
         self._put_stats(final=True)
+        if self.published_batches and self.has_subscribers():
+            time.sleep(LINGER_S)  # a heartbeat or two: a subscriber that missed the last batches recovers them
 
     def _put_pending(self) -> None:
         self._put_batch(self._pending, self._pending_samples)

@@ -61,10 +61,12 @@ class ZenohRecorder:
 
     ``done`` is set when the rig's liveliness token goes away (its run ended); ``finished`` when the
     rig's final stats message arrived (nothing more will come); ``period_s`` (the rig's ``info``)
-    lets the accounting say how many samples came before the first one received."""
+    lets the accounting say how many samples came before the first one received. ``history=False``:
+    a plain subscriber that records from the moment it subscribes, without recovery."""
 
     def __init__(self, session: zenoh.Session, rig: str, out_dir: str | Path, binding: DeviceBinding,
-                 name: str = "run", metadata: dict[str, Any] | None = None, period_s: float | None = None) -> None:
+                 name: str = "run", metadata: dict[str, Any] | None = None, period_s: float | None = None,
+                 history: bool = True) -> None:
         # a full queue waits: back-pressure to zenoh, and so to the rig's publisher, instead of loss
         self.recorder = Recorder(out_dir, binding, name=name, metadata=metadata, overflow=Overflow.WAIT)
         self._names = [ch.signal for ch in binding.adc]
@@ -84,7 +86,7 @@ class ZenohRecorder:
         self._lock = threading.Lock()
         self._watch = watch_alive(session, self._alive, rig=rig)
         self.subscription: Subscription = subscribe(rig, self._on_sample, on_safety=self._on_safety,
-                                                    on_stats=self._on_stats, session=session)
+                                                    on_stats=self._on_stats, session=session, history=history)
 
     def _alive(self, rig: str, alive: bool) -> None:
         (self.seen_alive if alive else self.done).set()
@@ -127,15 +129,22 @@ class ZenohRecorder:
             self.rig_final = dict(msg["telemetry"])
             self.finished.set()
 
-    def wait_finished(self, timeout_s: float) -> bool:
-        """Wait until the rig's final stats and its last batch have arrived (both travel the same
-        reliable path, in order); False if they did not within ``timeout_s`` (a rig that was killed
-        says no final word: the tail of its recording is then unknown)."""
+    def wait_finished(self, timeout_s: float, tail_s: float = 2.0) -> bool:
+        """Wait until the rig's final stats and its last batch have arrived (the final word comes after
+        the last batch; a batch lost in transit is recovered behind it); False if they did not within
+        ``timeout_s``, or if the last batch is still missing ``tail_s`` after the final word (lost for
+        good: the accounting names it). A rig that was killed says no final word: the tail of its
+        recording is then unknown."""
         deadline = time.monotonic() + timeout_s
+        tail_end = None
         while time.monotonic() < deadline:
             final = self.rig_final
-            if final is not None and self.subscription.batches_seen_up_to(int(final.get("published_batches", 0))):
-                return True
+            if final is not None:
+                if self.subscription.batches_seen_up_to(int(final.get("published_batches", 0))):
+                    return True
+                tail_end = tail_end or time.monotonic() + tail_s
+                if time.monotonic() >= tail_end:
+                    return False
             time.sleep(0.01)
         return False
 
@@ -151,7 +160,7 @@ class ZenohRecorder:
     def losses(self) -> dict[str, int | None]:
         """The rig's device samples this recording lacks, by where they went (None: not known, e.g.
         before the rig's final word): ``at_publisher`` (its queue was full, counted by the rig),
-        ``before_history`` (older than the publisher's history when this recorder joined),
+        ``before_joining`` (published before this recorder joined and not in the publisher's history it got),
         ``in_transit`` (missed on the way and not recovered from the publisher's cache),
         ``in_writer`` (received, refused by the writer), ``unexplained`` (what the four leave over:
         0 when the accounting is whole)."""
@@ -162,7 +171,7 @@ class ZenohRecorder:
         if final is not None and rig is not None and at_pub is not None:
             tail = ledger.tail(int(final.get("published_batches", 0)), rig - at_pub)[1]
         in_transit = None if tail is None or ledger.samples_lost is None else ledger.samples_lost + tail
-        out: dict[str, int | None] = {"at_publisher": at_pub, "before_history": ledger.samples_before_first,
+        out: dict[str, int | None] = {"at_publisher": at_pub, "before_joining": ledger.samples_before_first,
                                       "in_transit": in_transit, "in_writer": self.writer_refused}
         parts = list(out.values())
         written = self.samples_received - self.writer_refused
@@ -187,7 +196,7 @@ class ZenohRecorder:
             "samples_before_first": before,
             "sample_index_gaps": self.sample_index_gaps,
             "batches": {"received": self.subscription.ledger.batches,
-                        "before_history": self.subscription.ledger.batches_before_first,
+                        "before_joining": self.subscription.ledger.batches_before_first,
                         "lost_in_transit": self.subscription.ledger.batches_lost,
                         "zenoh_reported_missed": self.subscription.zenoh_missed},
             "rig_final_word": final is not None,
