@@ -43,14 +43,10 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.wait <= 3600:
         raise UserError(f"--wait must be in [0, 3600] s, got {args.wait}")
     end_wait = time.monotonic() + args.wait
-    while True:  # a rig hosting the loopback hub may start after the recorder
-        try:
-            session = open_session(net)
-            break
-        except TelemetryConfigError as e:
-            if time.monotonic() >= end_wait:
-                raise UserError(str(e)) from None
-            time.sleep(0.25)
+    try:  # a rig hosting the loopback hub may start after the recorder: wait for it
+        session = open_session(net, wait_s=args.wait)
+    except TelemetryConfigError as e:
+        raise UserError(str(e)) from None
     lab = None
     try:
         lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config, history=args.history)
