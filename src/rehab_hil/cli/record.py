@@ -27,7 +27,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--wait", type=float, default=10.0,
                    help="how long to wait for the hub and a matching rig to appear [s] (default 10)")
     p.add_argument("--no-history", dest="history", action="store_false",
-                   help="record from the moment of subscribing, without the rig publisher's history and recovery")
+                   help="record from the moment of subscribing, without the rig publisher's history")
+    p.add_argument("--recover", action="store_true",
+                   help="ask the rig publisher's cache for batches missed in transit (a late start may then lose "
+                   "the history: docs/telemetry.md)")
     add_network_args(p)
     return p
 
@@ -49,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(e)) from None
     lab = None
     try:
-        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config, history=args.history)
+        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config, history=args.history,
+                          recovery=args.recover)
         started = False
         end = None
         try:

@@ -134,10 +134,11 @@ class LabRecorder:
     """Record every rig matching ``pattern`` under ``out_root``, one run directory per rig."""
 
     def __init__(self, session: zenoh.Session, pattern: str, out_root: str | Path, config: Path | None = None,
-                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0, history: bool = True) -> None:
+                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0, history: bool = True,
+                 recovery: bool = False) -> None:
         self.session, self.pattern, self.out_root, self.config = session, pattern, Path(out_root), config
         self.info_timeout_s = info_timeout_s
-        self.history = history  # begin with the publisher's history and recover misses (zenoh ext)
+        self.history, self.recovery = history, recovery  # zenoh's AdvancedSubscriber (subscriber.py)
         self.final_timeout_s = final_timeout_s  # how long a stopped rig's last batches may take to arrive
         self.runs: dict[str, _Run] = {}
         self.finished: list[_Run] = []
@@ -170,7 +171,7 @@ class LabRecorder:
         period = (info or {}).get("period_s")
         zrec = ZenohRecorder(self.session, rig, run_dir, binding, metadata=meta,
                              period_s=float(period) if isinstance(period, (int, float)) else None,
-                             history=self.history)
+                             history=self.history, recovery=self.recovery)
         run = _Run(rig, run_dir, zrec, meta)
         self.runs[rig] = run
         return run

@@ -3,8 +3,8 @@
 Callbacks run on zenoh's threads (keep them short; hand work to your own queue). Each returned
 handle undeclares on ``close()`` - zenoh keeps callbacks alive until then (docs/telemetry.md).
 Samples come through zenoh's ``AdvancedSubscriber``: the rig publisher's history first (a late
-subscriber gets the session from its start, as far as the publisher keeps it), misses recovered
-from the publisher's cache, and what could not be recovered counted (``telemetry.history``).
+subscriber gets the session from its start, as far as the publisher keeps it), and every miss
+counted (``telemetry.history``); ``recovery=True`` also asks the publisher's cache for misses.
 """
 
 from __future__ import annotations
@@ -24,6 +24,12 @@ from rehab_hil.telemetry.session import NetworkConfig, open_session
 __all__ = ["Subscription", "list_rigs", "query_info", "send_command", "subscribe", "watch_alive"]
 
 SampleCallback = Callable[[StateSample], None]
+# How many of the publisher's cached batches the history asks for (all it may hold). zenoh (1.10)
+# also holds live batches back until this many arrived or the history query is answered; unset, it
+# delivers the first batch to arrive at once, and a live one that overtakes the history makes it drop
+# the history. Any other query of the same publisher still open when the history query ends (late
+# publisher detection, a recovery query) reopens that race, so the history goes alone by default.
+HISTORY_BATCHES = 1_000_000
 JsonCallback = Callable[[dict[str, Any]], None]
 
 
@@ -31,12 +37,13 @@ class Subscription:
     """Live subscription to one rig; counts batches, samples, misses and undecodable payloads.
 
     ``history`` (default): an ``AdvancedSubscriber`` that first asks the rig publisher's cache for
-    what it holds and recovers misses from it; ``ledger`` says what arrived and what is missing where.
+    what it holds; ``recovery``: asks it again for each miss (see ``HISTORY_BATCHES`` for the race this
+    may cost a late joiner in zenoh 1.10); ``ledger`` says what arrived and what is missing where.
     """
 
     def __init__(self, session: zenoh.Session, rig_id: str, on_sample: SampleCallback | None,
                  on_stats: JsonCallback | None, on_safety: JsonCallback | None, owns_session: bool,
-                 history: bool = True) -> None:
+                 history: bool = True, recovery: bool = False) -> None:
         self.keys = RigKeys(rig_id)
         self.session = session
         self._owns = owns_session
@@ -49,7 +56,7 @@ class Subscription:
         self._subs: list[Any] = []
         try:
             if on_sample is not None:
-                self._subs.append(self._declare_state(history))
+                self._subs.append(self._declare_state(history, recovery))
             if on_stats is not None:
                 self._subs.append(session.declare_subscriber(self.keys.stats, self._json("stats", on_stats)))
             if on_safety is not None:
@@ -58,13 +65,14 @@ class Subscription:
             self.close()
             raise
 
-    def _declare_state(self, history: bool) -> Any:
-        if not history:
+    def _declare_state(self, history: bool, recovery: bool) -> Any:
+        if not history and not recovery:
             return self.session.declare_subscriber(self.keys.state, self._state)
         sub = ext.declare_advanced_subscriber(
             self.session, self.keys.state, self._state,
-            history=ext.HistoryConfig(detect_late_publishers=True),
-            recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True), subscriber_detection=True)
+            history=ext.HistoryConfig(max_samples=HISTORY_BATCHES) if history else None,
+            recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True) if recovery else None,
+            subscriber_detection=True)
         self._subs.append(sub)  # undeclared after its miss listener (close() goes in reverse)
         return sub.sample_miss_listener(self._missed)
 
@@ -138,18 +146,20 @@ class Subscription:
 
 def subscribe(rig: str, on_sample: SampleCallback | None, *, on_stats: JsonCallback | None = None,
               on_safety: JsonCallback | None = None, session: zenoh.Session | None = None,
-              net: NetworkConfig | None = None, history: bool = True, wait_s: float | None = 60.0) -> Subscription:
+              net: NetworkConfig | None = None, history: bool = True, recovery: bool = False,
+              wait_s: float | None = 60.0) -> Subscription:
     """Call ``on_sample(StateSample)`` for every sample rig ``rig`` publishes, in order.
 
     Uses ``session`` if given, else opens a client session from ``net`` (default: loopback port 7447)
     that the returned ``Subscription`` closes; with no hub there yet it waits for one up to ``wait_s``
     (None: until there is one), so a subscriber may start before its rig. ``history``: begin with what
-    the rig's publisher keeps of the session and recover misses (zenoh's AdvancedSubscriber)."""
+    the rig's publisher keeps of the session; ``recovery``: ask its cache for misses (both zenoh's
+    AdvancedSubscriber; every miss is counted either way)."""
     RigKeys(rig)  # validate before opening anything
     owns = session is None
     if session is None:
         session = open_session(net or NetworkConfig(), wait_s=wait_s)
-    return Subscription(session, rig, on_sample, on_stats, on_safety, owns, history=history)
+    return Subscription(session, rig, on_sample, on_stats, on_safety, owns, history=history, recovery=recovery)
 
 
 def query_info(session: zenoh.Session, rig: str, timeout_s: float = 2.0) -> dict[str, Any] | None:

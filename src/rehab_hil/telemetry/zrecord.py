@@ -62,11 +62,11 @@ class ZenohRecorder:
     ``done`` is set when the rig's liveliness token goes away (its run ended); ``finished`` when the
     rig's final stats message arrived (nothing more will come); ``period_s`` (the rig's ``info``)
     lets the accounting say how many samples came before the first one received. ``history=False``:
-    a plain subscriber that records from the moment it subscribes, without recovery."""
+    records from the moment it subscribes; ``recovery``: asks the publisher's cache for misses."""
 
     def __init__(self, session: zenoh.Session, rig: str, out_dir: str | Path, binding: DeviceBinding,
                  name: str = "run", metadata: dict[str, Any] | None = None, period_s: float | None = None,
-                 history: bool = True) -> None:
+                 history: bool = True, recovery: bool = False) -> None:
         # a full queue waits: back-pressure to zenoh, and so to the rig's publisher, instead of loss
         self.recorder = Recorder(out_dir, binding, name=name, metadata=metadata, overflow=Overflow.WAIT)
         self._names = [ch.signal for ch in binding.adc]
@@ -86,7 +86,8 @@ class ZenohRecorder:
         self._lock = threading.Lock()
         self._watch = watch_alive(session, self._alive, rig=rig)
         self.subscription: Subscription = subscribe(rig, self._on_sample, on_safety=self._on_safety,
-                                                    on_stats=self._on_stats, session=session, history=history)
+                                                    on_stats=self._on_stats, session=session, history=history,
+                                                    recovery=recovery)
 
     def _alive(self, rig: str, alive: bool) -> None:
         (self.seen_alive if alive else self.done).set()
