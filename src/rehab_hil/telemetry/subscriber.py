@@ -71,8 +71,7 @@ class Subscription:
         sub = ext.declare_advanced_subscriber(
             self.session, self.keys.state, self._state,
             history=ext.HistoryConfig(max_samples=HISTORY_BATCHES) if history else None,
-            recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True) if recovery else None,
-            subscriber_detection=True)
+            recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True) if recovery else None)
         self._subs.append(sub)  # undeclared after its miss listener (close() goes in reverse)
         return sub.sample_miss_listener(self._missed)
 
