@@ -117,7 +117,9 @@ def session(args: argparse.Namespace, tmp: Path, port: int) -> dict[str, Any]:
         rows[name] = {"received": len(got & local), "local": len(local), "missing": len(local - got),
                       "extra": len(got - local), "equal": got == local, "lost": meta.get("lost"),
                       "accounting": meta.get("samples"), "said": said[name]}
-    return {"rig_summary": rig_out.strip().splitlines()[-3:], "recordings": rows}
+    keep = ("cycles", "safety", "device time", "telemetry")  # how the session went (a trip ends it early)
+    summary = [" ".join(line.strip("│ ").split()) for line in rig_out.splitlines() if any(k in line for k in keep)]
+    return {"rig_summary": summary, "recordings": rows}
 
 
 def main() -> None:
@@ -148,6 +150,9 @@ def main() -> None:
         named = "/".join(str(lost.get(k)) for k in ("at_publisher", "before_joining", "in_transit", "in_writer"))
         print(f"{label:34s} {r['received']:>7d} of {r['local']:<7d} {'yes' if r['equal'] else 'NO':>4s}"
               f"  {r['missing']:7d}  {named}")
+    for key, r in result["recordings"].items():
+        if not r["accounting"]:
+            print(f"  {names[key]}: {r['said'][-1] if r['said'] else 'no output'}")
     ok = result["recordings"]["history_before"]["equal"] and result["recordings"]["history_late"]["equal"]
     print(f"target (every sample, started before or {args.late:g} s after): {'met' if ok else 'NOT met'}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
