@@ -5,6 +5,7 @@ Multicast scouting and gossip are off in every session (``build_zenoh_config``);
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -13,7 +14,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from rehab_hil.telemetry.session import NetworkConfig, TelemetryConfigError, open_session
+from rehab_hil.telemetry.session import NetworkConfig, TelemetryConfigError, build_zenoh_config, open_session
 from rehab_hil.testing import free_port
 
 zenoh.init_log_from_env_or("off")
@@ -28,6 +29,22 @@ def open_hub(**kw: Any) -> tuple[zenoh.Session, int]:
         except TelemetryConfigError:
             continue
     raise RuntimeError("no free loopback port for the hub")
+
+
+def open_lossy_hub(key: str, max_puts_per_s: float) -> tuple[zenoh.Session, int]:
+    """A hub that drops puts on ``key`` in transit: zenoh's own downsampling interceptor on the hub's
+    egress lets at most ``max_puts_per_s`` through to each subscriber and drops the rest (queries and
+    replies, i.e. history and recovery, are not touched)."""
+    for _ in range(5):
+        port = free_port()
+        cfg = build_zenoh_config(NetworkConfig(role="hub", port=port))
+        cfg.insert_json5("downsampling", json.dumps([{"id": "lossy", "flows": ["egress"], "messages": ["put"],
+                                                      "rules": [{"key_expr": key, "freq": max_puts_per_s}]}]))
+        try:
+            return zenoh.open(cfg), port
+        except zenoh.ZError:
+            continue
+    raise RuntimeError("no free loopback port for the lossy hub")
 
 
 def wait_until(pred: Callable[[], bool], timeout_s: float = 10.0) -> bool:

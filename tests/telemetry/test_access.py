@@ -101,3 +101,18 @@ def test_the_acl_builder_refuses_ambiguous_users() -> None:
         command_access_control(rig_users=[])
     with pytest.raises(ValueError, match="without ':'"):
         command_access_control(rig_users=["r:x"])
+
+
+def test_a_viewer_that_joins_late_gets_the_history_through_the_access_control(
+        secured: Callable[[str, str], zenoh.Session], wait) -> None:
+    rig, viewer = secured("rig", USERS["rig"]), secured("victor", USERS["victor"])
+    seen: list[int] = []
+    with TelemetryPublisher(rig, "lab2", batch=1) as pub:
+        for i in range(20):
+            pub.offer(Sample(1, i, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+        assert wait(lambda: pub.published_batches == 20)  # before the viewer subscribes
+        with subscribe("lab2", lambda s: seen.append(s.sample_index), session=viewer):
+            assert wait(lambda: len(seen) == 20)
+            pub.offer(Sample(1, 20, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+            assert wait(lambda: len(seen) == 21)
+    assert seen == list(range(21))

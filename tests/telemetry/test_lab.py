@@ -132,7 +132,8 @@ def test_three_rigs_on_one_router_monitor_and_a_multi_rig_recording(router: str,
         assert (d / "run.csv").read_text() == (tmp_path / "local" / rig / "run.csv").read_text()
         meta = read_metadata(d)
         assert meta["rig_id"] == rig and meta["plant"] == "finger_extensor" and meta["records"] > 400
-        assert meta["lost"] == {"batches_in_transit": 0, "publisher_dropped": 0, "writer_dropped": 0}
+        assert meta["lost"] == {"at_publisher": 0, "before_joining": 0, "in_transit": 0, "in_writer": 0,
+                                "unexplained": 0}
         assert meta["samples"]["samples_not_received"] == 0 and meta["samples"]["complete"]  # the rig's count
         with open(d / "run.mcap", "rb") as fh:  # the same metadata as MCAP metadata records
             records = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}

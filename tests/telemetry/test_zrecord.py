@@ -121,6 +121,8 @@ def test_a_zenoh_recording_on_a_busy_machine_states_every_sample_it_did_not_rece
     assert acc["rig_samples"] == len(rig) and acc["samples_received"] == len(got)
     assert acc["samples_not_received"] == len(missing)  # stated = actual
     assert acc["rig_samples_dropped"] == pub.samples_dropped == len(missing)  # all at the rig's counted queue
+    assert acc["lost"] == {"at_publisher": len(missing), "before_joining": 0, "in_transit": 0, "in_writer": 0,
+                           "unexplained": 0}  # named where it happened, adding up to what is missing
     between = [i for i in missing if got and got[0] < i < got[-1]]
     assert acc["sample_index_gaps"] == len(between)
     assert acc["samples_before_first"] == rig.index(got[0])

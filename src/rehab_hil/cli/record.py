@@ -26,6 +26,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    "every recorded rig has stopped)")
     p.add_argument("--wait", type=float, default=10.0,
                    help="how long to wait for the hub and a matching rig to appear [s] (default 10)")
+    p.add_argument("--no-history", dest="history", action="store_false",
+                   help="record from the moment of subscribing, without the rig publisher's history")
+    p.add_argument("--recover", action="store_true",
+                   help="ask the rig publisher's cache for batches missed in transit (a late start may then lose "
+                   "the history: docs/telemetry.md)")
     add_network_args(p)
     return p
 
@@ -41,17 +46,14 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.wait <= 3600:
         raise UserError(f"--wait must be in [0, 3600] s, got {args.wait}")
     end_wait = time.monotonic() + args.wait
-    while True:  # a rig hosting the loopback hub may start after the recorder
-        try:
-            session = open_session(net)
-            break
-        except TelemetryConfigError as e:
-            if time.monotonic() >= end_wait:
-                raise UserError(str(e)) from None
-            time.sleep(0.25)
+    try:  # a rig hosting the loopback hub may start after the recorder: wait for it
+        session = open_session(net, wait_s=args.wait)
+    except TelemetryConfigError as e:
+        raise UserError(str(e)) from None
     lab = None
     try:
-        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config)
+        lab = LabRecorder(session, args.from_zenoh, args.out, config=args.config, history=args.history,
+                          recovery=args.recover)
         started = False
         end = None
         try:

@@ -39,7 +39,9 @@ def command_access_control(*, rig_users: Sequence[str], operators: Sequence[str]
     both = set(rig_users) & (set(operators) | set(viewers))
     if both:
         raise ValueError(f"user names {sorted(both)} cannot be both a rig and an operator/viewer")
-    everything = [f"{PREFIX}/**"]
+    # the state publisher's cache, miss detection and liveliness live under the state key's "@adv"
+    # suffix (zenoh's AdvancedPublisher), which "**" does not reach: a late viewer's history query
+    everything = [f"{PREFIX}/**", f"{PREFIX}/*/state/@adv/**"]
     commands = [f"{PREFIX}/*/command"] if rigs is None else [f"{PREFIX}/{validate_rig_id(r)}/command" for r in rigs]
     rules = [
         {"id": "rig", "messages": list(ALL_MESSAGES), "flows": ["ingress", "egress"], "permission": "allow",

@@ -114,13 +114,31 @@ class _Run:
         self.t0 = time.monotonic()
 
 
+def _said(acc: dict[str, Any]) -> str:
+    """The recording's losses in one phrase: how many of the rig's samples it lacks and where they went."""
+    missing, lost = acc["samples_not_received"], acc["lost"]
+    if missing is None:
+        return (f"{acc['samples_received']} samples received; the rig's final count did not arrive: samples "
+                "after the last one received unknown")
+    lacks = missing + lost["in_writer"]
+    where = ", ".join(f"{lost[k] if lost[k] is not None else '?'} {what}" for k, what in (
+        ("at_publisher", "dropped at the rig's publisher"),
+        ("before_joining", "from before it joined, not in the publisher's history"),
+        ("in_transit", "lost in transit"), ("in_writer", "refused by the writer")))
+    extra = f", {lost['unexplained']} unexplained" if lost["unexplained"] else ""
+    got = f"{acc['samples_received']} of the rig's {acc['rig_samples']} samples received"
+    return f"{got}, {lacks} missing: {where}{extra}"
+
+
 class LabRecorder:
     """Record every rig matching ``pattern`` under ``out_root``, one run directory per rig."""
 
     def __init__(self, session: zenoh.Session, pattern: str, out_root: str | Path, config: Path | None = None,
-                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0) -> None:
+                 info_timeout_s: float = 2.0, final_timeout_s: float = 10.0, history: bool = True,
+                 recovery: bool = False) -> None:
         self.session, self.pattern, self.out_root, self.config = session, pattern, Path(out_root), config
         self.info_timeout_s = info_timeout_s
+        self.history, self.recovery = history, recovery  # zenoh's AdvancedSubscriber (subscriber.py)
         self.final_timeout_s = final_timeout_s  # how long a stopped rig's last batches may take to arrive
         self.runs: dict[str, _Run] = {}
         self.finished: list[_Run] = []
@@ -152,7 +170,8 @@ class LabRecorder:
         meta = _identity(rig, dict(info or {}), dt.datetime.now(dt.UTC))
         period = (info or {}).get("period_s")
         zrec = ZenohRecorder(self.session, rig, run_dir, binding, metadata=meta,
-                             period_s=float(period) if isinstance(period, (int, float)) else None)
+                             period_s=float(period) if isinstance(period, (int, float)) else None,
+                             history=self.history, recovery=self.recovery)
         run = _Run(rig, run_dir, zrec, meta)
         self.runs[rig] = run
         return run
@@ -166,18 +185,12 @@ class LabRecorder:
         sub.close()  # counters final from here on
         acc = z.accounting()
         summary = {"duration_s": round(time.monotonic() - run.t0, 3), "stop_reason": why, "records": z.samples,
-                   "samples": acc,
-                   "lost": {"batches_in_transit": sub.missing_batches, "publisher_dropped": sub.publisher_dropped,
-                            "writer_dropped": z.recorder.dropped}}
+                   "samples": acc, "lost": acc["lost"]}
         z.close(summary)  # also the MCAP metadata record rehab_hil.summary
         self.finished.append(run)
         write_metadata(run.run_dir, {**run.meta, **summary, "csv_rows": z.recorder.rows})
-        missing = acc["samples_not_received"]
-        said = (f"{missing} of the rig's {acc['rig_samples']} samples not received" if missing is not None else
-                "the rig's final count did not arrive: samples after the last one received unknown")
-        return (f"{why}: rig {rig}: {z.samples} records, {z.recorder.rows} CSV rows in {run.run_dir}; {said}; "
-                f"{acc['sample_index_gaps']} gaps in sample_index; lost: {sub.missing_batches} batches in transit, "
-                f"{sub.publisher_dropped} samples at the publisher, {z.recorder.dropped} in the writer")
+        return (f"{why}: rig {rig}: {z.samples} records, {z.recorder.rows} CSV rows in {run.run_dir}; "
+                f"{_said(acc)}; {acc['sample_index_gaps']} gaps in sample_index")
 
     def close(self, why: str = "duration reached") -> list[str]:
         """Finish every running recording; returns one line per rig."""

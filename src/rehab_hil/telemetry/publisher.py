@@ -6,6 +6,10 @@ drops the record and counts it) and, once per cycle after its command is out, ca
 worker (woken so, or every 2 ms) batches samples and commands into the binary state encoding,
 publishes the loop's safety events (``EventRecord``) on ``.../safety``, stats at 1 Hz, holds the
 rig's liveliness token and answers ``info`` queries.
+
+The state batches go through zenoh's ``AdvancedPublisher``: it keeps the last ``cache_batches`` puts
+for subscribers that join late or miss one in transit (history and recovery) and numbers its puts
+so that a subscriber detects and names a miss (``telemetry.history``).
 """
 
 from __future__ import annotations
@@ -18,14 +22,16 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import zenoh
+from zenoh import ext
 
 from rehab_hil.protocol import Sample
 from rehab_hil.service.records import CycleRecord, EventRecord, MessageRecord, SampleRecord
 from rehab_hil.service.sinks import ThreadedSink
 from rehab_hil.telemetry.codec import PayloadError, StateSample, decode_json, encode_json, join_records, pack_record
+from rehab_hil.telemetry.history import BATCH_ATTACHMENT
 from rehab_hil.telemetry.keys import RigKeys
 
-__all__ = ["COMMAND_OPS", "CommandHandler", "TelemetryPublisher"]
+__all__ = ["CACHE_BATCHES", "COMMAND_OPS", "CommandHandler", "TelemetryPublisher"]
 
 CommandHandler = Callable[[dict[str, Any]], None]
 
@@ -42,6 +48,12 @@ TICK_S = 0.002  # the worker looks at its partial batch, side messages and stats
 
 
 COMMAND_OPS = ("setpoint", "start", "stop")
+# The publisher's history: 12 000 batches = 60 s of a 1 kHz loop (a sample and a command record per
+# cycle, 10 records per batch: 200 batches/s), about 16 MB of 1.3 kB puts. A recorder that joins up to
+# a minute late still gets the session from its first sample (docs/telemetry.md, "History").
+CACHE_BATCHES = 12_000
+HEARTBEAT_S = 0.1  # the last put's number, sent when it changed: a subscriber recovers a lost tail
+LINGER_S = 0.5  # the cache stays this long after the last batch while anyone subscribes (a lost tail)
 
 
 class TelemetryPublisher(ThreadedSink):
@@ -51,12 +63,14 @@ class TelemetryPublisher(ThreadedSink):
     the samples waiting for the worker. ``info`` answers ``rehab/<rig>/info`` queries. Commands on
     ``rehab/<rig>/command`` reach ``on_command`` only when ``commands_enabled`` (off by default; protect
     the channel with the hub's access control, docs/telemetry.md). ``stats_source()``, if given, is called
-    on the worker thread once per stats period for the loop and link figures."""
+    on the worker thread once per stats period for the loop and link figures. ``cache_batches``: how many
+    state batches zenoh keeps for late joiners and recovery."""
 
     def __init__(self, session: zenoh.Session, rig_id: str, *, batch: int = 10, queue_size: int = 4096,
                  max_delay_s: float = 0.02, stats_period_s: float = 1.0, info: Mapping[str, Any] | None = None,
                  commands_enabled: bool = False, on_command: CommandHandler | None = None,
-                 stats_source: Callable[[], Mapping[str, Any]] | None = None) -> None:
+                 stats_source: Callable[[], Mapping[str, Any]] | None = None,
+                 cache_batches: int = CACHE_BATCHES) -> None:
         if not 1 <= batch <= 1000:
             raise ValueError(f"batch must be 1..1000 samples, got {batch}")
         if queue_size < batch:
@@ -65,6 +79,8 @@ class TelemetryPublisher(ThreadedSink):
             raise ValueError("max_delay_s must be in (0, 1] s and stats_period_s in (0, 60] s")
         if commands_enabled and on_command is None:
             raise ValueError("commands_enabled needs an on_command handler")
+        if not 1 <= cache_batches <= 1_000_000:
+            raise ValueError(f"cache_batches must be 1..1000000, got {cache_batches}")
         super().__init__("telemetry", queue_size, poll_s=TICK_S, tick_s=TICK_S)
         self.keys = RigKeys(rig_id)
         self._session = session
@@ -81,6 +97,7 @@ class TelemetryPublisher(ThreadedSink):
         self._samples_refused = 0  # records with a device SAMPLE dropped at the full queue
         self.samples_dropped = 0  # of the dropped records, those that carry a device SAMPLE
         self.published_samples = 0
+        self._published_device_samples = 0  # of those, records with a device SAMPLE
         self.published_batches = 0
         self.publish_errors = 0
         self.commands_accepted = 0
@@ -89,12 +106,13 @@ class TelemetryPublisher(ThreadedSink):
         self._pending_samples = 0  # of those, records with a device SAMPLE
         self._first_at = 0.0
         self._next_stats = time.monotonic() + stats_period_s
-        self._pub = self._token = self._queryable = self._cmd_sub = None
+        self._pub = self._matching = self._token = self._queryable = self._cmd_sub = None
         try:
             # reliable and blocking: a subscriber (a recording) that falls behind slows the worker
             # down, which the bounded queue absorbs (and counts, if it ever overflows)
-            self._pub = session.declare_publisher(self.keys.state, reliability=zenoh.Reliability.RELIABLE,
-                                                  congestion_control=zenoh.CongestionControl.BLOCK)
+            self._pub = _advanced_publisher(session, self.keys.state, cache_batches)
+            # never put on: only asked whether anyone subscribes (an AdvancedPublisher cannot say)
+            self._matching = session.declare_publisher(self.keys.state)
             self._token = session.liveliness().declare_token(self.keys.alive)
             self._queryable = session.declare_queryable(self.keys.info, self._answer_info)
             if commands_enabled:
@@ -145,7 +163,7 @@ class TelemetryPublisher(ThreadedSink):
         self._undeclare()
 
     def _undeclare(self) -> None:
-        for entity in (self._cmd_sub, self._queryable, self._pub, self._token):  # the token last
+        for entity in (self._cmd_sub, self._queryable, self._matching, self._pub, self._token):  # the token last
             if entity is not None:
                 with contextlib.suppress(zenoh.ZError):
                     entity.undeclare()
@@ -158,7 +176,7 @@ class TelemetryPublisher(ThreadedSink):
 
     def has_subscribers(self) -> bool:
         """Whether any subscriber currently matches ``rehab/<rig>/state`` (zenoh matching status)."""
-        status = self._pub.matching_status
+        status = self._matching.matching_status
         return bool(getattr(status, "matching", status))
 
     def counters(self) -> dict[str, int]:
@@ -207,11 +225,14 @@ class TelemetryPublisher(ThreadedSink):
             self._put_stats(final=False)
 
     def finish(self) -> None:
-        """The last batch, the side messages, then the final stats (a recording's last word)."""
+        """The last batch, the side messages, then the final stats (a recording's last word); the
+        history is kept ``LINGER_S`` longer while anyone subscribes."""
         if self._pending:
             self._put_pending()
         self._put_events()
         self._put_stats(final=True)
+        if self.published_batches and self.has_subscribers():
+            time.sleep(LINGER_S)  # a heartbeat or two: a subscriber that missed the last batches recovers them
 
     def _put_pending(self) -> None:
         self._put_batch(self._pending, self._pending_samples)
@@ -237,7 +258,9 @@ class TelemetryPublisher(ThreadedSink):
     def _put_batch(self, records: list[bytes], n_samples: int = 0) -> None:
         try:
             payload = join_records(records, self.published_batches, self.dropped)
-            self._pub.put(payload)
+            # what the earlier batches held: a subscriber counts the samples of a batch it lacks
+            att = BATCH_ATTACHMENT.pack(self.published_samples, self._published_device_samples)
+            self._pub.put(payload, attachment=att)
         except (PayloadError, zenoh.ZError):
             self.publish_errors += 1
             self.dropped += len(records)  # lost here: counted with the queue's drops, never silent
@@ -245,6 +268,7 @@ class TelemetryPublisher(ThreadedSink):
             return
         self.published_batches += 1
         self.published_samples += len(records)
+        self._published_device_samples += n_samples
 
     def _put_json(self, key: str, kind: str, body: dict[str, Any], final: bool = False) -> None:
         try:
@@ -277,3 +301,14 @@ class TelemetryPublisher(ThreadedSink):
             self._on_command(msg)
         except Exception:  # the rig's handler failed: count it, keep zenoh's thread alive
             self.commands_rejected += 1
+
+
+def _advanced_publisher(session: zenoh.Session, key: str, cache_batches: int) -> ext.AdvancedPublisher:
+    """The state publisher: reliable, blocking, its last ``cache_batches`` puts kept for history and
+    recovery (replies blocking too), its puts numbered and announced (miss detection, heartbeat)."""
+    block = zenoh.CongestionControl.BLOCK
+    return ext.declare_advanced_publisher(
+        session, key, reliability=zenoh.Reliability.RELIABLE, congestion_control=block,
+        cache=ext.CacheConfig(cache_batches, replies_config=ext.RepliesConfig(congestion_control=block)),
+        sample_miss_detection=ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
+        publisher_detection=True)

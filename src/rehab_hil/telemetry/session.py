@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -151,19 +152,32 @@ def build_zenoh_config(net: NetworkConfig) -> zenoh.Config:
     return cfg
 
 
-def open_session(net: NetworkConfig) -> zenoh.Session:
-    """Open a zenoh session for ``net``; an unreachable hub/router becomes ``TelemetryConfigError``."""
+def open_session(net: NetworkConfig, wait_s: float | None = 0.0) -> zenoh.Session:
+    """Open a zenoh session for ``net``; an unreachable hub/router becomes ``TelemetryConfigError``.
+
+    A client tries again every 0.1 s for up to ``wait_s`` (None: until it connects; Ctrl-C ends the
+    wait), so a subscriber started before its rig waits for the rig's hub or the lab's router."""
     cfg = build_zenoh_config(net)
-    try:
-        return zenoh.open(cfg)
-    except zenoh.ZError as e:
-        where = ", ".join(net.endpoints())
-        verb = "listen on" if net.role == "hub" else "connect to"
-        why = re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(e)).strip()  # no Rust source path for a user
-        hint = ""
-        if net.role != "hub" and net.mode != "lab":
-            hint = (": no hub there; start the rig with `rehab-hil run ... --telemetry RIG` (it hosts the loopback "
-                    "hub), or give the port it uses (--port), or the lab router (--connect ENDPOINT)")
-        elif net.role != "hub":
-            hint = ": is the lab router running and reachable (`rehab-hil router`)?"
-        raise TelemetryConfigError(f"cannot {verb} {where} ({why}){hint}") from None
+    end = None if wait_s is None else time.monotonic() + max(0.0, wait_s)
+    while True:
+        try:
+            return zenoh.open(cfg)
+        except zenoh.ZError as e:
+            if net.role == "hub" or (end is not None and time.monotonic() >= end):
+                raise _unreachable(net, e, wait_s) from None
+        time.sleep(0.1)
+        cfg = build_zenoh_config(net)  # zenoh.open takes the config
+
+
+def _unreachable(net: NetworkConfig, e: zenoh.ZError, wait_s: float | None) -> TelemetryConfigError:
+    where = ", ".join(net.endpoints())
+    verb = "listen on" if net.role == "hub" else "connect to"
+    why = re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(e)).strip()  # no Rust source path for a user
+    waited = f" within {wait_s:g} s" if net.role != "hub" and wait_s else ""
+    hint = ""
+    if net.role != "hub" and net.mode != "lab":
+        hint = (": no hub there; start the rig with `rehab-hil run ... --telemetry RIG` (it hosts the loopback "
+                "hub) or `rehab-hil router`, or give the port it uses (--port), or the lab router (--connect ENDPOINT)")
+    elif net.role != "hub":
+        hint = ": is the lab router running and reachable (`rehab-hil router`)?"
+    return TelemetryConfigError(f"cannot {verb} {where}{waited} ({why}){hint}")

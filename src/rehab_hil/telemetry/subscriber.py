@@ -2,6 +2,9 @@
 
 Callbacks run on zenoh's threads (keep them short; hand work to your own queue). Each returned
 handle undeclares on ``close()`` - zenoh keeps callbacks alive until then (docs/telemetry.md).
+Samples come through zenoh's ``AdvancedSubscriber``: the rig publisher's history first (a late
+subscriber gets the session from its start, as far as the publisher keeps it), and every miss
+counted (``telemetry.history``); ``recovery=True`` also asks the publisher's cache for misses.
 """
 
 from __future__ import annotations
@@ -11,33 +14,49 @@ from collections.abc import Callable
 from typing import Any
 
 import zenoh
+from zenoh import ext
 
 from rehab_hil.telemetry.codec import PayloadError, StateSample, decode_json, decode_state
+from rehab_hil.telemetry.history import BatchLedger
 from rehab_hil.telemetry.keys import PREFIX, RigKeys, rig_from_key
 from rehab_hil.telemetry.session import NetworkConfig, open_session
 
 __all__ = ["Subscription", "list_rigs", "query_info", "send_command", "subscribe", "watch_alive"]
 
 SampleCallback = Callable[[StateSample], None]
+# How many of the publisher's cached batches the history asks for (all it may hold). zenoh (1.10)
+# also holds live batches back until this many arrived or the history query is answered; unset, it
+# delivers the first batch to arrive at once, and a live one that overtakes the history makes it drop
+# the history. Any other query of the same publisher still open when the history query ends (late
+# publisher detection, a recovery query) reopens that race, so the history goes alone by default.
+HISTORY_BATCHES = 1_000_000
 JsonCallback = Callable[[dict[str, Any]], None]
 
 
 class Subscription:
-    """Live subscription to one rig; counts batches, samples, gaps and undecodable payloads."""
+    """Live subscription to one rig; counts batches, samples, misses and undecodable payloads.
+
+    ``history`` (default): an ``AdvancedSubscriber`` that first asks the rig publisher's cache for
+    what it holds; ``recovery``: asks it again for each miss (see ``HISTORY_BATCHES`` for the race this
+    may cost a late joiner in zenoh 1.10); ``ledger`` says what arrived and what is missing where.
+    """
 
     def __init__(self, session: zenoh.Session, rig_id: str, on_sample: SampleCallback | None,
-                 on_stats: JsonCallback | None, on_safety: JsonCallback | None, owns_session: bool) -> None:
+                 on_stats: JsonCallback | None, on_safety: JsonCallback | None, owns_session: bool,
+                 history: bool = True, recovery: bool = False) -> None:
         self.keys = RigKeys(rig_id)
         self.session = session
         self._owns = owns_session
-        self.batches = self.samples = self.missing_batches = self.bad_payloads = 0
+        self.bad_payloads = 0
+        self._records = 0
         self.publisher_dropped = 0
-        self._next_batch: int | None = None
+        self.zenoh_missed = 0  # batches zenoh reported missed for good (its sample-miss detection)
+        self.ledger = BatchLedger()
         self._on_sample, self._on_stats, self._on_safety = on_sample, on_stats, on_safety
-        self._subs: list[zenoh.Subscriber[None]] = []
+        self._subs: list[Any] = []
         try:
             if on_sample is not None:
-                self._subs.append(session.declare_subscriber(self.keys.state, self._state))
+                self._subs.append(self._declare_state(history, recovery))
             if on_stats is not None:
                 self._subs.append(session.declare_subscriber(self.keys.stats, self._json("stats", on_stats)))
             if on_safety is not None:
@@ -46,27 +65,54 @@ class Subscription:
             self.close()
             raise
 
+    def _declare_state(self, history: bool, recovery: bool) -> Any:
+        if not history and not recovery:
+            return self.session.declare_subscriber(self.keys.state, self._state)
+        sub = ext.declare_advanced_subscriber(
+            self.session, self.keys.state, self._state,
+            history=ext.HistoryConfig(max_samples=HISTORY_BATCHES) if history else None,
+            recovery=ext.RecoveryConfig(periodic_queries=None, heartbeat=True) if recovery else None)
+        self._subs.append(sub)  # undeclared after its miss listener (close() goes in reverse)
+        return sub.sample_miss_listener(self._missed)
+
+    def _missed(self, miss: Any) -> None:
+        self.zenoh_missed += int(miss.nb)
+
+    @property
+    def batches(self) -> int:
+        return self.ledger.batches
+
+    @property
+    def samples(self) -> int:
+        """Records received (device samples and commands)."""
+        return self._records
+
+    @property
+    def missing_batches(self) -> int:
+        """Batches missing between received ones: lost in transit and not recovered."""
+        return self.ledger.batches_lost
+
     def _state(self, zsample: zenoh.Sample) -> None:
         try:
             batch = decode_state(zsample.payload.to_bytes())
         except PayloadError:
             self.bad_payloads += 1
             return
-        if self._next_batch is not None and batch.batch_seq != self._next_batch:
-            self.missing_batches += (batch.batch_seq - self._next_batch) & 0xFFFFFFFF
-        self.batches += 1
-        self.samples += len(batch.samples)
+        att = zsample.attachment
+        n_samples = sum(1 for s in batch.samples if s.has_sample)
         self.publisher_dropped = batch.dropped_total
         assert self._on_sample is not None
         for s in batch.samples:
             self._on_sample(s)
-        self._next_batch = (batch.batch_seq + 1) & 0xFFFFFFFF  # after its samples: the batch is in
+        self._records += len(batch.samples)
+        # after its samples: the batch is in
+        self.ledger.add(batch.batch_seq, n_samples, None if att is None else att.to_bytes())
 
     def batches_seen_up_to(self, published_batches: int) -> bool:
         """Whether the batch numbered ``published_batches - 1`` (the publisher's last) has arrived."""
         if published_batches <= 0:
             return True
-        return self._next_batch == published_batches & 0xFFFFFFFF
+        return self.ledger.next_batch == published_batches & 0xFFFFFFFF
 
     def _json(self, kind: str, cb: JsonCallback) -> Callable[[zenoh.Sample], None]:
         def handle(zsample: zenoh.Sample) -> None:
@@ -81,7 +127,7 @@ class Subscription:
 
     def close(self) -> None:
         """Undeclare the subscribers (and close the session if this subscription opened it)."""
-        for s in self._subs:
+        for s in reversed(self._subs):
             with contextlib.suppress(zenoh.ZError):
                 s.undeclare()
         self._subs.clear()
@@ -99,16 +145,20 @@ class Subscription:
 
 def subscribe(rig: str, on_sample: SampleCallback | None, *, on_stats: JsonCallback | None = None,
               on_safety: JsonCallback | None = None, session: zenoh.Session | None = None,
-              net: NetworkConfig | None = None) -> Subscription:
+              net: NetworkConfig | None = None, history: bool = True, recovery: bool = False,
+              wait_s: float | None = 60.0) -> Subscription:
     """Call ``on_sample(StateSample)`` for every sample rig ``rig`` publishes, in order.
 
     Uses ``session`` if given, else opens a client session from ``net`` (default: loopback port 7447)
-    that the returned ``Subscription`` closes."""
+    that the returned ``Subscription`` closes; with no hub there yet it waits for one up to ``wait_s``
+    (None: until there is one), so a subscriber may start before its rig. ``history``: begin with what
+    the rig's publisher keeps of the session; ``recovery``: ask its cache for misses (both zenoh's
+    AdvancedSubscriber; every miss is counted either way)."""
     RigKeys(rig)  # validate before opening anything
     owns = session is None
     if session is None:
-        session = open_session(net or NetworkConfig())
-    return Subscription(session, rig, on_sample, on_stats, on_safety, owns)
+        session = open_session(net or NetworkConfig(), wait_s=wait_s)
+    return Subscription(session, rig, on_sample, on_stats, on_safety, owns, history=history, recovery=recovery)
 
 
 def query_info(session: zenoh.Session, rig: str, timeout_s: float = 2.0) -> dict[str, Any] | None:
