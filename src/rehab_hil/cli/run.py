@@ -59,6 +59,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: [controllers.model_based] rig_learning; docs/controllers.md). The table is kept "
                         "per rig id and profile under ~/.cache/rehab-hil/rig_learning; delete its file (the summary "
                         "names it) to start again from the model")
+    p.add_argument("--thermal-replan", action=argparse.BooleanOptionalAction, default=True,
+                   help="with --twin and the learning on the rig: re-plan the feedforward on the twin's estimate of "
+                        "the room, draft and supply when one leaves its interval (default: on; docs/twin.md)")
     p.add_argument("--twin", action="store_true",
                    help="run the plant model beside the rig: predictions, residuals, model-mismatch events and the "
                         "patient's interaction estimate (docs/twin.md; [twin] in the config)")
@@ -211,6 +214,7 @@ def _session(args: argparse.Namespace) -> RigSession:
             args.config, args.device, controller=args.controller, reference=args.reference, profile=args.profile,
             pacing=args.pacing, lockstep=args.lockstep, home=args.home, record=args.record, rig_id=args.rig_id,
             sim_plant=args.sim_plant, twin=args.twin, telemetry=_telemetry(args), rig_learning=args.rig_learning,
+            thermal_replan=args.thermal_replan,
             foxglove=FoxgloveOptions(args.foxglove_host, args.foxglove) if args.foxglove is not None else None,
             confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)
     except SessionError as e:
