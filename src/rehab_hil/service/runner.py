@@ -16,6 +16,7 @@ and do their work while the loop waits for the next sample.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -35,6 +36,7 @@ from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, SampleRecord
 from rehab_hil.service.sinks import Sink, sink_report
 from rehab_hil.service.supervisor import SafetyEvent, Supervisor
+from rehab_hil.service.trip_cause import StallFacts, explain, pwm_unconfirmed_text
 from rehab_hil.session_metrics import SessionMeter
 
 __all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "RunState"]
@@ -88,6 +90,10 @@ class RunResult:
     session_cycles: list[dict[str, float]] = field(default_factory=list)
     twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
     learning: dict[str, Any] = field(default_factory=dict)  # the learning on the rig (service/rig_learning.py)
+    # the stalls seen: the host's write gap at the trip, the device's silences while its process could
+    # not run (host view) and the stalls it reported itself (service/trip_cause.py)
+    stalls: dict[str, Any] = field(default_factory=dict)
+    pwm_unconfirmed: str = ""  # why no sample after the trip shows the PWM state ("" = confirmed or not needed)
 
     @property
     def recorder_dropped(self) -> int:
@@ -103,7 +109,11 @@ class RunResult:
         return int(self.sinks.get("twin", {}).get("dropped", 0))
 
     @property
-    def pwm_off_at_end(self) -> bool:
+    def pwm_off_at_end(self) -> bool | None:
+        """The last sample shows every PWM off; None when no sample after the trip could show it
+        (``pwm_unconfirmed`` says why)."""
+        if self.pwm_unconfirmed:
+            return None
         s = self.final_sample
         return s is not None and s.duty0 == 0 and s.duty1 == 0 and not (s.status & Status.PWM_ENABLED)
 
@@ -128,6 +138,9 @@ class RunState:
         self.pending: list[SampleRecord] = []  # records of the samples taken, handed over after the write
         self.reaction = TimingStats(n_max)  # sample arrival -> command written
         self.arrival_s = 0.0  # host clock when the newest sample arrived (perf_counter)
+        self.last_write_s = 0.0  # host clock of the last command written
+        self.trip_gap_s = 0.0  # host clock from the last command written to the trip (a host stall shows here)
+        self.pwm_unconfirmed = ""  # why no sample after a trip shows the PWM state
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
         self.references = np.full(n_max, np.nan)
         self.angles = np.full(n_max, np.nan)
@@ -268,6 +281,8 @@ class LoopService:
             self.controller(t, State(t, 0.0, 0.0, {}))
         self.controller.reset()
         self._host_clock = not lockstep
+        proc = getattr(self.hw, "device_process", None)  # a local simulated device: its stalls are not a lost link
+        self.supervisor.starvation = proc.starvation() if proc is not None and not lockstep else None
         rt = realtime_setup() if realtime else None  # before CONFIGURE: a full GC pass outlasts the watchdog
         try:
             # virtual time: the device answers when the machine lets it, so the ACK may take as long as a sample
@@ -278,6 +293,8 @@ class LoopService:
             t0 = time.perf_counter()
             try:
                 self._cycles(pace)
+                if self.supervisor.tripped:  # the loop returns at once: the gap since the last command
+                    s.trip_gap_s = time.perf_counter() - s.last_write_s
             except Exception as e:  # a controller, estimator or sink bug: the safe state and ESTOP, said so
                 log.exception("the loop failed at t=%.3f s", s.t_s)
                 self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
@@ -364,6 +381,7 @@ class LoopService:
         d0, d1 = cmd.duty
         try:
             s.command_seq = self.hw.write_command(d0, d1, cmd.direction, cmd.enable)
+            s.last_write_s = time.perf_counter()
         except HardwareError as e:
             self.supervisor.trip(s.t_s, "link_loss", f"write failed: {e}")
         s.command = cmd
@@ -444,8 +462,12 @@ class LoopService:
                     self.hw.estop(timeout=0.5)
                 except HardwareError as e:
                     sup.trip(s.t_s, "estop_unanswered", str(e))
+        watchdog_ms = float(self.configure_msg.watchdog_ms)
+        if sup.events and sup.events[0].reason == "link_loss":
+            s.pwm_unconfirmed = pwm_unconfirmed_text("the link was lost", watchdog_ms)
+        confirmed = False
         for _ in range(CONFIRM_CYCLES):  # lockstep devices answer each COMMAND with a SAMPLE
-            if sup.events and sup.events[0].reason == "link_loss":
+            if s.pwm_unconfirmed:
                 break
             self._write(SAFE_COMMAND)
             try:
@@ -454,9 +476,12 @@ class LoopService:
                 break
             if arrival is not None:
                 self._take_quiet(arrival)
+                confirmed = True
             f = s.final
             if f is not None and f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED:
                 break
+        if sup.tripped and not confirmed and not s.pwm_unconfirmed:
+            s.pwm_unconfirmed = pwm_unconfirmed_text("the device went silent", watchdog_ms)
 
     def _take_quiet(self, arrival: Arrival) -> None:
         """A sample during shutdown: recorded and counted, no more trips judged."""
@@ -469,8 +494,21 @@ class LoopService:
         names = _unique_names([x.name for x in self.sinks])
         return {n: sink_report(x) for n, x in zip(names, self.sinks, strict=True)}
 
+    def _stall_facts(self) -> StallFacts:
+        """What the loop knows of stalls at the end (the device asked for its own count once)."""
+        s, sup, proc = self.run_state, self.supervisor, getattr(self.hw, "device_process", None)
+        reported = proc.reported_stalls() if proc is not None and self._host_clock and proc.alive() else {}
+        return StallFacts(float(self.configure_msg.watchdog_ms), s.trip_gap_s, list(sup.device_stalls), reported,
+                          simulated=proc is not None)
+
+    def _stalls(self, facts: StallFacts) -> dict[str, Any]:
+        return {"host_gap_at_trip_ms": facts.host_gap_s * 1e3 if self.supervisor.tripped else None,
+                "device_silences_not_scheduled": [dataclasses.asdict(x) for x in facts.device_stalls],
+                "device_reported": facts.device_reported}
+
     def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
         s, sup = self.run_state, self.supervisor
+        facts = self._stall_facts()
         n = min(s.cycles, s.n_max)
         refs, angles = s.references[:n], s.angles[:n]
         ok = np.isfinite(refs) & np.isfinite(angles)
@@ -479,7 +517,8 @@ class LoopService:
             sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **_speed(s)},
             reaction=s.reaction.summary(),
             tracking=metrics.tracking_metrics(refs[ok], angles[ok]) if ok.any() else {},
-            link=self.hw.stats.as_dict(), events=list(sup.events),
+            link=self.hw.stats.as_dict(), events=[dataclasses.replace(e, cause=explain(e, facts)) for e in sup.events],
+            stalls=self._stalls(facts), pwm_unconfirmed=s.pwm_unconfirmed,
             final_sample=s.final, sinks=self._sink_reports(),
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",
             files=[f for x in self.sinks if isinstance(x, Recorder) for f in x.files],
