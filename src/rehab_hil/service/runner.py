@@ -48,6 +48,7 @@ _new_record = tuple.__new__
 
 CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
 PROGRESS_EVERY = 50  # cycles between updates of the live figures
+RECENT_GAP_S = 1.0  # a gap between two commands this recent can explain a watchdog trip (trip_cause.py)
 
 
 @dataclass
@@ -139,6 +140,7 @@ class RunState:
         self.reaction = TimingStats(n_max)  # sample arrival -> command written
         self.arrival_s = 0.0  # host clock when the newest sample arrived (perf_counter)
         self.last_write_s = 0.0  # host clock of the last command written
+        self.write_gap_s = self.write_gap_end_s = 0.0  # the longest gap between two writes lately, and its end
         self.trip_gap_s = 0.0  # host clock from the last command written to the trip (a host stall shows here)
         self.pwm_unconfirmed = ""  # why no sample after a trip shows the PWM state
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
@@ -293,8 +295,10 @@ class LoopService:
             t0 = time.perf_counter()
             try:
                 self._cycles(pace)
-                if self.supervisor.tripped:  # the loop returns at once: the gap since the last command
-                    s.trip_gap_s = time.perf_counter() - s.last_write_s
+                if self.supervisor.tripped:  # the loop returns at once: its longest gap between commands lately
+                    now = time.perf_counter()
+                    recent = s.write_gap_s if now - s.write_gap_end_s <= RECENT_GAP_S else 0.0
+                    s.trip_gap_s = max(now - s.last_write_s, recent)
             except Exception as e:  # a controller, estimator or sink bug: the safe state and ESTOP, said so
                 log.exception("the loop failed at t=%.3f s", s.t_s)
                 self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
@@ -381,7 +385,11 @@ class LoopService:
         d0, d1 = cmd.duty
         try:
             s.command_seq = self.hw.write_command(d0, d1, cmd.direction, cmd.enable)
-            s.last_write_s = time.perf_counter()
+            now = time.perf_counter()
+            gap = now - s.last_write_s if s.last_write_s else 0.0
+            if gap > s.write_gap_s or now - s.write_gap_end_s > RECENT_GAP_S:  # a host stall shows here
+                s.write_gap_s, s.write_gap_end_s = gap, now
+            s.last_write_s = now
         except HardwareError as e:
             self.supervisor.trip(s.t_s, "link_loss", f"write failed: {e}")
         s.command = cmd

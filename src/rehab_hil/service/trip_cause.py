@@ -52,7 +52,7 @@ def explain(ev: SafetyEvent, f: StallFacts) -> str:
             return (f"host stall: the host loop wrote no command for {gap_ms:.1f} ms (device watchdog "
                     f"{f.watchdog_ms:.0f} ms): the host process was not scheduled in time{_device_said(f)}; {HINT}")
         who = "the simulated device" if f.simulated else "the device"
-        return (f"not a host stall (its last command went out {gap_ms:.1f} ms before the trip was seen): the "
+        return (f"not a host stall (its longest gap between commands in the last second: {gap_ms:.1f} ms): the "
                 f"commands did not reach {who} in time (the link, or {who}){_device_said(f)}; {HINT}")
     if ev.reason == "link_loss":
         if "exited" in ev.detail:
