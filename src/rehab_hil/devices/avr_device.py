@@ -229,6 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--edge-us", type=int, default=50, help="simulated time between two encoder edges [us]")
+    p.add_argument("--fifo-priority", type=int, default=5,
+                   help="SCHED_FIFO priority of this driver and the harness (it inherits it) with --clock realtime "
+                        "(0: none); below the host loop's 10, as the Python device (docs/loop.md, 'Scheduling')")
     p.add_argument("--uno", action="store_true", help="the whole Uno: optiboot loaded with the sketch (harness -b) "
                    "and the UART's real receive rate into its 2-byte buffer (-u)")
     return p
@@ -261,6 +264,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv_h.append("-k")
     if args.uno:
         argv_h += ["-b", str(optiboot_path()), "-u"]
+    if args.clock == "realtime" and args.fifo_priority > 0:  # before the harness starts: it inherits the policy
+        from rehab_hil.service.loop import realtime_setup
+
+        report = realtime_setup(args.fifo_priority)
+        print(f"avr device: scheduler {report.scheduler}", file=sys.stderr, flush=True)
     estop = cfg.rig.estop
     driver = _Driver(plant, [*argv_h, str(elf)], estop.normally_closed if estop is not None else False)
     driver.realtime = args.clock == "realtime"

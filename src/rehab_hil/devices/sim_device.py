@@ -300,7 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--delay-ms", type=float, default=0.0, help="delay of every outgoing frame [ms]")
     p.add_argument("--fifo-priority", type=int, default=5,
                    help="SCHED_FIFO priority in realtime mode (0: none; below the host loop's 10); an MCU is never "
-                        "descheduled, and a starved device would trip its own watchdog")
+                        "descheduled (a stall that still happens is measured and reported, never a fault; "
+                        "docs/loop.md, 'Scheduling')")
     return p
 
 
