@@ -31,7 +31,15 @@ from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterfa
 from rehab_hil.protocol import Configure, Sample, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command, LoopController
 from rehab_hil.service.estimation import Estimator, State
-from rehab_hil.service.loop import DeadlineTimer, RealtimeReport, TimingStats, realtime_setup, realtime_teardown
+from rehab_hil.service.loop import (
+    HELPER_NICE,
+    DeadlineTimer,
+    RealtimeReport,
+    TimingStats,
+    realtime_setup,
+    realtime_teardown,
+    run_queue_wait_s,
+)
 from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, SampleRecord
 from rehab_hil.service.sinks import Sink, sink_report
@@ -142,6 +150,8 @@ class RunState:
         self.last_write_s = 0.0  # host clock of the last command written
         self.write_gap_s = self.write_gap_end_s = 0.0  # the longest gap between two writes lately, and its end
         self.trip_gap_s = 0.0  # host clock from the last command written to the trip (a host stall shows here)
+        self.trip_cpu_wait_s = 0.0  # of it, the loop thread runnable but waiting for a CPU
+        self.wait_mark = (0.0, 0.0)  # (host clock, the loop thread's run-queue wait) at the last progress update
         self.pwm_unconfirmed = ""  # why no sample after a trip shows the PWM state
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
         self.references = np.full(n_max, np.nan)
@@ -285,7 +295,8 @@ class LoopService:
         self._host_clock = not lockstep
         proc = getattr(self.hw, "device_process", None)  # a local simulated device: its stalls are not a lost link
         self.supervisor.starvation = proc.starvation() if proc is not None and not lockstep else None
-        rt = realtime_setup() if realtime else None  # before CONFIGURE: a full GC pass outlasts the watchdog
+        # before CONFIGURE: a full GC pass outlasts the watchdog; the other threads share the loop's GIL
+        rt = realtime_setup(helper_nice=HELPER_NICE) if realtime else None
         try:
             # virtual time: the device answers when the machine lets it, so the ACK may take as long as a sample
             self.hw.configure(self.configure_msg, timeout=max(1.0, sample_timeout_s or 0.0) if lockstep else 1.0)
@@ -295,10 +306,8 @@ class LoopService:
             t0 = time.perf_counter()
             try:
                 self._cycles(pace)
-                if self.supervisor.tripped:  # the loop returns at once: its longest gap between commands lately
-                    now = time.perf_counter()
-                    recent = s.write_gap_s if now - s.write_gap_end_s <= RECENT_GAP_S else 0.0
-                    s.trip_gap_s = max(now - s.last_write_s, recent)
+                if self.supervisor.tripped:
+                    self._note_trip_gap()
             except Exception as e:  # a controller, estimator or sink bug: the safe state and ESTOP, said so
                 log.exception("the loop failed at t=%.3f s", s.t_s)
                 self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
@@ -315,6 +324,8 @@ class LoopService:
         s, sup = self.run_state, self.supervisor
         while (timeout := pace.wait()) is not None:
             taken = self._take_arrived(timeout)
+            if taken == 0 and self._host_clock and sup.silent_beyond_budget(time.perf_counter()):
+                taken = self._take_arrived(0.0)  # a host stalled in its wait: what came meanwhile is no silence
             t_s = pace.t_s()
             if self._stop_reason:
                 sup.trip(t_s, self._stop_kind, self._stop_reason)
@@ -338,6 +349,16 @@ class LoopService:
             pace.controlled(taken)
 
     # ---- before the write: the samples ---------------------------------------------------------
+    def _note_trip_gap(self) -> None:
+        """The loop returns at once after a trip: its longest gap between commands lately, and how
+        much of it the loop thread waited for a CPU (the rest it was blocked: the GIL, I/O)."""
+        s = self.run_state
+        now = time.perf_counter()
+        recent = s.write_gap_s if now - s.write_gap_end_s <= RECENT_GAP_S else 0.0
+        s.trip_gap_s = max(now - s.last_write_s, recent)
+        if s.wait_mark[0] and now - s.wait_mark[0] <= RECENT_GAP_S + s.trip_gap_s:
+            s.trip_cpu_wait_s = min(run_queue_wait_s() - s.wait_mark[1], s.trip_gap_s)
+
     def _take_arrived(self, first_timeout: float) -> int:
         """Take every sample that has arrived (waiting up to ``first_timeout`` for the first one);
         each is estimated and supervised, its record waits for the write. Returns how many."""
@@ -446,6 +467,7 @@ class LoopService:
         p.t_s, p.angle_deg, p.reference_deg = t_s, state.angle_deg, cmd.reference_deg
         p.duty, p.temperature_c, p.samples = max(cmd.duty), self.supervisor.temperature_c, s.samples
         p.sample_gaps = s.sample_gaps
+        s.wait_mark = (time.perf_counter(), run_queue_wait_s())  # a host stall's baseline (_note_trip_gap)
 
     # ---- the end -------------------------------------------------------------------------------
     def _shutdown(self) -> None:
@@ -507,10 +529,11 @@ class LoopService:
         s, sup, proc = self.run_state, self.supervisor, getattr(self.hw, "device_process", None)
         reported = proc.reported_stalls() if proc is not None and self._host_clock and proc.alive() else {}
         return StallFacts(float(self.configure_msg.watchdog_ms), s.trip_gap_s, list(sup.device_stalls), reported,
-                          simulated=proc is not None)
+                          simulated=proc is not None, host_cpu_wait_s=s.trip_cpu_wait_s)
 
     def _stalls(self, facts: StallFacts) -> dict[str, Any]:
         return {"host_gap_at_trip_ms": facts.host_gap_s * 1e3 if self.supervisor.tripped else None,
+                "host_cpu_wait_at_trip_ms": facts.host_cpu_wait_s * 1e3 if self.supervisor.tripped else None,
                 "device_silences_not_scheduled": [dataclasses.asdict(x) for x in facts.device_stalls],
                 "device_reported": facts.device_reported}
 

@@ -201,6 +201,12 @@ class Supervisor:
         elif self.missing >= self.limits.link_loss_periods:
             self.trip(t_s, "link_loss", f"no sample for {self.missing} periods")
 
+    def silent_beyond_budget(self, now_s: float) -> bool:
+        """No sample for the whole link-loss budget (host clock): worth one more look at the port
+        before judging (a host that stalled in its wait finds the samples that came meanwhile)."""
+        last = self._last_arrival
+        return last is not None and now_s - last >= self.limits.link_loss_periods * self.dt_s
+
     def _judge_silence(self, t_s: float, silent: float, budget_s: float) -> None:
         """A silence over the budget: a lost link, unless the device's process could not run for
         enough of it (then a device stall, recorded; the budget counts the time it could run)."""

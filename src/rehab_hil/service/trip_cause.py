@@ -31,6 +31,7 @@ class StallFacts:
     device_stalls: list[DeviceStall] = field(default_factory=list)
     device_reported: dict[str, float] = field(default_factory=dict)
     simulated: bool = False  # a local simulated device (its process can be starved)
+    host_cpu_wait_s: float = 0.0  # of the host's gap, its loop thread runnable but waiting for a CPU
 
 
 def _device_said(f: StallFacts) -> str:
@@ -49,8 +50,10 @@ def explain(ev: SafetyEvent, f: StallFacts) -> str:
     if ev.reason == "device_fault" and "WATCHDOG" in ev.detail.split("+"):
         gap_ms = f.host_gap_s * 1e3
         if gap_ms >= HOST_SHARE * f.watchdog_ms:
+            wait_ms = f.host_cpu_wait_s * 1e3
             return (f"host stall: the host loop wrote no command for {gap_ms:.1f} ms (device watchdog "
-                    f"{f.watchdog_ms:.0f} ms): the host process was not scheduled in time{_device_said(f)}; {HINT}")
+                    f"{f.watchdog_ms:.0f} ms); its thread waited {wait_ms:.1f} ms of it for a CPU and was blocked "
+                    f"the rest (another host thread holding the GIL, or I/O){_device_said(f)}; {HINT}")
         who = "the simulated device" if f.simulated else "the device"
         return (f"not a host stall (its longest gap between commands in the last second: {gap_ms:.1f} ms): the "
                 f"commands did not reach {who} in time (the link, or {who}){_device_said(f)}; {HINT}")
