@@ -59,7 +59,7 @@ def test_a_stopped_simulated_device_trips_nothing_and_reports_its_stall(kind):
         th = _stop_device_for(s.hw.device_process.pid, 1.0, STOP_S, stopped)
         result = s.run(2.5)
         th.join()
-    assert result.events == [], [(e.reason, e.detail, e.cause) for e in result.events]
+    assert result.events == [], [f"{e.reason} {e.detail} at {e.t_s}: {e.cause}" for e in result.events]
     assert result.pwm_off_at_end is True
     (silence,) = result.stalls["device_silences_not_scheduled"]  # the host saw the silence and why
     assert silence["silent_s"] >= 0.8 * stopped[0] and silence["starved_s"] >= 0.8 * stopped[0]

@@ -87,7 +87,7 @@ class SimDevice(ControlChannel):
         self.stalls = StallMeter()  # this process not scheduled: measured, reported, never a fault
         self.commands_seen = 0  # valid COMMAND frames received (evidence the host was alive during a stall)
         self._unwatched = 0  # ticks still to catch up that the watchdog does not count (a stall of this process)
-        self._behind_s = 0.0  # how far behind its tick deadlines the device was after its last wake
+        self._woke = 0.0  # when the loop last woke (perf_counter)
         self._delayed: list[tuple[float, int, bytes]] = []
         self._delayed_n = 0
         self._last_due = 0.0  # when the newest held frame goes out
@@ -216,6 +216,7 @@ class SimDevice(ControlChannel):
     def run(self, stdin_fd: int | None = None, out: TextIO = sys.stdout) -> None:
         """Serve until ``disconnect`` or stdin closes."""
         next_tick = time.perf_counter() + TICK_S
+        self._woke = next_tick - TICK_S
         pending = b""
         while self.running:
             now = time.perf_counter()
@@ -225,6 +226,9 @@ class SimDevice(ControlChannel):
             fds = [self.master] + ([stdin_fd] if stdin_fd is not None else [])
             readable, _, _ = select.select(fds, [], [], max(0.0, deadline - now))
             woke, commands_before = time.perf_counter(), self.commands_seen
+            # the time since the last wake not spent in the sleep asked for: its work, or not scheduled
+            lost = (woke - self._woke) - (min(woke, max(now, deadline)) - now)
+            self._woke = woke
             if self.master in readable:
                 try:
                     data = os.read(self.master, 4096)
@@ -246,21 +250,21 @@ class SimDevice(ControlChannel):
                     line, pending = pending.split(b"\n", 1)
                     print(self.control(line.decode(errors="replace")), file=out, flush=True)
             if self.clock == "realtime":
-                next_tick = self._catch_up(next_tick, woke, self.commands_seen > commands_before)
+                next_tick = self._catch_up(next_tick, lost, self.commands_seen > commands_before)
             self._flush_delayed()
         self.close()
 
-    def _catch_up(self, next_tick: float, woke: float, host_spoke: bool) -> float:
+    def _catch_up(self, next_tick: float, lost: float, host_spoke: bool) -> float:
         """Realtime: run the ticks due by now (at most ``MAX_TICKS_PER_WAKE``, then serve the link
-        again); first judge whether this process was not scheduled since its last wake (a stall of
-        the device: its ticks then do not count towards the watchdog if the host spoke meanwhile).
-        Returns the next tick's deadline."""
-        grown = (woke - next_tick) - self._behind_s
-        if self.stalls.min_s <= grown:
+        again); first judge whether this process was not scheduled since its last wake (``lost``:
+        the time since then not spent in the sleep it asked for; its own work takes well under
+        ``STALL_MIN_S``): a stall of the device, whose ticks then do not count towards the watchdog
+        if the host spoke meanwhile. Returns the next tick's deadline."""
+        if self.stalls.min_s <= lost:
             note = ("the host's commands arrived meanwhile: not counted by the watchdog" if host_spoke
                     else "no command arrived meanwhile: the watchdog counts it")
-            if self.stalls.observe(grown, self.core.ticks / BASE_RATE_HZ, note) and host_spoke:
-                self._unwatched += int(grown / TICK_S)
+            if self.stalls.observe(lost, self.core.ticks / BASE_RATE_HZ, note) and host_spoke:
+                self._unwatched += int(lost / TICK_S)
         now = time.perf_counter()
         if now - next_tick > MAX_CATCH_UP_S:
             next_tick = now
@@ -270,7 +274,6 @@ class SimDevice(ControlChannel):
                 break
             self.tick()
             next_tick += TICK_S
-        self._behind_s = max(0.0, time.perf_counter() - next_tick)
         return next_tick
 
     def close(self) -> None:

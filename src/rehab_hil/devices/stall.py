@@ -1,8 +1,9 @@
 """A simulated device's own stalls: wall time in which its process was not scheduled.
 
 A microcontroller is never descheduled; a simulated one on a busy machine is. The device measures
-how far behind its 1 kHz deadlines it fell between two of its wakes (``StallMeter.observe``); a
-jump of ``STALL_MIN_S`` or more is a stall of the device, not something the host did. The Python
+the time between two of its wakes that it did not spend in the sleep it asked for (the Python
+device), or simulated time falling behind the wall clock at once (the avr driver)
+(``StallMeter.observe``); ``STALL_MIN_S`` or more is a stall of the device, not something the host did. The Python
 device then does not count those ticks towards its watchdog (``DeviceCore.tick(watch_host=False)``)
 when the host's commands arrived meanwhile, and every device reports its stalls on stderr and in
 its ``status`` line (``not_scheduled=N not_scheduled_total_ms=.. not_scheduled_max_ms=..``).
@@ -34,7 +35,7 @@ class StallMeter:
     log: TextIO | None = None
 
     def observe(self, grown_s: float, device_time_s: float, note: str = "") -> bool:
-        """``grown_s``: how much further behind its deadlines the device fell since its last wake.
+        """``grown_s``: the time the device lost since its last look (see the module docstring).
         Returns True (and counts and logs it) when that is a stall."""
         if grown_s < self.min_s:
             return False

@@ -55,6 +55,7 @@ log = logging.getLogger(__name__)
 _new_record = tuple.__new__
 
 CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
+CONFIRM_S = 0.5  # ... and at least this long (host clock) while no sample shows it
 PROGRESS_EVERY = 50  # cycles between updates of the live figures
 RECENT_GAP_S = 1.0  # a gap between two commands this recent can explain a watchdog trip (trip_cause.py)
 
@@ -492,13 +493,21 @@ class LoopService:
                     self.hw.estop(timeout=0.5)
                 except HardwareError as e:
                     sup.trip(s.t_s, "estop_unanswered", str(e))
+        self._confirm_pwm_off()
+
+    def _confirm_pwm_off(self) -> None:
+        """Watch the samples until one shows every PWM off, writing PWM 0 each time (a lockstep
+        device answers each COMMAND with a SAMPLE), for ``CONFIRM_CYCLES`` and at least ``CONFIRM_S``
+        of host time (on a busy machine a simulated device's echo takes tens of ms). None showing
+        it: "NO" only if the device echoed the PWM-0 command and still drives; else unconfirmed, and why."""
+        s, sup = self.run_state, self.supervisor
         watchdog_ms = float(self.configure_msg.watchdog_ms)
         if sup.events and sup.events[0].reason == "link_loss":
-            s.pwm_unconfirmed = pwm_unconfirmed_text("the link was lost", watchdog_ms)
-        confirmed = False
-        for _ in range(CONFIRM_CYCLES):  # lockstep devices answer each COMMAND with a SAMPLE
-            if s.pwm_unconfirmed:
-                break
+            s.pwm_unconfirmed = pwm_unconfirmed_text("the link was lost: no sample came after the trip", watchdog_ms)
+            return
+        end, n = time.perf_counter() + CONFIRM_S, 0
+        while n < CONFIRM_CYCLES or time.perf_counter() < end:
+            n += 1
             self._write(SAFE_COMMAND)
             try:
                 arrival = self.hw.read(timeout=2 * self.period_s)
@@ -506,12 +515,13 @@ class LoopService:
                 break
             if arrival is not None:
                 self._take_quiet(arrival)
-                confirmed = True
             f = s.final
-            if f is not None and f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED:
-                break
-        if sup.tripped and not confirmed and not s.pwm_unconfirmed:
-            s.pwm_unconfirmed = pwm_unconfirmed_text("the device went silent", watchdog_ms)
+            if f is not None and ((f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED)
+                                  or (arrival is not None and f.cmd_seq_echo == s.command_seq)):
+                return  # off, or the PWM-0 command applied and still driving: a real NO
+        waited = time.perf_counter() - end + CONFIRM_S
+        s.pwm_unconfirmed = pwm_unconfirmed_text(f"no sample within {waited:.2f} s showed the PWM-0 command applied",
+                                                 watchdog_ms)
 
     def _take_quiet(self, arrival: Arrival) -> None:
         """A sample during shutdown: recorded and counted, no more trips judged."""

@@ -67,7 +67,7 @@ def explain(ev: SafetyEvent, f: StallFacts) -> str:
     return ""
 
 
-def pwm_unconfirmed_text(reason: str, watchdog_ms: float) -> str:
-    """Why a session's last PWM state is unconfirmed (no sample after the trip to show it)."""
-    return (f"unconfirmed: {reason}, no sample came after the trip; the host sent PWM 0, and the device's "
-            f"own watchdog turns the PWM off {watchdog_ms:.0f} ms after the last command it received")
+def pwm_unconfirmed_text(why: str, watchdog_ms: float) -> str:
+    """Why a session's last PWM state is unconfirmed (no sample after the PWM-0 command shows it)."""
+    return (f"unconfirmed: {why}; the host sent PWM 0, and the device's own watchdog turns the PWM off "
+            f"{watchdog_ms:.0f} ms after the last command it received")
