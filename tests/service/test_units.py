@@ -60,7 +60,7 @@ def test_realtime_setup_reports_the_scheduler_it_got():
     assert sys.getswitchinterval() == before
 
 
-def test_realtime_setup_puts_the_loops_other_threads_at_the_helper_priority_and_teardown_restores_it():
+def test_realtime_setup_puts_the_loops_other_threads_at_the_helper_nice_and_teardown_restores_it():
     """The other threads share the loop's GIL: none may sit descheduled holding it (docs/loop.md)."""
     import os
     import threading
@@ -69,16 +69,16 @@ def test_realtime_setup_puts_the_loops_other_threads_at_the_helper_priority_and_
     th = threading.Thread(target=lambda: (tid.append(threading.get_native_id()), ready.set(), done.wait()))
     th.start()
     ready.wait()
-    before = os.sched_getscheduler(tid[0])
+    before = os.getpriority(os.PRIO_PROCESS, tid[0])
     try:
-        realtime_setup(fifo_priority=None, helper_fifo=1)
+        realtime_setup(helper_nice=-20)
         try:
-            if os.geteuid() == 0:  # CAP_SYS_NICE: the policy moved
-                assert os.sched_getscheduler(tid[0]) == os.SCHED_FIFO and os.sched_getparam(tid[0]).sched_priority == 1
-            assert os.sched_getscheduler(threading.get_native_id()) == before  # the loop's own: untouched
+            if os.geteuid() == 0:  # CAP_SYS_NICE: the nice value moved
+                assert os.getpriority(os.PRIO_PROCESS, tid[0]) == -20
+            assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == before  # the loop's own: untouched
         finally:
             realtime_teardown()
-        assert os.sched_getscheduler(tid[0]) == before
+        assert os.getpriority(os.PRIO_PROCESS, tid[0]) == before
     finally:
         done.set()
         th.join()

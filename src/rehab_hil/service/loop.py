@@ -26,13 +26,14 @@ SPIN_S = 200e-6  # sleep until this long before the deadline, then spin (sleep o
 SWITCH_INTERVAL_S = 50e-6  # the GIL switch interval while the loop runs (CPython's default: 5 ms)
 _saved_switch_interval: list[float] = []
 # The loop shares the GIL with its process's other threads (the main thread, the sinks' workers): one
-# descheduled while it holds the GIL stops the loop however high its priority (host stalls of 55-590
-# ms beside busy loops, the loop thread blocked, not waiting for a CPU: bench/busy_sessions.py; at
-# nice -20 still 113 ms, preempted by other sessions' FIFO work). SCHED_FIFO 1: ahead of all ordinary
-# work, behind every loop and simulated device, so a heavy helper (a fit) cannot delay either
+# descheduled while it holds the GIL stops the loop however high its priority (a host stall of 60-590
+# ms beside busy loops, the loop thread blocked, not waiting for a CPU: bench/busy_sessions.py). At
+# nice -20 a busy SCHED_OTHER process (nice 0) barely delays them, and unlike SCHED_FIFO a heavy
+# helper (a fit) cannot take a core from everything else. Tried: SCHED_FIFO 1 for them did worse on
+# the same bench (3 of 4 sessions host stalls, one link loss; more real-time load on 2 cores)
 # (docs/loop.md, 'Scheduling').
-HELPER_FIFO = 1
-_saved_helpers: list[tuple[int, int, int]] = []  # (thread id, policy, priority) before realtime_setup
+HELPER_NICE = -20
+_saved_nice: list[tuple[int, int]] = []  # (thread id, nice value before realtime_setup)
 
 
 @dataclass(frozen=True)
@@ -45,16 +46,15 @@ class RealtimeReport:
 
 
 def realtime_setup(fifo_priority: int | None = 10, switch_interval_s: float = SWITCH_INTERVAL_S,
-                   helper_fifo: int | None = None) -> RealtimeReport:
+                   helper_nice: int | None = None) -> RealtimeReport:
     """Collect and freeze the GC (a full collection costs 1.5-16 ms), set the GIL switch interval
-    and request SCHED_FIFO (for the calling thread: the loop's); ``helper_fifo``: the SCHED_FIFO
-    priority of the process's other threads meanwhile (``HELPER_FIFO`` for the host loop; None:
-    left alone).
+    and request SCHED_FIFO (for the calling thread: the loop's); ``helper_nice``: the nice value of
+    the process's other threads meanwhile (``HELPER_NICE`` for the host loop; None: left alone).
 
     SCHED_FIFO needs root or CAP_SYS_NICE; without it the loop runs SCHED_OTHER and says so.
     ``fifo_priority=None`` skips the request. Call ``realtime_teardown`` afterwards."""
-    if helper_fifo is not None:
-        _raise_other_threads(helper_fifo)
+    if helper_nice is not None:
+        _renice_other_threads(helper_nice)
     gc.collect()
     gc.freeze()
     _saved_switch_interval.append(sys.getswitchinterval())
@@ -69,9 +69,8 @@ def realtime_setup(fifo_priority: int | None = 10, switch_interval_s: float = SW
     return RealtimeReport(f"SCHED_FIFO {fifo_priority}", True, switch_interval_s)
 
 
-def _raise_other_threads(priority: int) -> None:
-    """Every thread of this process but the caller to SCHED_FIFO ``priority`` (what they had is
-    saved for ``realtime_teardown``)."""
+def _renice_other_threads(nice: int) -> None:
+    """Every thread of this process but the caller to ``nice`` (saved for ``realtime_teardown``)."""
     me = threading.get_native_id()
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
@@ -81,11 +80,11 @@ def _raise_other_threads(priority: int) -> None:
         if tid == me:
             continue
         try:
-            old = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            old = os.getpriority(os.PRIO_PROCESS, tid)
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
         except OSError:  # gone meanwhile, or not permitted (no CAP_SYS_NICE): left as it is
             continue
-        _saved_helpers.append((tid, *old))
+        _saved_nice.append((tid, old))
 
 
 def run_queue_wait_s() -> float:
@@ -106,10 +105,10 @@ def realtime_teardown() -> None:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (PermissionError, OSError, AttributeError):
         pass
-    while _saved_helpers:
-        tid, policy, priority = _saved_helpers.pop()
+    while _saved_nice:
+        tid, old = _saved_nice.pop()
         try:
-            os.sched_setscheduler(tid, policy, os.sched_param(priority))
+            os.setpriority(os.PRIO_PROCESS, tid, old)
         except OSError:
             continue
     if _saved_switch_interval:

@@ -32,7 +32,7 @@ from rehab_hil.protocol import Configure, Sample, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command, LoopController
 from rehab_hil.service.estimation import Estimator, State
 from rehab_hil.service.loop import (
-    HELPER_FIFO,
+    HELPER_NICE,
     DeadlineTimer,
     RealtimeReport,
     TimingStats,
@@ -297,7 +297,7 @@ class LoopService:
         proc = getattr(self.hw, "device_process", None)  # a local simulated device: its stalls are not a lost link
         self.supervisor.starvation = proc.starvation() if proc is not None and not lockstep else None
         # before CONFIGURE: a full GC pass outlasts the watchdog; the other threads share the loop's GIL
-        rt = realtime_setup(helper_fifo=HELPER_FIFO) if realtime else None
+        rt = realtime_setup(helper_nice=HELPER_NICE) if realtime else None
         try:
             # virtual time: the device answers when the machine lets it, so the ACK may take as long as a sample
             self.hw.configure(self.configure_msg, timeout=max(1.0, sample_timeout_s or 0.0) if lockstep else 1.0)
