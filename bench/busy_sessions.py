@@ -69,7 +69,7 @@ def host_caused(ev: dict[str, Any]) -> bool:
 def line(r: dict[str, Any]) -> str:
     if "error" in r:
         return f"{r['i']:2d} {r['device']:4s} no result (rc {r['rc']}): {r['error']}"
-    trip = "; ".join(f"{e['reason']} {e['detail']} at {e['t_s']:.2f} s -> {e['cause'][:110] or 'a limit'}"
+    trip = "; ".join(f"{e['reason']} {e['detail']} at {e['t_s']:.2f} s -> {e['cause'][:110] or 'no cause given'}"
                      for e in r["events"][:1]) or "no trip"
     return (f"{r['i']:2d} {r['device']:4s} {trip} | device stalls {r['device_stalls']} (longest "
             f"{r['device_stall_max_ms']:.0f} ms), silences excused {r['excused_silences']}, reaction p99 "
@@ -120,7 +120,7 @@ def main() -> int:
     print(f"sessions {len(results)}, without a result {sum('error' in r for r in results)}, trips {len(trips)}: "
           f"{len(host)} caused by the host, {len(trips) - len(host)} not caused by the host (target: 0)")
     for r, e in trips:
-        print(f"  session {r['i']} ({r['device']}): {e['reason']} {e['detail']}: {e['cause'] or 'a limit'}")
+        print(f"  session {r['i']} ({r['device']}): {e['reason']} {e['detail']}: {e['cause'] or 'no cause given'}")
     print(f"device stalls reported (not faults): {sum(r.get('device_stalls', 0) for r in results)}, longest "
           f"{max((r.get('device_stall_max_ms', 0.0) for r in results), default=0.0):.0f} ms; link silences "
           f"excused as device stalls: {sum(r.get('excused_silences', 0) for r in results)}")
