@@ -113,8 +113,8 @@ def test_a_host_that_stops_calling_still_trips_the_watchdog_and_the_summary_says
     assert "cause" in text and "host stall" in text and "--lockstep" in text
 
 
-def test_a_dead_link_trips_link_loss_and_leaves_the_pwm_unconfirmed_saying_why():
-    with open_session(FE, "sim", controller="pid", reference="step") as s:
+def test_a_dead_link_trips_link_loss_and_leaves_the_pwm_unconfirmed_saying_why(slow_watchdog):
+    with open_session(slow_watchdog, "sim", controller="pid", reference="step") as s:
         proc = s.hw.device_process
         threading.Timer(1.0, lambda: proc.control("stall 2000")).start()  # the device runs, sends nothing
         result = s.run(2.5)
