@@ -60,6 +60,30 @@ def test_realtime_setup_reports_the_scheduler_it_got():
     assert sys.getswitchinterval() == before
 
 
+def test_realtime_setup_puts_the_loops_other_threads_at_the_helper_nice_and_teardown_restores_it():
+    """The other threads share the loop's GIL: none may sit descheduled holding it (docs/loop.md)."""
+    import os
+    import threading
+
+    ready, done, tid = threading.Event(), threading.Event(), []
+    th = threading.Thread(target=lambda: (tid.append(threading.get_native_id()), ready.set(), done.wait()))
+    th.start()
+    ready.wait()
+    before = os.getpriority(os.PRIO_PROCESS, tid[0])
+    try:
+        realtime_setup(helper_nice=-20)
+        try:
+            if os.geteuid() == 0:  # CAP_SYS_NICE: the nice value moved
+                assert os.getpriority(os.PRIO_PROCESS, tid[0]) == -20
+            assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == before  # the loop's own: untouched
+        finally:
+            realtime_teardown()
+        assert os.getpriority(os.PRIO_PROCESS, tid[0]) == before
+    finally:
+        done.set()
+        th.join()
+
+
 def test_the_estimator_unwraps_like_unwrap_delta_across_both_32_bit_wraps(binding):
     est, cpr = Estimator(binding), binding.encoder_counts_per_rev
     counts = [2**31 - 3, 2**31 + 2, 2**32 - 1, 4, -(2**31), 2**31 - 1]  # as a u32 and an i32 would show them

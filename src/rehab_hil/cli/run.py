@@ -143,11 +143,30 @@ def summary_table(r: RunResult) -> Table:
             t.add_row(f"[red]{name} failed", sink["error"])
     for ev in r.events:
         t.add_row(f"[red]safety {ev.reason}", f"t={ev.t_s:.3f} s {ev.detail}")
+        if ev.cause:
+            t.add_row("  cause", ev.cause)
     if not r.events:
         t.add_row("safety events", "none")
-    t.add_row("device PWM off at end", "yes" if r.pwm_off_at_end else "[red]NO")
+    _stall_rows(t, r.stalls)
+    off = r.pwm_off_at_end
+    t.add_row("device PWM off at end", "yes" if off else (f"[yellow]{r.pwm_unconfirmed}" if off is None else "[red]NO"))
     _twin_rows(t, r.twin)
     return t
+
+
+def _stall_rows(t: Table, stalls: dict[str, Any]) -> None:
+    """A simulated device's stalls of its own process: reported, never a fault (a real MCU is never
+    descheduled; devices/stall.py)."""
+    silences = stalls.get("device_silences_not_scheduled", [])
+    rep = stalls.get("device_reported", {})
+    if rep.get("not_scheduled"):
+        t.add_row("simulated device not scheduled", f"{rep['not_scheduled']:.0f} times, longest "
+                  f"{rep['not_scheduled_max_ms']:.1f} ms, {rep['not_scheduled_total_ms']:.0f} ms in all "
+                  "(its own count; not a fault: a real MCU is never descheduled)")
+    if silences:
+        longest = max(silences, key=lambda x: x["silent_s"])
+        t.add_row("link silent while the device could not run", f"{len(silences)} times, longest "
+                  f"{longest['silent_s'] * 1e3:.1f} ms at t={longest['t_s']:.3f} s (not a link loss)")
 
 
 def _twin_rows(t: Table, meta: dict[str, Any]) -> None:

@@ -14,8 +14,13 @@ harness; the driver prints its path as its first stdout line.
 Control channel (stdin, one command per line, each answered by ``ok ...`` or ``error ...``), the
 subset of the Python device's that a real firmware allows: ``estop 0|1``, ``estop_wire ok|broken``,
 ``input NAME VALUE``,
-``reboot [external]`` (an external reset of the AVR), ``status``. Stdin closing ends the driver
-and with it the harness.
+``reboot [external]`` (an external reset of the AVR), ``status`` (with the device's own stalls,
+``not_scheduled=N ..._total_ms ..._max_ms``). Stdin closing ends the driver and with it the harness.
+
+Stalls (``devices/stall.py``): when the harness or this driver is not scheduled, simulated time
+stops with it (the harness never runs more than 20 ms behind the wall clock), so the firmware's
+own watchdog cannot see the stall; the driver measures it (simulated time falling behind the wall
+clock at once by ``STALL_MIN_S`` or more between two T lines), logs it on stderr and counts it.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import os
 import select
 import subprocess
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -32,6 +38,7 @@ from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import Readings
 from rehab_hil.devices.plant_io import ADC_MAX, PlantIO
 from rehab_hil.devices.spawn import DeviceProcessError, SimDeviceProcess, maybe_bridged, usb_bridge_wanted
+from rehab_hil.devices.stall import StallMeter
 
 __all__ = ["AvrDeviceProcess", "adc_counts_to_mv", "default_paths", "main", "spawn_avr_device", "unavailable_reason"]
 
@@ -104,6 +111,10 @@ class _Driver(ControlChannel):
         self.estop_nc = estop_normally_closed
         self.ticks = 0
         self.last_t = ""
+        self.realtime = True  # simulated time throttled to the wall clock: stalls are measured
+        self.stalls = StallMeter(name="avr device")  # the harness or this driver not scheduled
+        self._origin: tuple[float, int] | None = None  # (wall clock, simulated us) of the first T line
+        self._behind_s = 0.0  # how far simulated time was behind the wall clock at the last T line
         self.proc = subprocess.Popen(harness_argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
         self._out = b""
         self.port = self._harness_line(timeout=10.0)
@@ -132,12 +143,25 @@ class _Driver(ControlChannel):
         """One lockstep boundary: read the PWM state, step the plant one tick, drive the inputs."""
         f = line.split()
         duty0, duty1, direction = int(f[2]), int(f[3]), int(f[4])
+        if self.realtime:
+            self._measure_stall(int(f[1]))
         enc, a0, a1 = self.plant.tick((duty0, duty1), direction)
         self.ticks += 1
         self.last_t = line
         estop_level = int(Readings(estop_pin=self.estop_pin, estop_wire_broken=self.estop_wire_broken)
                           .pin_high(self.estop_nc))  # D4 as the rig's loop is wired
         self._send(f"G {enc} {adc_counts_to_mv(a0)} {adc_counts_to_mv(a1)} {estop_level}")
+
+    def _measure_stall(self, sim_us: int) -> None:
+        """Simulated time against the wall clock: a jump behind is a stall of this device's processes."""
+        now = time.perf_counter()
+        if self._origin is None:
+            self._origin = (now, sim_us)
+            return
+        behind = (now - self._origin[0]) - (sim_us - self._origin[1]) * 1e-6
+        self.stalls.observe(behind - self._behind_s, sim_us * 1e-6,
+                            "simulated time stopped with it: the firmware's watchdog cannot see it")
+        self._behind_s = behind
 
     def _control(self, cmd: str, args: list[str]) -> str | object | None:
         """This device's knobs; ``estop`` and ``input`` are shared (devices/control.py)."""
@@ -148,7 +172,7 @@ class _Driver(ControlChannel):
             fields = ("sim_us", "duty0", "duty1", "dir", "encoder", "resets", "tx_dropped", "rx_dropped",
                       "rx_frames_hit")
             kv = " ".join(f"{k}={v}" for k, v in zip(fields, f[1:], strict=False))
-            return f"ok ticks={self.ticks} {kv}"
+            return f"ok ticks={self.ticks} {kv} {self.stalls.status()}"
         else:
             return UNKNOWN
         return None
@@ -205,6 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--edge-us", type=int, default=50, help="simulated time between two encoder edges [us]")
+    p.add_argument("--fifo-priority", type=int, default=5,
+                   help="SCHED_FIFO priority of this driver and the harness (it inherits it) with --clock realtime "
+                        "(0: none); below the host loop's 10, as the Python device (docs/loop.md, 'Scheduling')")
     p.add_argument("--uno", action="store_true", help="the whole Uno: optiboot loaded with the sketch (harness -b) "
                    "and the UART's real receive rate into its 2-byte buffer (-u)")
     return p
@@ -237,8 +264,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv_h.append("-k")
     if args.uno:
         argv_h += ["-b", str(optiboot_path()), "-u"]
+    if args.clock == "realtime" and args.fifo_priority > 0:  # before the harness starts: it inherits the policy
+        from rehab_hil.service.loop import realtime_setup
+
+        report = realtime_setup(args.fifo_priority)
+        print(f"avr device: scheduler {report.scheduler}", file=sys.stderr, flush=True)
     estop = cfg.rig.estop
     driver = _Driver(plant, [*argv_h, str(elf)], estop.normally_closed if estop is not None else False)
+    driver.realtime = args.clock == "realtime"
     print(driver.port, flush=True)
     try:
         driver.run(sys.stdin.fileno())

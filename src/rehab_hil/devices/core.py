@@ -188,9 +188,12 @@ class DeviceCore:
     def device_time_us(self) -> int:
         return (self.ticks * TICK_US) & 0xFFFFFFFF
 
-    def tick(self, readings: Readings) -> list[Message]:
+    def tick(self, readings: Readings, watch_host: bool = True) -> list[Message]:
         """One 1 kHz base tick with the sensor readings of this instant: safety checks, then a
-        SAMPLE if this is a sample tick. Returns the FAULT frames of new trips and the SAMPLE."""
+        SAMPLE if this is a sample tick. Returns the FAULT frames of new trips and the SAMPLE.
+        ``watch_host=False``: a tick the simulated device catches up after its own process was not
+        scheduled while the host's commands arrived; it does not count towards the watchdog (an
+        MCU would have seen those commands in time; devices/stall.py)."""
         self.ticks += 1
         if self.encoder_offset:  # the firmware's 32-bit counter, moved by SET_ENCODER
             count = (readings.encoder_count + self.encoder_offset + (1 << 31)) % (1 << 32) - (1 << 31)
@@ -199,7 +202,7 @@ class DeviceCore:
         out: list[Message] = []
         c = self.config
         if c is not None:
-            if self.armed:
+            if self.armed and watch_host:
                 self.since_cmd += 1
                 if self.since_cmd >= c.watchdog_ms:
                     self.armed = False

@@ -23,7 +23,13 @@ Control channel (stdin, one command per line; each answered by one stdout line `
   stall MS           send nothing for MS milliseconds of device time (frames meant for then are lost)
   disconnect         close the pty and exit
   reboot [CAUSE]     reset the device (seq 0, unconfigured, HELLO sent); CAUSE: external|watchdog
-  status             one line of counters
+  status             one line of counters (with the device's own stalls: not_scheduled=N ..._total_ms ..._max_ms)
+
+A realtime device measures its own stalls (``devices/stall.py``): when its process was not
+scheduled for ``STALL_MIN_S`` or more and the host's commands arrived meanwhile, the ticks it then
+catches up do not count towards its watchdog (an MCU is never descheduled: it would have seen those
+commands in time); it logs each stall on stderr and counts them in ``status``. When nothing arrived
+meanwhile the watchdog counts them as ever: a stalled host still trips it.
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ from typing import TextIO
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.devices.plant_io import PlantIO
+from rehab_hil.devices.stall import StallMeter
 from rehab_hil.protocol import BASE_RATE_HZ, CommandFrame, Configure, FrameDecoder, Message, ResetCause, encode_frame
 
 __all__ = ["SimDevice", "build_parser", "main"]
@@ -77,6 +84,10 @@ class SimDevice(ControlChannel):
         self.truncate_next = False
         self.stall_until_tick = -1  # the last base tick of a stall: device time, whatever the clock or the load
         self.tx_frames = self.tx_dropped = self.tx_overrun = 0
+        self.stalls = StallMeter()  # this process not scheduled: measured, reported, never a fault
+        self.commands_seen = 0  # valid COMMAND frames received (evidence the host was alive during a stall)
+        self._unwatched = 0  # ticks still to catch up that the watchdog does not count (a stall of this process)
+        self._woke = 0.0  # when the loop last woke (perf_counter)
         self._delayed: list[tuple[float, int, bytes]] = []
         self._delayed_n = 0
         self._last_due = 0.0  # when the newest held frame goes out
@@ -147,6 +158,8 @@ class SimDevice(ControlChannel):
         frames = self.decoder.feed(data)
         self.core.count_bad_frame(self.decoder.bad_total - bad_before)
         for frame in frames:
+            if isinstance(frame.msg, CommandFrame):
+                self.commands_seen += 1
             self._send(self.core.on_frame(frame))
             if isinstance(frame.msg, Configure) and self.core.config is frame.msg:  # accepted: a session starts
                 self.plant.start_session()
@@ -158,7 +171,10 @@ class SimDevice(ControlChannel):
         """One base tick: read the plant at this instant, run the firmware tick, advance the plant."""
         core = self.core
         enc, a0, a1 = self.plant.tick(core.duty, core.direction)
-        self._send(core.tick(Readings(enc, a0, a1, self.estop_pin, self.estop_wire_broken)))
+        watch = self._unwatched == 0
+        if not watch:
+            self._unwatched -= 1
+        self._send(core.tick(Readings(enc, a0, a1, self.estop_pin, self.estop_wire_broken), watch))
 
     # ---- control channel ----------------------------------------------------------------------
 
@@ -189,7 +205,8 @@ class SimDevice(ControlChannel):
         elif cmd == "status" and not args:
             c = self.core
             return (f"ok ticks={c.ticks} samples={c.sample_index} faults={c.faults} rx_bad={c.rx_bad_frames} "
-                    f"tx_frames={self.tx_frames} tx_dropped={self.tx_dropped} tx_overrun={self.tx_overrun}")
+                    f"tx_frames={self.tx_frames} tx_dropped={self.tx_dropped} tx_overrun={self.tx_overrun} "
+                    f"{self.stalls.status()}")
         else:
             return UNKNOWN
         return None
@@ -199,6 +216,7 @@ class SimDevice(ControlChannel):
     def run(self, stdin_fd: int | None = None, out: TextIO = sys.stdout) -> None:
         """Serve until ``disconnect`` or stdin closes."""
         next_tick = time.perf_counter() + TICK_S
+        self._woke = next_tick - TICK_S
         pending = b""
         while self.running:
             now = time.perf_counter()
@@ -207,6 +225,10 @@ class SimDevice(ControlChannel):
                 deadline = min(deadline, self._delayed[0][0])
             fds = [self.master] + ([stdin_fd] if stdin_fd is not None else [])
             readable, _, _ = select.select(fds, [], [], max(0.0, deadline - now))
+            woke, commands_before = time.perf_counter(), self.commands_seen
+            # the time since the last wake not spent in the sleep asked for: its work, or not scheduled
+            lost = (woke - self._woke) - (min(woke, max(now, deadline)) - now)
+            self._woke = woke
             if self.master in readable:
                 try:
                     data = os.read(self.master, 4096)
@@ -228,16 +250,31 @@ class SimDevice(ControlChannel):
                     line, pending = pending.split(b"\n", 1)
                     print(self.control(line.decode(errors="replace")), file=out, flush=True)
             if self.clock == "realtime":
-                now = time.perf_counter()
-                if now - next_tick > MAX_CATCH_UP_S:
-                    next_tick = now
-                for _ in range(MAX_TICKS_PER_WAKE):  # when behind, still serve the link in between
-                    if now < next_tick:
-                        break
-                    self.tick()
-                    next_tick += TICK_S
+                next_tick = self._catch_up(next_tick, lost, self.commands_seen > commands_before)
             self._flush_delayed()
         self.close()
+
+    def _catch_up(self, next_tick: float, lost: float, host_spoke: bool) -> float:
+        """Realtime: run the ticks due by now (at most ``MAX_TICKS_PER_WAKE``, then serve the link
+        again); first judge whether this process was not scheduled since its last wake (``lost``:
+        the time since then not spent in the sleep it asked for; its own work takes well under
+        ``STALL_MIN_S``): a stall of the device, whose ticks then do not count towards the watchdog
+        if the host spoke meanwhile. Returns the next tick's deadline."""
+        if self.stalls.min_s <= lost:
+            note = ("the host's commands arrived meanwhile: not counted by the watchdog" if host_spoke
+                    else "no command arrived meanwhile: the watchdog counts it")
+            if self.stalls.observe(lost, self.core.ticks / BASE_RATE_HZ, note) and host_spoke:
+                self._unwatched += int(lost / TICK_S)
+        now = time.perf_counter()
+        if now - next_tick > MAX_CATCH_UP_S:
+            next_tick = now
+        self._unwatched = min(self._unwatched, max(0, int((now - next_tick) / TICK_S) + 1))
+        for _ in range(MAX_TICKS_PER_WAKE):  # when behind, still serve the link in between
+            if now < next_tick:
+                break
+            self.tick()
+            next_tick += TICK_S
+        return next_tick
 
     def close(self) -> None:
         for fd in (self.master, self.slave):
@@ -266,7 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--delay-ms", type=float, default=0.0, help="delay of every outgoing frame [ms]")
     p.add_argument("--fifo-priority", type=int, default=5,
                    help="SCHED_FIFO priority in realtime mode (0: none; below the host loop's 10); an MCU is never "
-                        "descheduled, and a starved device would trip its own watchdog")
+                        "descheduled (a stall that still happens is measured and reported, never a fault; "
+                        "docs/loop.md, 'Scheduling')")
     return p
 
 

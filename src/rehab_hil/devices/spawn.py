@@ -16,6 +16,9 @@ import time
 from pathlib import Path
 from types import TracebackType
 
+from rehab_hil.devices.stall import parse_status
+from rehab_hil.devices.starvation import Starvation
+
 __all__ = ["DeviceProcessError", "SimDeviceProcess", "maybe_bridged", "spawn_sim_device", "usb_bridge_wanted"]
 
 
@@ -83,6 +86,18 @@ class SimDeviceProcess:
         if not reply.startswith("ok"):
             raise DeviceProcessError(f"control {command!r}: {reply}")
         return reply
+
+    def starvation(self) -> Starvation:
+        """How long this device's processes could not run (the host's view of its stalls)."""
+        return Starvation(self.pid)
+
+    def reported_stalls(self) -> dict[str, float]:
+        """The stalls the device measured of its own process (``status``: ``not_scheduled*``);
+        {} when it cannot answer (exited, or a bridge that does not pass ``status`` on)."""
+        try:
+            return parse_status(self.control("status", timeout=2.0))
+        except (DeviceProcessError, OSError):
+            return {}
 
     def set_estop_input(self, active: bool) -> None:
         """Drive the e-stop input pin (active = pressed)."""

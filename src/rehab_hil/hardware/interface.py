@@ -168,6 +168,9 @@ class HardwareInterface(ABC):
         self.last_sample_time = 0.0
         self.last_sample_gap = 0
         self.last_reboot = ""
+        # a simulated device this host spawned (devices/spawn.py): its process's stalls are told
+        # apart from the link's (service/trip_cause.py); None for a real board or an in-process device
+        self.device_process: Any = None
         self._samples: deque[Arrival] = deque()  # received and not yet read, oldest first
         self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first
         self._acks: dict[tuple[int, int], int] = {}  # (acked_type, acked_seq) -> result

@@ -51,13 +51,15 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
         else:
             from rehab_hil.hardware.serial_hw import SerialHardware
 
-            port = device
+            port, proc = device, None
             if device in ("sim", "avr"):
-                port = stack.enter_context(_spawn(device, config_path, lockstep, spawn_args)).port
+                proc = stack.enter_context(_spawn(device, config_path, lockstep, spawn_args))
+                port = proc.port
             elif lockstep:
                 raise HardwareError(f"lockstep is a mode of the simulated devices, not of {device}")
             never = {"resend_s": None} if lockstep else {}  # virtual time: a resend would cost device time
             hw = SerialHardware(port, baud or _config(config_path).rig.baud, write_timeout_s=write_timeout_s, **never)
+            hw.device_process = proc
         stack.callback(hw.close)
         hw.connect(timeout=connect_timeout_s)
         yield hw

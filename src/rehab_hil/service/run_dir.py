@@ -129,8 +129,10 @@ def result_metadata(result: Any, rows: int) -> dict[str, Any]:
         "step_response": getattr(result, "step", None) or None,
         "cycles": result.cycles, "samples": result.samples, "sample_gaps": result.sample_gaps,
         "reboots": result.reboots, "tracking": result.tracking, "timing": result.timing, "link": result.link,
-        "safety_events": [{"t_s": e.t_s, "reason": e.reason, "detail": e.detail} for e in result.events],
-        "pwm_off_at_end": result.pwm_off_at_end,
+        "safety_events": [{"t_s": e.t_s, "reason": e.reason, "detail": e.detail, "cause": e.cause}
+                          for e in result.events],
+        "pwm_off_at_end": result.pwm_off_at_end,  # None: unconfirmed (why: pwm_unconfirmed)
+        "pwm_unconfirmed": result.pwm_unconfirmed, "stalls": result.stalls,
         "sinks": result.sinks,  # each sink's drops and error (None, or the one line it failed with)
         "session": result.session, "session_cycles": result.session_cycles,
         "rig_learning": getattr(result, "learning", None) or None,

@@ -16,6 +16,7 @@ and do their work while the loop waits for the next sample.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -30,11 +31,20 @@ from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterfa
 from rehab_hil.protocol import Configure, Sample, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command, LoopController
 from rehab_hil.service.estimation import Estimator, State
-from rehab_hil.service.loop import DeadlineTimer, RealtimeReport, TimingStats, realtime_setup, realtime_teardown
+from rehab_hil.service.loop import (
+    HELPER_NICE,
+    DeadlineTimer,
+    RealtimeReport,
+    TimingStats,
+    realtime_setup,
+    realtime_teardown,
+    run_queue_wait_s,
+)
 from rehab_hil.service.recorder import Recorder
 from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, SampleRecord
 from rehab_hil.service.sinks import Sink, sink_report
 from rehab_hil.service.supervisor import SafetyEvent, Supervisor
+from rehab_hil.service.trip_cause import StallFacts, explain, pwm_unconfirmed_text
 from rehab_hil.session_metrics import SessionMeter
 
 __all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "RunState"]
@@ -45,7 +55,9 @@ log = logging.getLogger(__name__)
 _new_record = tuple.__new__
 
 CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
+CONFIRM_S = 0.5  # ... and at least this long (host clock) while no sample shows it
 PROGRESS_EVERY = 50  # cycles between updates of the live figures
+RECENT_GAP_S = 1.0  # a gap between two commands this recent can explain a watchdog trip (trip_cause.py)
 
 
 @dataclass
@@ -90,6 +102,10 @@ class RunResult:
     learning: dict[str, Any] = field(default_factory=dict)  # the learning on the rig (service/rig_learning.py)
     ran_s: float = math.nan  # device time the session ran until it stopped (a trip, a stop request, the duration)
     step: dict[str, float] = field(default_factory=dict)  # a step run's response (metrics.recorded_step)
+    # the stalls seen: the host's write gap at the trip, the device's silences while its process could
+    # not run (host view) and the stalls it reported itself (service/trip_cause.py)
+    stalls: dict[str, Any] = field(default_factory=dict)
+    pwm_unconfirmed: str = ""  # why no sample after the trip shows the PWM state ("" = confirmed or not needed)
 
     @property
     def recorder_dropped(self) -> int:
@@ -105,7 +121,11 @@ class RunResult:
         return int(self.sinks.get("twin", {}).get("dropped", 0))
 
     @property
-    def pwm_off_at_end(self) -> bool:
+    def pwm_off_at_end(self) -> bool | None:
+        """The last sample shows every PWM off; None when no sample after the trip could show it
+        (``pwm_unconfirmed`` says why)."""
+        if self.pwm_unconfirmed:
+            return None
         s = self.final_sample
         return s is not None and s.duty0 == 0 and s.duty1 == 0 and not (s.status & Status.PWM_ENABLED)
 
@@ -130,6 +150,12 @@ class RunState:
         self.pending: list[SampleRecord] = []  # records of the samples taken, handed over after the write
         self.reaction = TimingStats(n_max)  # sample arrival -> command written
         self.arrival_s = 0.0  # host clock when the newest sample arrived (perf_counter)
+        self.last_write_s = 0.0  # host clock of the last command written
+        self.write_gap_s = self.write_gap_end_s = 0.0  # the longest gap between two writes lately, and its end
+        self.trip_gap_s = 0.0  # host clock from the last command written to the trip (a host stall shows here)
+        self.trip_cpu_wait_s = 0.0  # of it, the loop thread runnable but waiting for a CPU
+        self.wait_mark = (0.0, 0.0)  # (host clock, the loop thread's run-queue wait) at the last progress update
+        self.pwm_unconfirmed = ""  # why no sample after a trip shows the PWM state
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
         self.ran_s = 0.0  # device time covered when the loop stopped (before the shutdown's samples)
         # each recorded row's time, reference (of the command in force; NaN: none) and angle, as the
@@ -278,7 +304,10 @@ class LoopService:
             self.controller(t, State(t, 0.0, 0.0, {}))
         self.controller.reset()
         self._host_clock = not lockstep
-        rt = realtime_setup() if realtime else None  # before CONFIGURE: a full GC pass outlasts the watchdog
+        proc = getattr(self.hw, "device_process", None)  # a local simulated device: its stalls are not a lost link
+        self.supervisor.starvation = proc.starvation() if proc is not None and not lockstep else None
+        # before CONFIGURE: a full GC pass outlasts the watchdog; the other threads share the loop's GIL
+        rt = realtime_setup(helper_nice=HELPER_NICE) if realtime else None
         try:
             # virtual time: the device answers when the machine lets it, so the ACK may take as long as a sample
             self.hw.configure(self.configure_msg, timeout=max(1.0, sample_timeout_s or 0.0) if lockstep else 1.0)
@@ -288,6 +317,8 @@ class LoopService:
             t0 = time.perf_counter()
             try:
                 self._cycles(pace)
+                if self.supervisor.tripped:
+                    self._note_trip_gap()
             except Exception as e:  # a controller, estimator or sink bug: the safe state and ESTOP, said so
                 log.exception("the loop failed at t=%.3f s", s.t_s)
                 self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
@@ -305,6 +336,8 @@ class LoopService:
         s, sup = self.run_state, self.supervisor
         while (timeout := pace.wait()) is not None:
             taken = self._take_arrived(timeout)
+            if taken == 0 and self._host_clock and sup.silent_beyond_budget(time.perf_counter()):
+                taken = self._take_arrived(0.0)  # a host stalled in its wait: what came meanwhile is no silence
             t_s = pace.t_s()
             if self._stop_reason:
                 sup.trip(t_s, self._stop_kind, self._stop_reason)
@@ -328,6 +361,16 @@ class LoopService:
             pace.controlled(taken)
 
     # ---- before the write: the samples ---------------------------------------------------------
+    def _note_trip_gap(self) -> None:
+        """The loop returns at once after a trip: its longest gap between commands lately, and how
+        much of it the loop thread waited for a CPU (the rest it was blocked: the GIL, I/O)."""
+        s = self.run_state
+        now = time.perf_counter()
+        recent = s.write_gap_s if now - s.write_gap_end_s <= RECENT_GAP_S else 0.0
+        s.trip_gap_s = max(now - s.last_write_s, recent)
+        if s.wait_mark[0] and now - s.wait_mark[0] <= RECENT_GAP_S + s.trip_gap_s:
+            s.trip_cpu_wait_s = min(run_queue_wait_s() - s.wait_mark[1], s.trip_gap_s)
+
     def _take_arrived(self, first_timeout: float) -> int:
         """Take every sample that has arrived (waiting up to ``first_timeout`` for the first one);
         each is estimated and supervised, its record waits for the write. Returns how many."""
@@ -375,6 +418,11 @@ class LoopService:
         d0, d1 = cmd.duty
         try:
             s.command_seq = self.hw.write_command(d0, d1, cmd.direction, cmd.enable)
+            now = time.perf_counter()
+            gap = now - s.last_write_s if s.last_write_s else 0.0
+            if gap > s.write_gap_s or now - s.write_gap_end_s > RECENT_GAP_S:  # a host stall shows here
+                s.write_gap_s, s.write_gap_end_s = gap, now
+            s.last_write_s = now
         except HardwareError as e:
             self.supervisor.trip(s.t_s, "link_loss", f"write failed: {e}")
         s.command = cmd
@@ -438,6 +486,7 @@ class LoopService:
         p.t_s, p.angle_deg, p.reference_deg = t_s, state.angle_deg, cmd.reference_deg
         p.duty, p.temperature_c, p.samples = max(cmd.duty), self.supervisor.temperature_c, s.samples
         p.sample_gaps = s.sample_gaps
+        s.wait_mark = (time.perf_counter(), run_queue_wait_s())  # a host stall's baseline (_note_trip_gap)
 
     # ---- the end -------------------------------------------------------------------------------
     def _shutdown(self) -> None:
@@ -462,9 +511,21 @@ class LoopService:
                     self.hw.estop(timeout=0.5)
                 except HardwareError as e:
                     sup.trip(s.t_s, "estop_unanswered", str(e))
-        for _ in range(CONFIRM_CYCLES):  # lockstep devices answer each COMMAND with a SAMPLE
-            if sup.events and sup.events[0].reason == "link_loss":
-                break
+        self._confirm_pwm_off()
+
+    def _confirm_pwm_off(self) -> None:
+        """Watch the samples until one shows every PWM off, writing PWM 0 each time (a lockstep
+        device answers each COMMAND with a SAMPLE), for ``CONFIRM_CYCLES`` and at least ``CONFIRM_S``
+        of host time (on a busy machine a simulated device's echo takes tens of ms). None showing
+        it: "NO" only if the device echoed the PWM-0 command and still drives; else unconfirmed, and why."""
+        s, sup = self.run_state, self.supervisor
+        watchdog_ms = float(self.configure_msg.watchdog_ms)
+        if sup.events and sup.events[0].reason == "link_loss":
+            s.pwm_unconfirmed = pwm_unconfirmed_text("the link was lost: no sample came after the trip", watchdog_ms)
+            return
+        end, n = time.perf_counter() + CONFIRM_S, 0
+        while n < CONFIRM_CYCLES or time.perf_counter() < end:
+            n += 1
             self._write(SAFE_COMMAND)
             try:
                 arrival = self.hw.read(timeout=2 * self.period_s)
@@ -473,8 +534,12 @@ class LoopService:
             if arrival is not None:
                 self._take_quiet(arrival)
             f = s.final
-            if f is not None and f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED:
-                break
+            if f is not None and ((f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED)
+                                  or (arrival is not None and f.cmd_seq_echo == s.command_seq)):
+                return  # off, or the PWM-0 command applied and still driving: a real NO
+        waited = time.perf_counter() - end + CONFIRM_S
+        s.pwm_unconfirmed = pwm_unconfirmed_text(f"no sample within {waited:.2f} s showed the PWM-0 command applied",
+                                                 watchdog_ms)
 
     def _take_quiet(self, arrival: Arrival) -> None:
         """A sample during shutdown: recorded and counted, no more trips judged."""
@@ -487,15 +552,30 @@ class LoopService:
         names = _unique_names([x.name for x in self.sinks])
         return {n: sink_report(x) for n, x in zip(names, self.sinks, strict=True)}
 
+    def _stall_facts(self) -> StallFacts:
+        """What the loop knows of stalls at the end (the device asked for its own count once)."""
+        s, sup, proc = self.run_state, self.supervisor, getattr(self.hw, "device_process", None)
+        reported = proc.reported_stalls() if proc is not None and self._host_clock and proc.alive() else {}
+        return StallFacts(float(self.configure_msg.watchdog_ms), s.trip_gap_s, list(sup.device_stalls), reported,
+                          simulated=proc is not None, host_cpu_wait_s=s.trip_cpu_wait_s)
+
+    def _stalls(self, facts: StallFacts) -> dict[str, Any]:
+        return {"host_gap_at_trip_ms": facts.host_gap_s * 1e3 if self.supervisor.tripped else None,
+                "host_cpu_wait_at_trip_ms": facts.host_cpu_wait_s * 1e3 if self.supervisor.tripped else None,
+                "device_silences_not_scheduled": [dataclasses.asdict(x) for x in facts.device_stalls],
+                "device_reported": facts.device_reported}
+
     def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
         s, sup = self.run_state, self.supervisor
         _, refs, angles = s.recorded_rows()
+        facts = self._stall_facts()
         return RunResult(
             pacing=pace.name, realtime=rt, duration_s=duration_s, cycles=s.cycles, samples=s.samples,
             sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **_speed(s)},
             reaction=s.reaction.summary(),
             tracking=metrics.recorded_tracking(refs, angles), ran_s=s.ran_s,
-            link=self.hw.stats.as_dict(), events=list(sup.events),
+            link=self.hw.stats.as_dict(), events=[dataclasses.replace(e, cause=explain(e, facts)) for e in sup.events],
+            stalls=self._stalls(facts), pwm_unconfirmed=s.pwm_unconfirmed,
             final_sample=s.final, sinks=self._sink_reports(),
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",
             files=[f for x in self.sinks if isinstance(x, Recorder) for f in x.files],

@@ -4,7 +4,10 @@ firmware cannot know (estimated actuator temperature), and watches the device an
 Checks: range of motion, contact force (debounced), the e-stop input (status bit), estimated and
 measured temperature (and their agreement), continuous heating time, device fault bits, link
 loss, device reboot, and a stuck sensor (driving hard, far from the reference, and the encoder
-does not move). Every timer runs on device time (``t_s`` = sample index x period), never on
+does not move). A silence of a local simulated device whose process could not run (``starvation``:
+waiting for a CPU, or stopped) is its stall, not a lost link: it is recorded in ``device_stalls``
+and only the time it could run counts towards the link-loss budget. Every timer runs on device
+time (``t_s`` = sample index x period), never on
 loop cycles: over a USB bridge samples arrive 2-4 at a time and the loop runs once per burst.
 Only link loss is on the host clock (no samples means no device time). Any trip latches the
 safe state: every later command is PWM 0 / disabled, and the reason is logged.
@@ -15,13 +18,14 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 from rehab_hil.control.thermal import ModalThermal
 from rehab_hil.protocol import Fault, Status
 from rehab_hil.service.controllers import SAFE_COMMAND, Command
 from rehab_hil.service.estimation import State
 
-__all__ = ["SafetyEvent", "Supervisor", "SupervisorLimits"]
+__all__ = ["DeviceStall", "SafetyEvent", "Supervisor", "SupervisorLimits"]
 
 log = logging.getLogger("rehab_hil.supervisor")
 
@@ -33,6 +37,27 @@ class SafetyEvent:
     t_s: float
     reason: str
     detail: str
+    cause: str = ""  # whose stall it was and how long, with a hint (service/trip_cause.py); "" = a limit
+
+
+@dataclass
+class DeviceStall:
+    """A silence of the link while the local simulated device's process could not run (not a trip):
+    from device time ``t_s``, ``silent_s`` without a sample, ``starved_s`` of it not scheduled."""
+
+    t_s: float
+    silent_s: float
+    starved_s: float
+
+
+class StarvationProbe(Protocol):
+    """How long the device's process could not run since ``start()`` (devices/starvation.py)."""
+
+    def start(self) -> None: ...
+
+    def poll(self) -> float: ...
+
+    def alive(self) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -77,6 +102,9 @@ class Supervisor:
         self._sent_duty = 0.0
         self._sent_reference_deg = math.nan
         self._still_since: tuple[float, float] | None = None  # (t_s, angle_deg) when driving began
+        self.starvation: StarvationProbe | None = None  # a local simulated device's process (set by the loop)
+        self.device_stalls: list[DeviceStall] = []
+        self._stall_of: float | None = None  # the arrival the last device stall followed
 
 
     @property
@@ -164,11 +192,39 @@ class Supervisor:
         self.missing += 1
         budget_s = self.limits.link_loss_periods * self.dt_s
         if now_s is not None and self._last_arrival is not None:
+            probe = self.starvation
+            if probe is not None and self.missing == 1:
+                probe.start()  # a silence begins: how much of it the device can run from here
             silent = now_s - self._last_arrival
             if silent >= budget_s and self.missing >= 2:
-                self.trip(t_s, "link_loss", f"no sample for {silent * 1e3:.1f} ms (budget {budget_s * 1e3:.0f} ms)")
+                self._judge_silence(t_s, silent, budget_s)
         elif self.missing >= self.limits.link_loss_periods:
             self.trip(t_s, "link_loss", f"no sample for {self.missing} periods")
+
+    def silent_beyond_budget(self, now_s: float) -> bool:
+        """No sample for the whole link-loss budget (host clock): worth one more look at the port
+        before judging (a host that stalled in its wait finds the samples that came meanwhile)."""
+        last = self._last_arrival
+        return last is not None and now_s - last >= self.limits.link_loss_periods * self.dt_s
+
+    def _judge_silence(self, t_s: float, silent: float, budget_s: float) -> None:
+        """A silence over the budget: a lost link, unless the device's process could not run for
+        enough of it (then a device stall, recorded; the budget counts the time it could run)."""
+        probe = self.starvation
+        starved = probe.poll() if probe is not None else 0.0
+        text = f"no sample for {silent * 1e3:.1f} ms (budget {budget_s * 1e3:.0f} ms)"
+        if silent - starved >= budget_s:
+            if probe is not None:
+                text += (f"; the device process could not run for {starved * 1e3:.1f} ms of it" if probe.alive()
+                         else "; the device process has exited")
+            self.trip(t_s, "link_loss", text)
+            return
+        if self._stall_of != self._last_arrival or not self.device_stalls:
+            self._stall_of = self._last_arrival
+            self.device_stalls.append(DeviceStall(t_s, silent, starved))
+        else:
+            st = self.device_stalls[-1]
+            st.silent_s, st.starved_s = silent, starved
 
     def reboot(self, t_s: float, detail: str) -> None:
         self.trip(t_s, "device_reboot", detail)
