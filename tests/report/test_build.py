@@ -3,6 +3,8 @@ command line, with its errors as one line."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from rehab_hil.cli import main
@@ -88,6 +90,18 @@ def test_a_tripped_runs_report_says_when_and_why_it_stopped_not_the_time_asked(t
     assert "11.02 s of the 30 s asked" in text and "30.00 s" not in text
     assert "safety trip: watchdog at 11.02 s (no command for 120 ms)" in text
     assert 'class="note">This session ran 11.02 s of the 30 s asked' in text  # said before the plots
+
+
+def test_a_link_loss_says_whose_stall_it_was_and_that_the_pwm_off_is_unconfirmed(tmp_path, make_run):
+    trip = {"t_s": 0.68, "reason": "link_loss", "detail": "no sample for 200 ms",
+            "cause": "not a host stall: the device sent nothing while it could run"}
+    run = make_run(tmp_path, "r", events=[trip], requested_s=30.0)
+    meta = json.loads((run / "metadata.json").read_text())
+    meta |= {"pwm_off_at_end": None, "pwm_unconfirmed": "no sample came after the trip (the link was lost)"}
+    (run / "metadata.json").write_text(json.dumps(meta))
+    text = report_page([load_run(run)]).html()
+    assert "safety trip: link_loss at 0.68 s (no sample for 200 ms); not a host stall" in text
+    assert "unconfirmed: no sample came after the trip (the link was lost)" in text and ">NO<" not in text
 
 
 def test_a_run_stopped_on_request_says_so_with_the_time(tmp_path, make_run):

@@ -45,7 +45,7 @@ def _identity(page: Page, run: RunData) -> None:
         ("duration", duration_text(run)),
         ("stopped", stop_text(m)),
         ("samples / rows / gaps", f"{m.get('samples', '?')} / {m.get('rows', '?')} / {m.get('sample_gaps', '?')}"),
-        ("device PWM off at end", {True: "yes", False: "NO"}.get(m.get("pwm_off_at_end"), "?")),
+        ("device PWM off at end", pwm_off_text(m)),
         ("rehab-hil", f"{m.get('rehab_hil_version')} on {m.get('host')}"),
         ("run directory", str(run.path.resolve())),
     ])
@@ -129,7 +129,17 @@ def stop_text(meta: dict[str, Any]) -> str:
     at = f" at {e['t_s']:.2f} s" if isinstance(e.get("t_s"), int | float) else ""
     if e.get("reason") == "stop_request":
         return f"stop request ({e.get('detail') or 'a signal'}){at}"
-    return f"safety trip: {e.get('reason')}{at}" + (f" ({e['detail']})" if e.get("detail") else "")
+    head = f"safety trip: {e.get('reason')}{at}" + (f" ({e['detail']})" if e.get("detail") else "")
+    return f"{head}; {e['cause']}" if e.get("cause") else head
+
+
+def pwm_off_text(meta: dict[str, Any]) -> str:
+    """Whether a sample after the end showed the PWM off: yes, NO, or unconfirmed and why."""
+    off = meta.get("pwm_off_at_end")
+    if off is None:
+        why = meta.get("pwm_unconfirmed")
+        return f"unconfirmed: {why}" if why else "not recorded"
+    return "yes" if off else "NO"
 
 
 def _cycle_table(run: RunData) -> str:
