@@ -100,13 +100,13 @@ def _load_records(args: argparse.Namespace) -> tuple[Any, Recording, Path, Recor
     for c in missing_channels(plant, cfg, rec.signals):
         print(f"rehab-hil discrepancy: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
               "records): the analysis runs without it", file=sys.stderr)
-    check_recording(plant, rec, loaded.source)
+    check_recording(plant, rec, loaded.source, cfg)
     val_rec = None
     if args.validate is not None:
         val_loaded = load_recording(args.validate, plant, cfg)
         for note in val_loaded.notes:
             print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
-        check_recording(plant, val_loaded.recording, val_loaded.source)
+        check_recording(plant, val_loaded.recording, val_loaded.source, cfg)
         val_rec = val_loaded.recording
     return cfg, rec, loaded.source, val_rec
 

@@ -21,7 +21,7 @@ __all__ = ["PORT_KINDS", "ActuatorPort", "AxisPort", "HeatPort", "MeasuredPort",
 PortKind = Literal["actuator", "axis", "finger_axis", "encoder", "adc", "heat", "transformation_temperature"]
 PORT_KINDS: tuple[str, ...] = ("actuator", "axis", "finger_axis", "encoder", "adc", "heat",
                                "transformation_temperature")
-MeasuredKind = Literal["angle", "position", "force", "torque", "temperature", "current", "voltage"]
+MeasuredKind = Literal["angle", "position", "velocity", "force", "torque", "temperature", "current", "voltage"]
 
 
 @dataclass(frozen=True)
