@@ -72,6 +72,7 @@ class AxisPort:
     # bounds and typical value by this: 1 for a finger joint (N m), the peak drive force [N] or torque
     # [N m] for a generic drive axis (``plants/motor_axis.py``), so Coulomb friction of 20 N is in range
     force_scale: float = 1.0
+    linear: bool = False  # a linear axis: its "torques" are forces [N], its angles positions [m]
 
 
 @dataclass(frozen=True)

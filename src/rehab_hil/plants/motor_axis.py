@@ -208,7 +208,7 @@ def ports(cfg: MotorAxisConfig) -> Ports:
                                 duty_scale=float(getattr(cfg.drive, sat_key)), signed=True),),
         axes=(AxisPort("load", "load_position", "load_velocity", "axis_force", ("load", "torque_nm"),
                        stick_velocity_rad_s=cfg.load.stick_velocity, stick_damping_nm_s_per_rad=cfg.load.stick_damping,
-                       force_scale=axis_values(cfg)["peak_force"]),),
+                       force_scale=axis_values(cfg)["peak_force"], linear=lin),),
         measured=(MeasuredPort(out, "position" if lin else "angle", "m" if lin else "deg"),
                   MeasuredPort("velocity_m_s" if lin else "velocity_rad_s", "velocity", "m/s" if lin else "rad/s")),
         sums=("axis_force",),
@@ -244,6 +244,8 @@ class MotorAxis(Plant):
     config = MotorAxisConfig
     inputs = INPUTS
     optional_inputs = COMMAND_INPUTS  # the drive's command when it is not a voltage (``input_signals``)
+    vocabulary = MappingProxyType({"thing": "drive", "axis": "axis", "actuator": "drive amplifier",
+                                   "sources": "general"})
     outputs = OUTPUTS
     build = staticmethod(build)
     ports = staticmethod(ports)

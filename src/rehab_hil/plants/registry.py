@@ -14,6 +14,7 @@ import difflib
 import importlib
 import pkgutil
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
@@ -43,6 +44,10 @@ class Plant:
     scenarios: ClassVar[Mapping[str, Callable[..., Scenario]]] = {}
     excitation: ClassVar[Excitation | None] = None
     fit_parameters: ClassVar[tuple[FitParameter, ...]] = ()  # nominal parameters the discrepancy workflow fits
+    # how reports speak of this plant: what it is, its axis, its power stage, and whether the effects'
+    # sources are the seed papers of the finger rigs ("seed") or general references ("general")
+    vocabulary: ClassVar[Mapping[str, str]] = MappingProxyType({"thing": "finger rig", "axis": "joint axis",
+                                                                "actuator": "PWM power stage", "sources": "seed"})
 
     def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
