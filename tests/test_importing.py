@@ -187,3 +187,22 @@ def test_a_semicolon_logger_csv_with_a_time_column_is_read(tmp_path: Path) -> No
     rec = read_mapped(f, load_mapping(m))
     assert np.allclose(rec["velocity_rad_s"], [2 * np.pi, 4 * np.pi, 0.0])
     assert unit_factor("deg/s", "velocity_rad_s") == pytest.approx(np.pi / 180)
+
+
+def test_a_v73_file_without_h5py_says_what_to_install(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    f = tmp_path / "servo73.mat"
+    _write_v73(f, {"data": _matrix()})
+    monkeypatch.setitem(sys.modules, "h5py", None)  # an install without h5py: its import fails
+    with pytest.raises(CsvError, match=r"servo73.mat: a MATLAB v7.3 \(HDF5\) file; reading it needs h5py"):
+        read_mapped(f, load_mapping(_matrix_mapping(tmp_path)))
+
+
+def test_rehab_hil_import_of_a_file_that_is_not_a_mat_file_is_one_line(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture) -> None:
+    fake = tmp_path / "log.mat"
+    fake.write_bytes(b"\x00\x01 not matlab at all" * 20)
+    assert main(["import", "--config", str(EMPS), "--data", str(fake), "--out", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "log.mat:" in err and len(err.splitlines()) == 1 and "Traceback" not in err
