@@ -102,8 +102,8 @@ def _needs_mapping(path: Path, have_mapping: bool) -> bool:
     file is not an interchange CSV (its first header cell is not ``time_s``: a logger's own columns)."""
     if path.suffix.lower() == ".mat":
         return True
-    if not have_mapping or not path.is_file():
-        return False
+    if not have_mapping or not path.is_file() or path.suffix.lower() not in (".csv", ".txt", ".tsv", ".dat"):
+        return False  # a run directory or its MCAP is the recorder's own
     try:
         with path.open("rb") as fh:
             first = fh.readline(4096).decode("utf-8", "replace")
