@@ -132,7 +132,7 @@ def _print_summary(res: Result, out: Path) -> None:
         units = {k: param_unit(k, linear) for k in f.params}
         print("  " + f.effect + ": " + effect_params_text({"params": f.params, "stderr": f.stderr, "units": units}))
     before, after = res.metrics("nominal"), res.metrics("augmented")
-    print("  whole-record replay RMSE, nominal -> augmented (same measure for both):")
+    print(f"  RMSE nominal -> augmented ({res.measure}):")
     for c in res.channels:
         print(f"  {c:24s} {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g} {channel_unit(c)}")
     for line in res.validation.lines() if res.validation is not None else []:

@@ -71,6 +71,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         "validation": res.validation.as_dict() if res.validation is not None else None,
         "joint_identification": _joint(res),
         "replay": {"mode": res.mode, "segment_s": SEGMENT_S if res.mode == "shooting" else None, **res.drift,
+                   "measure": res.measure,
                    "loop": res.extras["replay"].loop or "open loop: the recorded plant inputs drive the model"},
         "aliases": [{"round": a.round, "chosen": a.chosen, "other": a.other, "delta_bic": a.delta_bic,
                      "experiment": a.experiment, "sentence": a.sentence()} for a in res.aliases],
@@ -219,8 +220,8 @@ def _markdown(rep: dict[str, Any]) -> str:
           f"Mode: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
           f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
               + ("; ".join(rep["initial_state"]["summary"]) or "the config's rest state") + "."]
-    L += ["", "Whole-record replay from the estimated start (the estimation's fits score 1 s segments when the "
-          "mode is shooting; this table is the same measure for both models):", "",
+    L += ["", f"Errors of both models measured the same way ({rep['replay']['measure']}; the validation below "
+          "is always a whole-record open-loop replay):", "",
           "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut | "
           "held-out residual | noise floor |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:

@@ -13,6 +13,7 @@ from rehab_hil.discrepancy.fitting import Fit
 from rehab_hil.discrepancy.initial_state import InitialState
 from rehab_hil.discrepancy.replay import channel_metrics
 from rehab_hil.discrepancy.selection import Score
+from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, ALIAS_RMS_SHARE, channel_unit, residual_stats
 
 __all__ = ["Alias", "Candidate", "Result", "Round", "parameter_sentence"]
@@ -174,6 +175,13 @@ class Result:
         return ["no missing effect found: the model fits within the noise ("
                 + "; ".join(f"{c} residual {stats[c]['rms']:.2g} {channel_unit(c)}, noise floor "
                             f"{stats[c]['noise_floor']:.2g} {channel_unit(c)}" for c in self.channels) + ")"]
+
+    @property
+    def measure(self) -> str:
+        """What the RMSE of ``metrics`` measures: the replay mode the models were run in."""
+        if self.mode == "shooting":
+            return f"multiple shooting: {SEGMENT_S:g} s segments re-anchored on the measured state"
+        return "whole-record open-loop replay from the estimated start"
 
     def metrics(self, which: str, part: str = "all") -> dict[str, dict[str, float]]:
         """Per-channel RMSE/MAE/max error of the nominal or augmented model (all or held-out)."""

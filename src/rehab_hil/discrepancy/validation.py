@@ -44,7 +44,7 @@ class Validation:
                 "error_cut_pct": self.cut_pct}
 
     def lines(self) -> list[str]:
-        out = [f"validation on {self.data} ({self.replay}):"]
+        out = [f"validation on {self.data} ({self.replay}; RMSE of the whole-record open-loop replay):"]
         for c in self.channels:
             out.append(f"  {c:24s} RMSE {self.nominal[c]['rmse']:.4g} -> {self.augmented[c]['rmse']:.4g} "
                        f"({self.cut_pct[c]:+.1f} % cut)")

@@ -88,8 +88,9 @@ def discrepancy_page(res: Any, rep: dict[str, Any]) -> Page:
 def _metrics(page: Page, rep: dict[str, Any]) -> None:
     m, units, resid = rep["metrics"], rep.get("channel_units") or {}, rep.get("residual") or {}
     page.heading("Error per channel")
-    page.text("Whole-record replay of both models from the estimated start (one measure for nominal and "
-              "augmented); the held-out residual of the final model beside the noise floor the data show.")
+    page.text(f"Both models measured the same way ({rep['replay'].get('measure', '')}; a validation record is "
+              "a whole-record open-loop replay); the held-out residual of the final model beside the noise floor "
+              "the data show.")
     page.raw(table(["channel", "unit", "RMSE nominal", "RMSE augmented", "held-out RMSE nominal",
                     "held-out RMSE augmented", "gap closed [%]", "noise floor", "residual / spread [%]"],
                    [[c, units.get(c, ""), m["nominal"][c]["rmse"], m["augmented"][c]["rmse"],
