@@ -120,12 +120,15 @@ def _joint(res: Result) -> dict[str, Any] | None:
 
 
 def _rounds(res: Result) -> list[dict[str, Any]]:
-    """Each round of the search: its baseline, the term chosen and every candidate's fit and score."""
+    """Each round of the search: its baseline, the term chosen and every candidate's fit and score
+    (an effect's parameters with their units on the axis)."""
+    linear = is_linear(res.extras.get("replay"))
     return [{
         "baseline": {"holdout_rms": rd.baseline.rms, "bic": rd.baseline.bic, "n_params": rd.baseline.n_params},
         "chosen": rd.chosen,
         "candidates": [{
             "effect": c.fit.effect, "params": c.fit.params, "stderr": c.fit.stderr, "start": c.fit.start,
+            "units": {k: param_unit(k, linear) for k in c.fit.params} if c.fit.effect in EFFECTS else {},
             "holdout_rms": c.score.rms, "holdout_channel_rms": dict(zip(res.channels, c.score.channel_rms,
                                                                         strict=True)),
             "bic": c.score.bic, "delta_bic": c.delta_bic, "improvement": c.improvement,
@@ -235,7 +238,7 @@ def _markdown(rep: dict[str, Any]) -> str:
         L += ["", f"## Round {i}: candidates (held-out BIC, best first)", "",
               "| effect | parameters | ΔBIC | best channel cut | significant |", "|---|---|---|---|---|"]
         for c in rd["candidates"]:
-            ps = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
+            ps = effect_params_text({"params": c["params"], "units": c.get("units")})
             L.append(f"| {c['effect']} | {ps} | {c['delta_bic']:.1f} | {100 * c['improvement']:.1f} % | "
                      f"{'yes' if c['significant'] else 'no'} |")
     L += ["", "## Where the nominal residual concentrates", "", "| region | share of time | RMS | ratio |",
@@ -257,6 +260,9 @@ def effect_params_text(c: dict[str, Any]) -> str:
     units = c.get("units") or {}
     out = []
     for k, v in c["params"].items():
+        if k == "error_fraction":  # a declared parameter: its relative error
+            out.append(f"off by {100 * v:+.1f} %")
+            continue
         se = (c.get("stderr") or {}).get(k)
         u = f" {units[k]}" if units.get(k) else ""
         out.append(f"{param_label(k)} = {v:.4g}{u}" + (f" ± {se:.2g}{u}" if se is not None else ""))

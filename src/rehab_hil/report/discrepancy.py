@@ -137,6 +137,7 @@ def _rounds(page: Page, rep: dict[str, Any]) -> None:
         page.heading(f"Round {i}: candidates (held-out BIC, best first)" + (f"; chosen {rd['chosen']}"
                                                                             if rd.get("chosen") else ""))
         page.raw(table(["term", "parameters", "ΔBIC", "best channel cut [%]", "significant"],
-                       [[c["effect"], ", ".join(f"{k} = {v:.4g}" for k, v in c["params"].items()), c["delta_bic"],
+                       [[c["effect"], effect_params_text({"params": c["params"], "units": c.get("units")}),
+                         c["delta_bic"],
                          100 * c["improvement"], "yes" if c["significant"] else "no"] for c in rd["candidates"]],
                        left=2))
