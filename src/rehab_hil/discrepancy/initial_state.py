@@ -19,9 +19,10 @@ input's value at the start.
    of the true one to the true one); a session from power-up keeps its first heating.
 4. A record that starts at rest (``Replay.start``: "rest" said by the user, or "auto" and no measured
    channel moves in its first ``REST_WINDOW_S``: ``starts_at_rest``) keeps the config's rest for the
-   unmeasured states instead of estimating them (all of them for "rest"; the velocities for "auto",
-   where a wire's temperature may still differ from ambient): a servo record from standstill was
-   given start velocities of -2 and +7 rad/s by the nuisance fit.
+   unmeasured states instead of estimating them (all of them for "rest"; for "auto" the velocities,
+   put back to rest after the nuisance fit when the fitted ones would move a channel beyond its
+   noise at the start: ``_back_to_rest``; a wire's temperature may still differ from ambient): a
+   servo record from standstill was given start velocities of -2 and +7 rad/s by the nuisance fit.
 The result says which states were set from which channel and which
 were estimated; the matched channel-state pairs also give the anchor gain that multiple shooting
 re-anchors with.
@@ -140,18 +141,19 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     dnames = s.diagram.discrete_state_names
     # the candidates' memory starts from its input; a replayed controller's from the record (closed_loop)
     free_xd = [i for i, n in enumerate(dnames) if not n.startswith((CANDIDATE_PREFIX + "_", LOOP_PREFIX + "_"))]
-    at_rest = "option" if getattr(replay, "start", "auto") == "rest" else \
-        "data" if getattr(replay, "start", "auto") == "auto" and starts_at_rest(replay) else ""
+    at_rest = "option" if getattr(replay, "start", "estimate") == "rest" else \
+        "data" if getattr(replay, "start", "estimate") == "auto" and starts_at_rest(replay) else ""
     if at_rest == "option":
         free_x, free_xd = [], []
-    elif at_rest == "data":
-        free_x = [i for i in free_x if "velocity" not in names[i]]
     estimated: dict[str, float] = {}
     if free_x or free_xd:
         n_win = max(2, min(int(np.searchsorted(replay.t, WINDOW_S)), n_train))
         _fit_nuisance(replay, P, x, xd, free_x, free_xd, (scales, lo, hi), n_win)
         estimated = {names[i]: float(x[i]) for i in free_x}
         estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
+    if at_rest == "data":
+        at_rest = _back_to_rest(replay, P, x, xd, [i for i in free_x if "velocity" in names[i]])
+        estimated = {k: v for k, v in estimated.items() if not (at_rest and "velocity" in k)}
     _settle_candidates(replay, P, x, xd)
     replay.x0, replay.xd0 = x, xd
     replay.fit_start = _memory(replay, P, n_train, x, xd, free_x, free_xd) if estimated else 0
@@ -162,6 +164,25 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
                        {names[i]: float(s.x0[i]) for i in range(x.size)}, at_rest)
     out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
     return out
+
+
+def _back_to_rest(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, velocities: list[int]) -> str:
+    """On a record that starts at rest, put the fitted start velocities back to the config's rest when
+    they move some channel beyond its noise within ``REST_WINDOW_S`` (a fit that found -2 and +7 rad/s
+    on a servo standing still); a velocity too small to show is left as fitted. Returns "data" when
+    reset, "" when not."""
+    if not velocities:
+        return ""
+    n = max(5, int(np.searchsorted(replay.t, REST_WINDOW_S)))
+    rest = x.copy()
+    rest[velocities] = replay.system.x0[velocities]
+    fitted, reset = replay.simulate_from(P, n, x, xd), replay.simulate_from(P, n, rest, xd)
+    shows = any(float(np.max(np.abs(fitted[c] - reset[c]))) > NOISE_FACTOR * max(noise_floor(replay.measured[c]),
+                                                                                    1e-12)
+                for c in replay.channels if c in replay.spec.outputs)
+    if shows:
+        x[velocities] = rest[velocities]
+    return "data" if shows else ""
 
 
 def starts_at_rest(replay: Replay) -> bool:

@@ -109,7 +109,7 @@ class Replay:
     # a motor current with 0.01 A noise, which tells a 13 ms delay from a larger rotor inertia.
     fit_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
     loop: str = ""  # the closed-loop replay used (the recorded controller), "" when the effort was replayed
-    start: str = "auto"  # "auto" (rest when the data show it), "rest" or "estimate": ``initial_state``
+    start: str = "estimate"  # "estimate", "rest" or "auto" (rest when the data show it): ``initial_state``
 
     @classmethod
     def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>",

@@ -64,7 +64,9 @@ class Options:
     parameters: bool = True  # the plant's declared nominal parameters are candidates too
     joint: bool = True  # finally every declared parameter and chosen term fitted together (``identify``)
     closed_loop: bool = True  # replay a record from its reference under the config's [recorded_controller]
-    start: str = "auto"  # the record's start: "auto" (at rest when no channel moves at first), "rest", "estimate"
+    # the record's start: "estimate" (the API's default: every held-out benchmark result unchanged), "rest", or
+    # "auto" (the CLI's default: at rest when no channel moves at first and a fitted velocity would show)
+    start: str = "estimate"
 
 
 @dataclass(frozen=True)
