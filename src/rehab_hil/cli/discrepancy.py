@@ -42,8 +42,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
     p.add_argument("--start", choices=("auto", "rest", "estimate"), default="auto",
                    help="the record's start state: rest (the config's rest, measured states from the first "
-                        "sample), estimate (unmeasured states fitted on the first 1.5 s), or auto (default: at rest "
-                        "when no channel moves in the first 50 ms)")
+                        "sample), estimate (unmeasured states fitted on the first 1.5 s), or auto (default: as "
+                        "estimate, but a record whose channels do not move in the first 50 ms keeps its start "
+                        "velocities at 0 when the fitted ones would show)")
     p.add_argument("--validate", type=Path, default=None, metavar="DATA",
                    help="another record of the same plant: the nominal and the augmented model are scored on it "
                         "(fit on --data, validate on DATA)")
