@@ -9,6 +9,10 @@ reference, error; the control-effort error on the validation run before and afte
 FlexiForce (``../shared/data/flexiforce_dickmann``): the static calibration refitted beside the
 authors' linear fits; creep time constant, creep in 5 s, hysteresis and run-to-run gain spread per
 sensor from the dead-weight staircases.
+DC motor and generator (Lacerda Junior et al. 2017, ``tests/data/dc_motor_generator``, MIT): the
+workflow from the linear least-squares model (``configs/dc_motor_generator.toml``) and from the driven
+part of an independent switched fit, beside independent least-squares fits of the same rows (linear
+first order; driven and coasting phases with Coulomb deceleration and a dead time).
 Writes bench/results/real_data.json. Usage: python bench/real_data.py [--data-dir ../shared/data]
 """
 
@@ -76,6 +80,116 @@ def _fitted(run: dict) -> dict[str, float]:
     return out
 
 
+DC_DATA = ROOT / "tests" / "data" / "dc_motor_generator" / "motor_generator_30s.csv"
+DC_CONFIG = ROOT / "configs" / "dc_motor_generator.toml"
+DC_ROW_S = 0.002  # the copy's rows (raw sample taken as 0.1 ms, README)
+DC_FIT_ROWS = 10000  # the first 20 s, as the workflow's fit part
+
+
+def _dc_rows() -> tuple[np.ndarray, np.ndarray]:
+    raw = np.loadtxt(DC_DATA, delimiter=",", skiprows=1)
+    return raw[:, 1], raw[:, 2] - raw[:200, 2].mean()
+
+
+def _switched(p: np.ndarray, k: int, u: np.ndarray, n: int) -> np.ndarray:
+    """w' = g u - b w - c while driven (u > 0), -c coasting, stopped at 0; u delayed by k rows."""
+    from numba import njit
+
+    @njit(cache=True)
+    def run(g: float, b: float, c: float, k: int, u: np.ndarray, n: int, dt: float) -> np.ndarray:
+        out = np.zeros(n)
+        v = 0.0
+        for i in range(n - 1):
+            ui = u[i - k] if i >= k else 0.0
+            v += dt * ((g * ui - b * v - c) if ui > 0 else -c)
+            v = max(v, 0.0)
+            out[i + 1] = v
+        return out
+
+    return run(float(p[0]), float(p[1]), float(p[2]), k, u, n, DC_ROW_S)
+
+
+def independent_dc_fit() -> dict:
+    """Least-squares fits of the copy's first 20 s, outside the workflow: a linear first-order model
+    (w' = g u - Fv w; closed form by lfilter), and the switched model (``_switched``) over a grid of
+    dead times; RMS of each over the fit part and the 10 s after it, beside the noise floor."""
+    from scipy.optimize import least_squares
+    from scipy.signal import lfilter
+
+    from rehab_hil.discrepancy.verdict import noise_floor
+
+    u, w = _dc_rows()
+    n, dt = DC_FIT_ROWS, DC_ROW_S
+
+    def linear(p: np.ndarray, m: int) -> np.ndarray:
+        return lfilter([0.0, p[0] * dt], [1.0, -(1.0 - p[1] * dt)], u[:m])
+
+    lin = least_squares(lambda p: linear(p, n) - w[:n], [6000.0, 3.0])
+    best = None
+    for k in range(0, 40, 2):
+        fit = least_squares(lambda p, k=k: _switched(p, k, u, n) - w[:n], [6000.0, 5.0, 100.0],
+                            x_scale=[1e3, 1.0, 100.0], bounds=([0, 0, 0], [1e6, 100, 1e5]))
+        rms = float(np.sqrt(np.mean(fit.fun**2)))
+        if best is None or rms < best[0]:
+            best = (rms, k, fit.x)
+    assert best is not None
+    _, k, p = best
+    m = u.size
+    return {"linear": {"g_per_s_v": float(lin.x[0]), "fv_per_s": float(lin.x[1]),
+                       "rms_fit": float(np.sqrt(np.mean(lin.fun**2))),
+                       "rms_all": float(np.sqrt(np.mean((linear(lin.x, m) - w) ** 2)))},
+            "switched": {"g_per_s_v": float(p[0]), "fv_driven_per_s": float(p[1]), "coulomb_per_s": float(p[2]),
+                         "delay_s": k * dt, "rms_fit": best[0],
+                         "rms_all": float(np.sqrt(np.mean((_switched(p, k, u, m) - w) ** 2)))},
+            "noise_floor": noise_floor(w), "spread": float(np.std(w))}
+
+
+def dc_motor_generator(out: Path, indep: dict) -> dict:
+    """The workflow from the linear fit (the shipped config) and from the switched fit's driven part
+    without its Coulomb deceleration and dead time (a config written beside the report)."""
+    sw = indep["switched"]
+    text = DC_CONFIG.read_text()
+    driven = "\n".join(
+        f"viscous_nm_s_per_rad = {sw['fv_driven_per_s'] * 1e-3:.6g}  # the switched fit's driven damping"
+        if ln.startswith("viscous_nm_s_per_rad") else
+        f"torque_constant_nm_per_v = {sw['g_per_s_v'] * 1e-3:.6g}  # the switched fit's gain"
+        if ln.startswith("torque_constant_nm_per_v") else ln for ln in text.splitlines())
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "dc_driven.toml").write_text(driven + "\n")
+    res = {}
+    with tempfile.TemporaryDirectory() as cache:
+        for name, cfg in (("linear", str(DC_CONFIG)), ("driven", str(out / "dc_driven.toml"))):
+            rep_dir = out / f"dc_{name}"
+            rc, printed, wall, cpu = _cli(["discrepancy", "--config", cfg, "--data", str(DC_DATA), "--out",
+                                           str(rep_dir)], cache)
+            if rc != 0:
+                raise SystemExit(f"dc {name}: exit {rc}\n{printed}")
+            rep = json.loads((rep_dir / "report.json").read_text())
+            res[name] = {"wall_s": wall, "cpu_s": cpu, "conclusion": rep["conclusion"],
+                         "named": [c["effect"] for c in rep["chosen"]], "residual": rep["residual"],
+                         "rmse": {k: rep["metrics"][k]["velocity_rad_s"]["rmse"] for k in ("nominal", "augmented")}}
+    return res
+
+
+def _print_dc(indep: dict, runs: dict) -> None:
+    lin, sw = indep["linear"], indep["switched"]
+    print("DC motor and generator (Lacerda Junior et al. 2017), 30 s, speed in the logger's unit (u.):")
+    print(f"  independent least squares, first 20 s (noise floor {indep['noise_floor']:.3g} u., spread "
+          f"{indep['spread']:.4g} u.):")
+    print(f"    linear first order   g {lin['g_per_s_v']:.4g} u./s/V, Fv {lin['fv_per_s']:.4g} /s: RMS "
+          f"{lin['rms_fit']:.4g} (fit part), {lin['rms_all']:.4g} u. (whole 30 s)")
+    print(f"    driven / coasting    g {sw['g_per_s_v']:.4g} u./s/V, Fv while driven {sw['fv_driven_per_s']:.4g} /s, "
+          f"Coulomb deceleration {sw['coulomb_per_s']:.4g} u./s, dead time {1e3 * sw['delay_s']:.0f} ms: RMS "
+          f"{sw['rms_fit']:.4g}, {sw['rms_all']:.4g} u.")
+    for name, r in runs.items():
+        res = r["residual"]["velocity_rad_s"]
+        print(f"  workflow from the {name:7s} model: named {r['named'] or 'nothing'}; held-out residual "
+              f"{res['rms']:.4g} u. = {100 * res['share_of_spread']:.0f} % of the spread (noise floor "
+              f"{res['noise_floor']:.3g}); replay RMSE {r['rmse']['nominal']:.4g} -> {r['rmse']['augmented']:.4g} u.; "
+              f"wall {r['wall_s']:.1f} s")
+        print(f"    {r['conclusion']}")
+
+
 def flexiforce(data: Path) -> dict:
     from rehab_hil.analysis.flexiforce import fit_static, read_points, staircase
 
@@ -101,6 +215,8 @@ def main() -> int:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         runs = emps(args.data_dir, Path(tmp))
+        dc_indep = independent_dc_fit()
+        dc_runs = dc_motor_generator(Path(tmp), dc_indep)
     ff = flexiforce(args.data_dir)
     fit = _fitted(runs["nominal"])
     nominal = {"load.mass_kg": 95.1089, "load.viscous_n_s_per_m": 203.5034, "coulomb_n": 0.0, "offset_n": 0.0}
@@ -124,6 +240,7 @@ def main() -> int:
               f"named: {r['named'] or 'nothing'}")
     print(f"  reference config: {runs['reference']['conclusion']}")
     print(f"  load average during the runs: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs (other work shares them)")
+    _print_dc(dc_indep, dc_runs)
     print("FlexiForce A201 (Dickmann et al. 2021), static calibration [N]:")
     print(f"  {'sensor':8s} {'chosen':10s} {'RMS linear':>11s} {'RMS quad':>9s} {'published':>10s}")
     for s, f in ff["static"].items():
@@ -135,7 +252,8 @@ def main() -> int:
               f"hysteresis {f['hysteresis_counts'][6.916]:.0f} counts = {f['hysteresis_n'][6.916]:.3f} N "
               f"({f['hysteresis_pct_fs']:.2f} % of 9.82 N), gain spread {f['gain_spread_pct']:.1f} %")
     result = {"emps": {"runs": runs, "fitted": fit, "reference": REFERENCE, "nominal": nominal},
-              "flexiforce": ff, "python": sys.version.split()[0], "cpus": os.cpu_count(),
+              "flexiforce": ff, "dc_motor_generator": {"independent": dc_indep, "workflow": dc_runs},
+              "python": sys.version.split()[0], "cpus": os.cpu_count(),
               "load_average": os.getloadavg()}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2, default=lambda o: o if not isinstance(o, np.generic)

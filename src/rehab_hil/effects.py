@@ -98,6 +98,14 @@ class Effect:
     needs: str
     wire: Callable[[Any, float], Attachment]
 
+    def describe(self, vocabulary: Mapping[str, str]) -> tuple[str, str]:
+        """(description, source) in a plant's words (``Plant.vocabulary``): a generic drive or axis gets
+        the general law and a general reference instead of the finger rigs' seed papers and words."""
+        if vocabulary.get("sources", "seed") == "seed" or self.name not in GENERAL:
+            return self.description, self.seed
+        text, source = GENERAL[self.name]
+        return text.format(**vocabulary), source
+
     def param(self, name: str) -> EffectParam:
         for p in self.params:
             if p.name == name:
@@ -280,6 +288,23 @@ EFFECTS: dict[str, Effect] = {
             "adc", _sensor_creep,
         ),
     ]
+}
+
+
+# the effects that attach to a generic drive or axis, in general words ({axis}, {actuator}: Plant.vocabulary)
+GENERAL: dict[str, tuple[str, str]] = {
+    "coulomb_friction": ("extra Coulomb friction with stiction on the {axis}",
+                         "Coulomb friction F_c sgn(v) with a Karnopp stick band (Karnopp 1985; EMPS eq 1: F_c)"),
+    "viscous_friction": ("extra viscous friction on the {axis}", "viscous friction F_v v (EMPS eq 1: F_v)"),
+    "constant_load": ("a constant force or torque against the {axis} (gravity on a tilted axis, a cable, a "
+                      "drive offset)", "Janot, Gautier and Brunot 2019, EMPS eq 1 (the offset)"),
+    "contact_spring_damper": ("one-sided spring-damper beyond a contact position of the {axis} (an end stop, "
+                              "a load met on the way)", "one-sided Kelvin-Voigt contact k dx + c dx'"),
+    "time_delay": ("transport delay on the {actuator}'s input", "transport delay (dead time) of the command"),
+    "actuator_dead_zone": ("dead zone of the {actuator}, both signs: a command below width x full scale gives "
+                           "nothing", "Tao & Kokotovic 1996 (dead-zone model)"),
+    "backlash": ("play between the drive and the measured position: a dead zone at every reversal",
+                 "play (backlash) operator, Tao & Kokotovic 1996"),
 }
 
 

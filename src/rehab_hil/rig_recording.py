@@ -99,13 +99,28 @@ def read_recording(path: str | Path) -> LoadedRecording:
     return LoadedRecording(rec, path, notes, metadata)
 
 
+def _needs_mapping(path: Path, have_mapping: bool) -> bool:
+    """A ``.mat`` file always goes through ``[import]``; a CSV does when the config has one and the
+    file is not an interchange CSV (its first header cell is not ``time_s``: a logger's own columns)."""
+    if path.suffix.lower() == ".mat":
+        return True
+    if not have_mapping or not path.is_file() or path.suffix.lower() not in (".csv", ".txt", ".tsv", ".dat"):
+        return False  # a run directory or its MCAP is the recorder's own
+    try:
+        with path.open("rb") as fh:
+            first = fh.readline(4096).decode("utf-8", "replace")
+    except OSError:
+        return False  # the reader names the unreadable file
+    return first.split(",")[0].strip().strip('"') != "time_s"
+
+
 def load_recording(path: str | Path, plant: Any, cfg: Any) -> LoadedRecording:
     """``read_recording`` for ``plant`` under ``cfg``: a run of another plant (its metadata says) is
     refused, and model inputs a rig does not record are filled from the config's constants."""
-    if Path(path).suffix.lower() == ".mat":  # a lab logger's file: the config's [import] mapping reads it
+    mapping = getattr(cfg, "import_", None)
+    if _needs_mapping(Path(path), mapping is not None):  # a lab logger's file: the config's [import] reads it
         from rehab_hil.importing import read_mapped
 
-        mapping = getattr(cfg, "import_", None)
         if mapping is None:
             raise CsvError(path, None, "a .mat file needs an [import] table in the plant config (which variable is "
                                        "which signal), or convert it first with `rehab-hil import --mapping`")

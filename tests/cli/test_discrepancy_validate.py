@@ -27,6 +27,9 @@ def test_validate_scores_the_augmented_model_on_the_pulse_run_and_the_report_say
     rep = json.loads((out / "report.json").read_text())
     assert rep["validation"]["error_cut_pct"]["drive_input_v"] >= 60.0
     assert rep["replay"]["loop"].startswith("closed loop")
+    coulomb = next(c for c in rep["chosen"] if c["effect"] == "coulomb_friction")  # a linear axis: newtons
+    assert coulomb["units"] == {"level_nm": "N"} and "Karnopp" in coulomb["seed"] and "seed 00" not in coulomb["seed"]
+    assert "level = " in (out / "report.md").read_text() and " N ± " in (out / "report.md").read_text()
     aug = load_config(out / "augmented.toml")  # Coulomb friction of 20 N: within the axis's scaled bounds
     assert {e.name for e in aug.effects} == {"coulomb_friction", "constant_load"}
     assert aug.import_ is not None and aug.recorded_controller is not None

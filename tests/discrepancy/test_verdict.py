@@ -70,3 +70,46 @@ def test_a_residual_nothing_explains_is_reported_unexplained_with_where_it_sits(
     assert "iris_angle_deg" in res.unexplained, res.conclusion
     assert "unexplained residual" in res.conclusion and "fits" not in res.conclusion
     assert {"region", "window_start_s", "window_end_s"} <= set(res.unexplained_where)
+
+
+# --- honest verdicts (issue 38 item 5) ---
+
+def _noisy_result(offset: float, aliases=(), unexplained=None) -> Result:
+    """A 20 s angle record with 0.1 deg of white noise; the final model is the noiseless motion plus
+    ``offset`` (deg); held out from 12 s."""
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 20, 0.001)
+    clean = 30 * np.sin(0.5 * t)
+    y = clean + rng.normal(0, 0.1, t.size)
+    return Result("p", ["angle_deg"], {"angle_deg": "angle"}, t, {"angle_deg": y}, {"angle_deg": clean},
+                  {"angle_deg": clean + offset}, [], [], 12.0, {"angle_deg": 1.0}, aliases=list(aliases),
+                  unexplained=unexplained or {})
+
+
+def test_a_fit_within_the_noise_is_said_only_at_the_noise_floor_with_both_figures():
+    text = _noisy_result(0.0).conclusion
+    assert text.startswith("no missing effect found: the model fits within the noise")
+    assert "angle_deg residual 0.099 deg, noise floor 0.1 deg" in text
+
+
+def test_a_residual_above_the_noise_floor_is_never_called_a_fit():
+    text = _noisy_result(0.5).conclusion  # 0.51 deg RMS: five noise floors, 2.6 % of the spread
+    assert "fits within the noise" not in text
+    assert "above the noise floor" in text and "angle_deg (0.51 deg RMS, 2.6 % of its spread; noise floor 0.1 deg)" \
+        in text
+
+
+def test_an_unexplained_residual_gives_its_size_its_share_of_the_spread_and_the_noise_floor():
+    text = _noisy_result(7.0, unexplained={"angle_deg": {"rms": 7.0}}).conclusion
+    assert text.startswith("unexplained residual on angle_deg (7 deg RMS, 35 % of its spread; noise floor 0.1 deg)")
+
+
+def test_alias_wording_follows_the_scores_and_each_pair_is_said_once():
+    close = Alias(1, "coulomb_friction", "viscous_friction", 3.2, "several speeds")
+    far = Alias(1, "viscous_friction", "coulomb_friction", 105.7, "several speeds")
+    assert "explain the residual about equally" in close.sentence()
+    assert "about equally" not in far.sentence()
+    assert "scores clearly better than coulomb_friction (delta BIC +105.7)" in far.sentence()
+    again = [Alias(r, "viscous_friction", "coulomb_friction", 105.7, "several speeds") for r in (1, 2, 3, 4, 5)]
+    text = _noisy_result(0.0, again).conclusion
+    assert text.count("scores clearly better") == 1  # five rounds, one sentence

@@ -98,3 +98,56 @@ def test_the_recorded_controller_holds_a_step_within_the_offset_over_the_loop_st
     err = abs(res["position_m"][-1] - cfg.step_reference)
     assert err <= (abs(v["offset"]) + v["coulomb"]) / stiffness + 1e-9
     assert abs(res["drive_input_v"]).max() == pytest.approx(10.0)  # the step saturates the drive at first
+
+
+SERVO = """plant = "motor_axis"
+[simulation]
+step_s = 0.001
+substeps = 1
+[load]
+kind = "rotary"
+inertia_kg_m2 = 2.0e-4
+viscous_nm_s_per_rad = 4.0e-4
+coulomb_nm = 0.02
+[drive]
+{drive}
+"""
+
+
+def _servo(tmp_path: Path, drive: str) -> MotorAxisConfig:
+    f = tmp_path / "servo.toml"
+    rig = EMPS.read_text()[EMPS.read_text().index("[rig]"):]  # a lab's axis: the rig table only stays valid
+    f.write_text(SERVO.format(drive=drive) + rig)
+    return load_config(f)  # type: ignore[return-value]
+
+
+def _steady_speed(cfg: MotorAxisConfig, signal: str, value: float) -> tuple[float, np.ndarray]:
+    spec = get_plant("motor_axis")
+    n = spec.n_steps(cfg, 12.0)
+    res = run_scenario(spec, cfg, Scenario("const", n, inputs={signal: np.full(n, value)}))
+    return float(np.mean(res["velocity_rad_s"][-1000:])), res
+
+
+def test_a_drive_commanded_in_torque_takes_newton_metres_as_its_input(tmp_path: Path) -> None:
+    cfg = _servo(tmp_path, 'command = "torque"\nsaturation_nm = 0.2')
+    assert get_plant("motor_axis").input_signals(cfg) == ("drive_torque_nm",)
+    speed, res = _steady_speed(cfg, "drive_torque_nm", 0.05)
+    assert speed == pytest.approx((0.05 - 0.02) / 4.0e-4, rel=2e-3)  # 75 rad/s: torque = Fc + Fv w
+    # the tachometer output is the angle's rate (deg -> rad)
+    rate = np.gradient(np.radians(res["angle_deg"]), 1e-3)
+    assert np.allclose(res["velocity_rad_s"][100:-100], rate[100:-100], rtol=1e-3, atol=1e-3)
+    assert _steady_speed(cfg, "drive_torque_nm", 1.0)[0] == pytest.approx((0.2 - 0.02) / 4.0e-4, rel=2e-3)
+
+
+def test_a_drive_commanded_in_current_multiplies_it_by_its_torque_constant(tmp_path: Path) -> None:
+    cfg = _servo(tmp_path, 'command = "current"\ntorque_constant_nm_per_a = 0.05\nsaturation_a = 3.0')
+    assert get_plant("motor_axis").input_signals(cfg) == ("drive_current_a",)
+    speed, _ = _steady_speed(cfg, "drive_current_a", 1.0)
+    assert speed == pytest.approx((0.05 * 1.0 - 0.02) / 4.0e-4, rel=2e-3)
+
+
+def test_a_current_command_without_its_torque_constant_is_a_config_error_naming_the_key(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"drive.torque_constant_nm_per_a is needed .*commanded in current"):
+        _servo(tmp_path, 'command = "current"\nsaturation_a = 3.0')
+    with pytest.raises(ConfigError, match=r"drive.saturation_nm is needed: the range of the torque command"):
+        _servo(tmp_path, 'command = "torque"')

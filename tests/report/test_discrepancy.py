@@ -31,6 +31,10 @@ def test_discrepancy_writes_an_html_report_beside_the_markdown(measured, tmp_pat
                  "--max-effects", "1"]) == 0
     page = (out / "report.html").read_text()
     assert (out / "report.md").is_file() and "viscous_friction" in page and "iris_angle_deg" in page
+    # everything report.md holds (issue 41 item 4): ranking, joint identification, replay mode, start state, units
+    for held in ("Round 1: candidates", "Joint identification", "Mode: ", "Start state: ", "noise floor",
+                 "iris_angle_deg [deg]", "N m s/rad"):
+        assert held in page, held
     if find_chromium() is None:
         pytest.skip("no chromium: scripts/install_browser.sh installs it (make test does, as root)")
     c = check_page(out / "report.html")

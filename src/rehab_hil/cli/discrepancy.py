@@ -40,6 +40,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="report directory to write")
     p.add_argument("--max-effects", type=int, default=2, help="most effects to add in turn (default 2)")
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
+    p.add_argument("--start", choices=("auto", "rest", "estimate"), default="auto",
+                   help="the record's start state: rest (the config's rest, measured states from the first "
+                        "sample), estimate (unmeasured states fitted on the first 1.5 s), or auto (default: as "
+                        "estimate, but a record whose channels do not move in the first 50 ms keeps its start "
+                        "velocities at 0 when the fitted ones would show)")
     p.add_argument("--validate", type=Path, default=None, metavar="DATA",
                    help="another record of the same plant: the nominal and the augmented model are scored on it "
                         "(fit on --data, validate on DATA)")
@@ -68,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     with Progress(*cols, console=console, transient=False) as bar:
         progress = RichProgress(bar)
         res = find_missing_effects(cfg, rec, source, progress,
-                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects,
+                                           start=args.start))
         if val_rec is not None:
             from rehab_hil.discrepancy.validation import validate
 
@@ -100,25 +106,36 @@ def _load_records(args: argparse.Namespace) -> tuple[Any, Recording, Path, Recor
     for c in missing_channels(plant, cfg, rec.signals):
         print(f"rehab-hil discrepancy: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
               "records): the analysis runs without it", file=sys.stderr)
-    check_recording(plant, rec, loaded.source)
+    check_recording(plant, rec, loaded.source, cfg)
     val_rec = None
     if args.validate is not None:
         val_loaded = load_recording(args.validate, plant, cfg)
         for note in val_loaded.notes:
             print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
-        check_recording(plant, val_loaded.recording, val_loaded.source)
+        check_recording(plant, val_loaded.recording, val_loaded.source, cfg)
         val_rec = val_loaded.recording
     return cfg, rec, loaded.source, val_rec
 
 
 def _print_summary(res: Result, out: Path) -> None:
     """The conclusion, the fitted terms, each channel's RMSE before and after, and the validation."""
+    from rehab_hil.discrepancy.report import effect_params_text
+    from rehab_hil.discrepancy.result import parameter_sentence
+    from rehab_hil.discrepancy.verdict import channel_unit
+    from rehab_hil.discrepancy.wording import is_linear, param_unit
+
     print(f"{res.plant}: {res.conclusion} ({res.wall_s:.1f} s)")
+    linear = is_linear(res.extras.get("replay"))
     for f in res.chosen:
-        print("  " + f.effect + ": " + ", ".join(f"{k} = {v:.4g} ± {f.stderr[k]:.2g}" for k, v in f.params.items()))
+        if f.kind != "effect":
+            print("  " + parameter_sentence(f))
+            continue
+        units = {k: param_unit(k, linear) for k in f.params}
+        print("  " + f.effect + ": " + effect_params_text({"params": f.params, "stderr": f.stderr, "units": units}))
     before, after = res.metrics("nominal"), res.metrics("augmented")
+    print(f"  RMSE nominal -> augmented ({res.measure}):")
     for c in res.channels:
-        print(f"  {c:24s} RMSE {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g}")
+        print(f"  {c:24s} {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g} {channel_unit(c)}")
     for line in res.validation.lines() if res.validation is not None else []:
         print(line)
     print(f"wrote {out}/report.json, report.md, report.html, *.png, augmented.toml")

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
         cfg = load_config(args.config)
         spec = get_plant(cfg.plant)
-        known = {*spec.inputs, *spec.outputs, *spec.optional_inputs}
+        known = {*spec.input_signals(cfg), *spec.inputs, *spec.outputs, *spec.optional_inputs}
         rc = getattr(cfg, "recorded_controller", None)
         if rc is not None:
             known |= {rc.reference, rc.effort, *rc.disturbances}

@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     for c in missing_channels(plant, cfg, loaded.recording.signals):
         print(f"rehab-hil replay: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
               "records): compared without it", file=sys.stderr)
-    check_recording(plant, loaded.recording, loaded.source)
+    check_recording(plant, loaded.recording, loaded.source, cfg)
     replay = Replay.build(plant, cfg, loaded.recording, loaded.source)
     model = replay.simulate(replay.nominal_params())
     effects = ", ".join(e.name for e in getattr(cfg, "effects", ())) or "none"

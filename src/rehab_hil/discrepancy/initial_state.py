@@ -17,6 +17,12 @@ input's value at the start.
    agree (``_memory``), so a start guessed under a wrong model cannot bias a candidate's fit
    (measured on an SMA record with a hidden driver dead zone: the fitted width went from a third
    of the true one to the true one); a session from power-up keeps its first heating.
+4. A record that starts at rest (``Replay.start``: "rest" said by the user, or "auto" and no measured
+   channel moves in its first ``REST_WINDOW_S``: ``starts_at_rest``) keeps the config's rest for the
+   unmeasured states instead of estimating them (all of them for "rest"; for "auto" the velocities,
+   put back to rest after the nuisance fit when the fitted ones would move a channel beyond its
+   noise at the start: ``_back_to_rest``; a wire's temperature may still differ from ambient): a
+   servo record from standstill was given start velocities of -2 and +7 rad/s by the nuisance fit.
 The result says which states were set from which channel and which
 were estimated; the matched channel-state pairs also give the anchor gain that multiple shooting
 re-anchors with.
@@ -34,15 +40,16 @@ from scipy.optimize import least_squares
 from rehab_hil.control.cascade import LOOP_PREFIX
 from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
 from rehab_hil.discrepancy.selection import bounded
-from rehab_hil.discrepancy.verdict import SPREAD_SHARE
+from rehab_hil.discrepancy.verdict import NOISE_FACTOR, SPREAD_SHARE, noise_floor
 
 if TYPE_CHECKING:
     from rehab_hil.discrepancy.replay import Replay
 
-__all__ = ["MATCH_SHARE", "MAX_MEMORY_SHARE", "RANGE_MARGIN", "WINDOW_S", "InitialState", "estimate_initial_state",
-           "matched_states", "state_scales"]
+__all__ = ["MATCH_SHARE", "MAX_MEMORY_SHARE", "RANGE_MARGIN", "REST_WINDOW_S", "WINDOW_S", "InitialState",
+           "estimate_initial_state", "matched_states", "starts_at_rest", "state_scales"]
 
 MATCH_SHARE = 0.95  # a channel "is" a state when that state carries this share of its sensitivity
+REST_WINDOW_S = 0.05  # a record whose channels stay within their noise for this long starts at rest
 WINDOW_S = 1.5  # nuisance states are fitted on this much of the record's start
 FD_SHARE = 0.05  # finite-difference step: this share of a state's spread over the nominal replay
 RANGE_MARGIN = 0.01  # a nuisance start state may lie this share of its visited range beyond it
@@ -60,10 +67,16 @@ class InitialState:
     set_from_data: dict[str, str] = field(default_factory=dict)  # state -> channel
     estimated: dict[str, float] = field(default_factory=dict)  # state -> value (nuisance fit)
     config_rest: dict[str, float] = field(default_factory=dict)  # state -> config value (moved ones)
+    at_rest: str = ""  # "" (estimated), "option" (--start rest) or "data" (no channel moves at the start)
 
     def describe(self) -> list[str]:
         """One line per state that did not come from the config's rest state."""
         out = [f"{s} = {self.x0_of(s):.4g} set from the first sample of {c}" for s, c in self.set_from_data.items()]
+        if self.at_rest:
+            why = ("said so (--start rest)" if self.at_rest == "option" else
+                   f"found from the data: no channel moves beyond its noise in the first {1000 * REST_WINDOW_S:g} ms")
+            out.append(f"starts at rest, {why}: the unmeasured {'states' if self.at_rest == 'option' else 'velocities'}"
+                       " keep the config's rest values")
         out += [f"{s} = {v:.4g} estimated (nuisance parameter, first {WINDOW_S:g} s)"
                 for s, v in self.estimated.items()]
         return out
@@ -128,12 +141,19 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     dnames = s.diagram.discrete_state_names
     # the candidates' memory starts from its input; a replayed controller's from the record (closed_loop)
     free_xd = [i for i, n in enumerate(dnames) if not n.startswith((CANDIDATE_PREFIX + "_", LOOP_PREFIX + "_"))]
+    at_rest = "option" if getattr(replay, "start", "estimate") == "rest" else \
+        "data" if getattr(replay, "start", "estimate") == "auto" and starts_at_rest(replay) else ""
+    if at_rest == "option":
+        free_x, free_xd = [], []
     estimated: dict[str, float] = {}
     if free_x or free_xd:
         n_win = max(2, min(int(np.searchsorted(replay.t, WINDOW_S)), n_train))
         _fit_nuisance(replay, P, x, xd, free_x, free_xd, (scales, lo, hi), n_win)
         estimated = {names[i]: float(x[i]) for i in free_x}
         estimated.update({dnames[i]: float(xd[i]) for i in free_xd})
+    if at_rest == "data":
+        at_rest = _back_to_rest(replay, P, x, xd, [i for i in free_x if "velocity" in names[i]])
+        estimated = {k: v for k, v in estimated.items() if not (at_rest and "velocity" in k)}
     _settle_candidates(replay, P, x, xd)
     replay.x0, replay.xd0 = x, xd
     replay.fit_start = _memory(replay, P, n_train, x, xd, free_x, free_xd) if estimated else 0
@@ -141,9 +161,45 @@ def estimate_initial_state(replay: Replay, P: np.ndarray, n_train: int) -> Initi
     for c, st in sorted(matched.items()):
         from_data[names[st]] = ", ".join(filter(None, [from_data.get(names[st], ""), replay.channels[c]]))
     out = InitialState(x, xd, from_data, estimated,
-                       {names[i]: float(s.x0[i]) for i in range(x.size)})
+                       {names[i]: float(s.x0[i]) for i in range(x.size)}, at_rest)
     out._values = {**{n: float(v) for n, v in zip(names, x, strict=True)}, **estimated}
     return out
+
+
+def _back_to_rest(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, velocities: list[int]) -> str:
+    """On a record that starts at rest, put the fitted start velocities back to the config's rest when
+    they move some channel beyond its noise within ``REST_WINDOW_S`` (a fit that found -2 and +7 rad/s
+    on a servo standing still); a velocity too small to show is left as fitted. Returns "data" when
+    reset, "" when not."""
+    if not velocities:
+        return ""
+    n = max(5, int(np.searchsorted(replay.t, REST_WINDOW_S)))
+    rest = x.copy()
+    rest[velocities] = replay.system.x0[velocities]
+    fitted, reset = replay.simulate_from(P, n, x, xd), replay.simulate_from(P, n, rest, xd)
+    shows = any(float(np.max(np.abs(fitted[c] - reset[c]))) > NOISE_FACTOR * max(noise_floor(replay.measured[c]),
+                                                                                    1e-12)
+                for c in replay.channels if c in replay.spec.outputs)
+    if shows:
+        x[velocities] = rest[velocities]
+    return "data" if shows else ""
+
+
+def starts_at_rest(replay: Replay) -> bool:
+    """Does the record start at rest? Every measured plant output stays within its noise over the first
+    ``REST_WINDOW_S`` (its span under 2 x ``NOISE_FACTOR`` noise floors), and a measured velocity is
+    zero there within the same noise."""
+    n = max(5, int(np.searchsorted(replay.t, REST_WINDOW_S)))
+    chans = [c for c in replay.channels if c in replay.spec.outputs]
+    if not chans or n >= replay.t.size:
+        return False
+    for c in chans:
+        y = replay.measured[c]
+        tol = 2.0 * NOISE_FACTOR * max(noise_floor(y), 1e-12)
+        head = y[:n]
+        if float(np.ptp(head)) > tol or ("velocity" in c and abs(float(np.mean(head))) > tol / 2.0):
+            return False
+    return True
 
 
 def _set_matched_states(replay: Replay, P: np.ndarray, x: np.ndarray, xd: np.ndarray, h: np.ndarray) -> dict[int, int]:

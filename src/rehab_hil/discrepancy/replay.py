@@ -38,12 +38,14 @@ SIM_CACHE_BYTES = 32 << 20  # ... and at most this many bytes of them
 NOISY_SPREAD = 10.0  # a channel whose spread is under this many noise floors weighs less in the fits
 
 
-def check_recording(spec: type[Plant], rec: Recording, path: str | Path) -> list[str]:
-    """Check a recording can be replayed on ``spec``; returns the output channels present.
+def check_recording(spec: type[Plant], rec: Recording, path: str | Path, cfg: Any = None) -> list[str]:
+    """Check a recording can be replayed on ``spec`` (under ``cfg``: the input columns it names, e.g. a
+    drive commanded in torque); returns the output channels present.
 
     Errors name the file: missing input columns (and which plant the file looks like), no output
     column, too short, inputs that never change."""
-    missing = [n for n in spec.inputs if n not in rec.signals and n not in spec.optional_inputs]
+    inputs = spec.input_signals(cfg) if cfg is not None else spec.inputs
+    missing = [n for n in inputs if n not in rec.signals and (n not in spec.optional_inputs or cfg is not None)]
     if missing:
         looks = [p.name for p in plants().values() if p.name != spec.name and all(i in rec.signals for i in p.inputs)]
         hint = f"; the columns look like a {looks[0]!r} recording, the config is {spec.name!r}" if looks else ""
@@ -57,8 +59,8 @@ def check_recording(spec: type[Plant], rec: Recording, path: str | Path) -> list
     if rec.t.size < MIN_SAMPLES or duration < MIN_DURATION_S:
         raise CsvError(path, None, f"too short: {rec.t.size} rows over {duration:.3f} s; the workflow needs at "
                                    f"least {MIN_SAMPLES} rows and {MIN_DURATION_S} s (a fit part and a held-out part)")
-    if all(np.ptp(rec.signals[n]) == 0.0 for n in spec.inputs if n in rec.signals):
-        raise CsvError(path, None, f"the input columns {list(spec.inputs)} are constant: the recording does not "
+    if all(np.ptp(rec.signals[n]) == 0.0 for n in inputs if n in rec.signals):
+        raise CsvError(path, None, f"the input columns {list(inputs)} are constant: the recording does not "
                                    "excite the plant, so no effect can be identified")
     return channels
 
@@ -107,6 +109,7 @@ class Replay:
     # a motor current with 0.01 A noise, which tells a 13 ms delay from a larger rotor inertia.
     fit_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
     loop: str = ""  # the closed-loop replay used (the recorded controller), "" when the effort was replayed
+    start: str = "estimate"  # "estimate", "rest" or "auto" (rest when the data show it): ``initial_state``
 
     @classmethod
     def build(cls, spec: type[Plant], cfg: Any, rec: Recording, path: str | Path = "<data>",
@@ -115,7 +118,7 @@ class Replay:
         the ``[recorded_controller]`` whose reference and effort the record carries, the loop is replayed
         from the reference: the controller's parts drive the plant input, and the recorded effort is
         compared as an output channel (``closed_loop.py``)."""
-        channels = check_recording(spec, rec, path)
+        channels = check_recording(spec, rec, path, cfg)
         step_s, substeps = spec.step(cfg)
         ports = spec.ports(cfg)
         candidates = applicable(ports)

@@ -14,11 +14,13 @@ from rehab_hil.discrepancy import localise
 from rehab_hil.discrepancy.parameters import corrected_config_text
 from rehab_hil.discrepancy.result import Result, parameter_sentence
 from rehab_hil.discrepancy.shooting import SEGMENT_S
+from rehab_hil.discrepancy.verdict import channel_unit
+from rehab_hil.discrepancy.wording import effect_words, is_linear, param_label, param_unit
 from rehab_hil.effects import EFFECTS
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 
-__all__ = ["SCHEMA", "augmented_toml", "report_dict", "write_report"]
+__all__ = ["SCHEMA", "augmented_toml", "effect_params_text", "report_dict", "write_report"]
 
 SCHEMA = "rehab-hil/discrepancy-report/1"
 
@@ -59,18 +61,17 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         "channels": res.channels,
         "channel_scale": res.scale,
         "conclusion": res.conclusion,
-        "chosen": [{
-            "effect": f.effect, "kind": f.kind, "params": f.params, "stderr": f.stderr,
-            **({"seed": EFFECTS[f.effect].seed, "description": EFFECTS[f.effect].description} if f.kind == "effect"
-               else {"sentence": parameter_sentence(f)}),
-        } for f in res.chosen],
+        "chosen": [_chosen(res, f) for f in res.chosen],
+        "channel_units": {c: channel_unit(c) for c in res.channels},
+        "residual": res.residuals(),
         "initial_state": {
             "set_from_data": init.set_from_data if init else {}, "estimated": init.estimated if init else {},
             "summary": init.describe() if init else [],
         },
         "validation": res.validation.as_dict() if res.validation is not None else None,
-        "joint_identification": res.joint.as_dict() if res.joint is not None else None,
+        "joint_identification": _joint(res),
         "replay": {"mode": res.mode, "segment_s": SEGMENT_S if res.mode == "shooting" else None, **res.drift,
+                   "measure": res.measure,
                    "loop": res.extras["replay"].loop or "open loop: the recorded plant inputs drive the model"},
         "aliases": [{"round": a.round, "chosen": a.chosen, "other": a.other, "delta_bic": a.delta_bic,
                      "experiment": a.experiment, "sentence": a.sentence()} for a in res.aliases],
@@ -93,13 +94,41 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
     })
 
 
+def _chosen(res: Result, f: Any) -> dict[str, Any]:
+    """A chosen term for report.json: its fit, and for an effect its words and source in the plant's
+    vocabulary and each parameter's unit on its axis (``wording``)."""
+    out = {"effect": f.effect, "kind": f.kind, "params": f.params, "stderr": f.stderr}
+    if f.kind != "effect":
+        return {**out, "sentence": parameter_sentence(f)}
+    description, seed = effect_words(f.effect, res.plant)
+    linear = is_linear(res.extras.get("replay"))
+    return {**out, "seed": seed, "description": description,
+            "units": {k: param_unit(k, linear) for k in f.params}}
+
+
+def _joint(res: Result) -> dict[str, Any] | None:
+    """The joint identification with each parameter's unit: an effect's in its axis's unit, a declared
+    parameter's value is a relative error."""
+    if res.joint is None:
+        return None
+    d = res.joint.as_dict()
+    linear = is_linear(res.extras.get("replay"))
+    for p in d.get("parameters", []):
+        effect, _, param = str(p["name"]).partition(".")
+        p["unit"] = param_unit(param, linear) if param and effect in EFFECTS else "relative error"
+    return d
+
+
 def _rounds(res: Result) -> list[dict[str, Any]]:
-    """Each round of the search: its baseline, the term chosen and every candidate's fit and score."""
+    """Each round of the search: its baseline, the term chosen and every candidate's fit and score
+    (an effect's parameters with their units on the axis)."""
+    linear = is_linear(res.extras.get("replay"))
     return [{
         "baseline": {"holdout_rms": rd.baseline.rms, "bic": rd.baseline.bic, "n_params": rd.baseline.n_params},
         "chosen": rd.chosen,
         "candidates": [{
             "effect": c.fit.effect, "params": c.fit.params, "stderr": c.fit.stderr, "start": c.fit.start,
+            "units": {k: param_unit(k, linear) for k in c.fit.params} if c.fit.effect in EFFECTS else {},
             "holdout_rms": c.score.rms, "holdout_channel_rms": dict(zip(res.channels, c.score.channel_rms,
                                                                         strict=True)),
             "bic": c.score.bic, "delta_bic": c.delta_bic, "improvement": c.improvement,
@@ -120,7 +149,7 @@ def augmented_toml(res: Result, config_path: Path) -> str:
         if f.kind != "effect":
             continue
         params = ", ".join(f"{k} = {float(v)!r}" for k, v in f.params.items())
-        text += (f"\n# added by rehab-hil discrepancy ({EFFECTS[f.effect].seed})\n"
+        text += (f"\n# added by rehab-hil discrepancy ({effect_words(f.effect, res.plant)[1]})\n"
                  f"[[effects]]\nname = \"{f.effect}\"\nparams = {{ {params} }}\n")
     return text
 
@@ -187,27 +216,29 @@ def _markdown(rep: dict[str, Any]) -> str:
         if c["kind"] == "parameter":
             L.append(f"- {c['sentence']} (corrected in augmented.toml)")
             continue
-        ps = ", ".join(f"{k} = {v:.4g} ± {rep_se:.2g}" if rep_se is not None else f"{k} = {v:.4g}"
-                       for (k, v), rep_se in zip(c["params"].items(), c["stderr"].values(), strict=True))
-        L.append(f"- `{c['effect']}`: {ps} ({c['description']}; {c['seed']})")
+        L.append(f"- `{c['effect']}`: {effect_params_text(c)} ({c['description']}; {c['seed']})")
     for a in rep["aliases"]:
         L.append(f"- round {a['round']}: {a['sentence']}")
     L += ["", f"Replay: {rep['replay']['loop']}.",
           f"Mode: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
           f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
               + ("; ".join(rep["initial_state"]["summary"]) or "the config's rest state") + "."]
-    L += ["", "| channel | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut |",
-          "|---|---|---|---|---|---|---|---|"]
+    L += ["", f"Errors of both models measured the same way ({rep['replay']['measure']}; the validation below "
+          "is always a whole-record open-loop replay):", "",
+          "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut | "
+          "held-out residual | noise floor |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:
         b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
-        L.append(f"| {ch} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | {a['mae']:.4g} | "
-                 f"{b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | {rep['gap_reduction_pct'][ch]:.1f} % |")
+        r = rep["residual"][ch]
+        L.append(f"| {ch} | {rep['channel_units'][ch]} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | "
+                 f"{a['mae']:.4g} | {b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | "
+                 f"{rep['gap_reduction_pct'][ch]:.1f} % | {r['rms']:.3g} | {r['noise_floor']:.3g} |")
     L += _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
     for i, rd in enumerate(rep["rounds"], 1):
         L += ["", f"## Round {i}: candidates (held-out BIC, best first)", "",
               "| effect | parameters | ΔBIC | best channel cut | significant |", "|---|---|---|---|---|"]
         for c in rd["candidates"]:
-            ps = ", ".join(f"{k}={v:.4g}" for k, v in c["params"].items())
+            ps = effect_params_text({"params": c["params"], "units": c.get("units")})
             L.append(f"| {c['effect']} | {ps} | {c['delta_bic']:.1f} | {100 * c['improvement']:.1f} % | "
                      f"{'yes' if c['significant'] else 'no'} |")
     L += ["", "## Where the nominal residual concentrates", "", "| region | share of time | RMS | ratio |",
@@ -222,6 +253,20 @@ def _markdown(rep: dict[str, Any]) -> str:
         L.append(f"| {ch} | {' | '.join(f)} |")
     L += [""] + [f"![{n}]({n})" for n in rep["figures"]] + [""]
     return "\n".join(L)
+
+
+def effect_params_text(c: dict[str, Any]) -> str:
+    """``level = 20.27 N ± 0.1``: an effect's fitted parameters with their units (report.json's chosen item)."""
+    units = c.get("units") or {}
+    out = []
+    for k, v in c["params"].items():
+        if k == "error_fraction":  # a declared parameter: its relative error
+            out.append(f"off by {100 * v:+.1f} %")
+            continue
+        se = (c.get("stderr") or {}).get(k)
+        u = f" {units[k]}" if units.get(k) else ""
+        out.append(f"{param_label(k)} = {v:.4g}{u}" + (f" ± {se:.2g}{u}" if se is not None else ""))
+    return ", ".join(out)
 
 
 def _validation_md(val: dict[str, Any] | None) -> list[str]:
@@ -243,7 +288,7 @@ def _joint_md(joint: dict[str, Any] | None) -> list[str]:
     for p in joint["parameters"]:
         ci = "—" if p["ci95"] is None else f"{p['ci95'][0]:.4g} .. {p['ci95'][1]:.4g}"
         note = "held at its config value (inseparable)" if p["held_at_config"] else ""
-        L.append(f"| {p['name']} | {p['value']:.4g} | {ci} | {note} |")
+        L.append(f"| {p['name']} | {p['value']:.4g} {p.get('unit', '')} | {ci} | {note} |")
     L += ["", "Parameters are relative errors of the config's value; effects in SI. Config values after the fit: "
           + ", ".join(f"`{k}` = {v:.6g}" for k, v in joint["corrected"].items()) + "."]
     L += [f"- {s}" for s in joint["sentences"]]

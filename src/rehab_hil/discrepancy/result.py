@@ -13,6 +13,8 @@ from rehab_hil.discrepancy.fitting import Fit
 from rehab_hil.discrepancy.initial_state import InitialState
 from rehab_hil.discrepancy.replay import channel_metrics
 from rehab_hil.discrepancy.selection import Score
+from rehab_hil.discrepancy.shooting import SEGMENT_S
+from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, ALIAS_RMS_SHARE, channel_unit, residual_stats
 
 __all__ = ["Alias", "Candidate", "Result", "Round", "parameter_sentence"]
 
@@ -53,10 +55,23 @@ class Alias:
     split: bool = False  # the fit part preferred ``other``, the held-out part ``chosen``
 
     def sentence(self) -> str:
-        why = ("the fit part prefers " + self.other if self.split
-               else "held-out scores within the alias margin") + f", delta BIC {self.delta_bic:+.1f}"
-        return (f"{self.chosen} and {self.other} explain the residual about equally ({why}): not distinguishable "
-                f"from this record; to tell them apart: {self.experiment}")
+        """Why the two go together, in the words their scores allow: "about equally" only when their
+        held-out BIC lie within the alias margin; the record's halves disagreeing, or a close error on
+        one channel under a clearly better BIC, are said as such."""
+        d = f"delta BIC {self.delta_bic:+.1f}"
+        if self.split:
+            why = (f"{self.chosen} and {self.other} are told apart differently by the two parts of the record "
+                   f"(the fit part prefers {self.other}, the held-out part {self.chosen}, {d})")
+        elif abs(self.delta_bic) < ALIAS_DELTA_BIC:
+            why = f"{self.chosen} and {self.other} explain the residual about equally (held-out scores, {d})"
+        else:
+            why = (f"{self.chosen} scores clearly better than {self.other} ({d}), but {self.other} comes within "
+                   f"{100 * ALIAS_RMS_SHARE:.0f} % of its held-out error on the channel it cuts most")
+        return f"{why}: not distinguishable from this record; to tell them apart: {self.experiment}"
+
+    @property
+    def pair(self) -> frozenset[str]:
+        return frozenset((self.chosen, self.other))
 
 
 def parameter_sentence(fit: Fit, inseparable: bool = False) -> str:
@@ -105,27 +120,68 @@ class Result:
 
     @property
     def conclusion(self) -> str:
-        """One line: effects, parameters off, near-aliases, an unexplained residual, or a fit."""
+        """One line: effects, parameters off, near-aliases (each pair once), an unexplained residual with
+        its size beside the noise floor and the spread, or a fit within the noise (with both figures)."""
         parts = []
         if self.named:
             parts.append(f"missing effect found: {', '.join(self.named)}")
         mixed = {m for g in (self.joint.inseparable if self.joint is not None else []) for m in g}
         parts += [parameter_sentence(f, f.effect in mixed) for f in self.parameters]
-        parts += [a.sentence() for a in self.aliases]
+        seen: set[frozenset[str]] = set()
+        for a in self.aliases:  # a pair met again in a later round is said once
+            if a.pair not in seen:
+                seen.add(a.pair)
+                parts.append(a.sentence())
         chosen = {f.effect for f in self.chosen}
         if self.joint is not None:  # a chosen term the record cannot separate from another: said so
             parts += [s for g, s in zip(self.joint.inseparable, self.joint.sentences(), strict=True)
                       if any(m.split(".")[0] in chosen or m in chosen for m in g)]
+        parts += self._residual_sentences(bool(parts))
+        return "; ".join(dict.fromkeys(parts))
+
+    def residuals(self) -> dict[str, dict[str, float | bool]]:
+        """Per channel, the final model's held-out residual beside the data's noise floor and spread
+        (``verdict.residual_stats``)."""
+        m = self.t >= self.split_s
+        if not np.any(m):
+            m = np.ones(self.t.size, bool)
+        return {c: residual_stats(self.measured[c], float(np.sqrt(np.mean((self.augmented[c][m]
+                                                                           - self.measured[c][m]) ** 2))))
+                for c in self.channels}
+
+    def _residual_sentences(self, found: bool) -> list[str]:
+        """The residual's part of the conclusion: unexplained (with its size, its share of the spread and
+        the noise floor), above the noise but small, or within the noise (both figures printed)."""
+        stats = self.residuals()
+
+        def figures(c: str) -> str:
+            s, u = stats[c], channel_unit(c)
+            return (f"{c} ({s['rms']:.2g} {u} RMS, {100 * float(s['share_of_spread']):.2g} % of its spread; noise "
+                    f"floor {s['noise_floor']:.2g} {u})").replace("  ", " ").replace(" )", ")")
+
         if self.unexplained:
             where = self.unexplained_where
-            chans = ", ".join(self.unexplained)
             loc = (f" (largest in {where['region']} and at {where['window_start_s']:.1f}-{where['window_end_s']:.1f} s)"
                    if where else "")
-            parts.append(("unexplained residual" if not self.chosen else "unexplained residual remains")
-                         + f" on {chans}{loc}")
-        if not parts:
-            parts.append("no missing effect found: the model fits within the noise")
-        return "; ".join(parts)
+            head = "unexplained residual" if not self.chosen else "unexplained residual remains"
+            return [f"{head} on {', '.join(figures(c) for c in self.unexplained if c in stats)}{loc}"]
+        above = [c for c in self.channels if not stats[c]["at_noise"]]
+        if above:
+            lead = "" if found else "no missing effect found; "
+            return [f"{lead}a residual above the noise floor remains (not a fit within the noise) on "
+                    + ", ".join(figures(c) for c in above)]
+        if found:
+            return []
+        return ["no missing effect found: the model fits within the noise ("
+                + "; ".join(f"{c} residual {stats[c]['rms']:.2g} {channel_unit(c)}, noise floor "
+                            f"{stats[c]['noise_floor']:.2g} {channel_unit(c)}" for c in self.channels) + ")"]
+
+    @property
+    def measure(self) -> str:
+        """What the RMSE of ``metrics`` measures: the replay mode the models were run in."""
+        if self.mode == "shooting":
+            return f"multiple shooting: {SEGMENT_S:g} s segments re-anchored on the measured state"
+        return "whole-record open-loop replay from the estimated start"
 
     def metrics(self, which: str, part: str = "all") -> dict[str, dict[str, float]]:
         """Per-channel RMSE/MAE/max error of the nominal or augmented model (all or held-out)."""

@@ -44,7 +44,7 @@ class Validation:
                 "error_cut_pct": self.cut_pct}
 
     def lines(self) -> list[str]:
-        out = [f"validation on {self.data} ({self.replay}):"]
+        out = [f"validation on {self.data} ({self.replay}; RMSE of the whole-record open-loop replay):"]
         for c in self.channels:
             out.append(f"  {c:24s} RMSE {self.nominal[c]['rmse']:.4g} -> {self.augmented[c]['rmse']:.4g} "
                        f"({self.cut_pct[c]:+.1f} % cut)")
@@ -56,6 +56,7 @@ def validate(res: Result, cfg: Any, rec: Recording, data_path: str | Path) -> Va
     spec = get_plant(cfg.plant)
     fitted: Replay = res.extras["replay"]
     replay = Replay.build(spec, cfg, rec, data_path, closed_loop=bool(fitted.loop))
+    replay.start = fitted.start  # the same start rule as the fit (--start)
     P0 = replay.nominal_params()
     P = np.asarray(res.extras["P"], float)
     if P.shape != P0.shape:  # same plant, same config, same effects: only another replay structure differs

@@ -24,8 +24,8 @@ from typing import Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "experiment",
-           "is_alias", "noise_floor", "tied_parameter", "unexplained_channels"]
+__all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "channel_unit",
+           "experiment", "is_alias", "noise_floor", "residual_stats", "tied_parameter", "unexplained_channels"]
 
 ALIAS_DELTA_BIC = 10.0  # the significance margin (selection.MIN_DELTA_BIC): less is not "very strong"
 ALIAS_RMS_SHARE = 0.10  # held-out RMS on the decisive channel within 10 % of each other
@@ -41,7 +41,7 @@ EXPERIMENTS: dict[frozenset[str], str] = {
     frozenset({"backlash", "time_delay"}):
         "reversals at two different speeds: a play costs a fixed angle, a delay a fixed time",
     frozenset({"coulomb_friction", "actuator_dead_zone"}):
-        "slow moves against a known load (the patient torque): friction opposes motion, a dead zone "
+        "slow moves against a known load: friction opposes motion, a dead zone "
         "removes a fixed part of the command whatever the load",
     frozenset({"coulomb_friction", "motor.kt_nm_per_a"}):
         "hold the iris against known patient torques in both directions while logging the current: friction "
@@ -81,6 +81,29 @@ def noise_floor(y: np.ndarray) -> float:
     y = np.asarray(y, float)
     d = np.diff(y[np.isfinite(y)], 2)
     return float(np.std(d) / np.sqrt(6.0)) if d.size > 1 else 0.0
+
+
+_UNITS = {"deg": "deg", "rad": "rad", "m": "m", "mm": "mm", "n": "N", "nm": "N m", "c": "C", "a": "A", "v": "V",
+          "counts": "counts", "w": "W", "ratio": "", "s": "s"}
+_RATE_UNITS = {"rad_s": "rad/s", "deg_s": "deg/s", "m_s": "m/s"}
+
+
+def channel_unit(name: str) -> str:
+    """The unit a signal's name ends in, as a person writes it: angle_deg -> deg, velocity_rad_s -> rad/s."""
+    for suffix, unit in _RATE_UNITS.items():
+        if name.endswith("_" + suffix):
+            return unit
+    return _UNITS.get(name.rsplit("_", 1)[-1], "")
+
+
+def residual_stats(y: np.ndarray, rms: float) -> dict[str, float | bool]:
+    """A channel's held-out residual beside what the data say about it: the noise floor (``noise_floor``),
+    the spread (std), the residual's share of the spread, and whether it is at the noise floor (within
+    ``NOISE_FACTOR`` floors: only then does the model fit "within the noise")."""
+    floor, spread = noise_floor(y), float(np.std(y))
+    return {"rms": float(rms), "noise_floor": floor, "spread": spread,
+            "share_of_spread": float(rms) / spread if spread > 0 else float("inf"),
+            "at_noise": bool(rms <= NOISE_FACTOR * floor)}
 
 
 def unexplained_channels(channels: Sequence[str], measured: Mapping[str, np.ndarray],

@@ -64,6 +64,9 @@ class Options:
     parameters: bool = True  # the plant's declared nominal parameters are candidates too
     joint: bool = True  # finally every declared parameter and chosen term fitted together (``identify``)
     closed_loop: bool = True  # replay a record from its reference under the config's [recorded_controller]
+    # the record's start: "estimate" (the API's default: every held-out benchmark result unchanged), "rest", or
+    # "auto" (the CLI's default: at rest when no channel moves at first and a fitted velocity would show)
+    start: str = "estimate"
 
 
 @dataclass(frozen=True)
@@ -245,6 +248,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     spec = get_plant(cfg.plant)
     progress.start("replay nominal model", 1)
     replay = Replay.build(spec, cfg, rec, data_path, closed_loop=options.closed_loop)
+    replay.start = options.start
     N = replay.t.size
     n_train = max(2, min(round((1.0 - options.holdout_fraction) * N),
                          int(np.searchsorted(replay.t, options.fit_max_s))))

@@ -21,7 +21,7 @@ __all__ = ["PORT_KINDS", "ActuatorPort", "AxisPort", "HeatPort", "MeasuredPort",
 PortKind = Literal["actuator", "axis", "finger_axis", "encoder", "adc", "heat", "transformation_temperature"]
 PORT_KINDS: tuple[str, ...] = ("actuator", "axis", "finger_axis", "encoder", "adc", "heat",
                                "transformation_temperature")
-MeasuredKind = Literal["angle", "position", "force", "torque", "temperature", "current", "voltage"]
+MeasuredKind = Literal["angle", "position", "velocity", "force", "torque", "temperature", "current", "voltage"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,7 @@ class AxisPort:
     # bounds and typical value by this: 1 for a finger joint (N m), the peak drive force [N] or torque
     # [N m] for a generic drive axis (``plants/motor_axis.py``), so Coulomb friction of 20 N is in range
     force_scale: float = 1.0
+    linear: bool = False  # a linear axis: its "torques" are forces [N], its angles positions [m]
 
 
 @dataclass(frozen=True)

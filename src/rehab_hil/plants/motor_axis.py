@@ -7,7 +7,11 @@ q is the load's position [m] (linear) or angle [rad] (rotary), u the drive input
 force constant at the load [N/V] (or torque constant [N m/V]; with a transmission of ratio r motor
 rad per load unit, g = r x the motor-side constant and M = M_load + r^2 J_rotor), sat the drive's
 input range, Fv and Fc viscous and Coulomb friction (Karnopp stiction band, ``models.mechanics``),
-offset a constant load. ``configs/emps.toml`` is the EMPS benchmark's reference model of its
+offset a constant load. A drive commanded in torque or current (``drive.command``) takes its
+command as the input instead of a voltage: ``drive_torque_nm`` (``drive_force_n`` on a linear axis
+without a transmission; g = 1, or the ratio with one) or ``drive_current_a`` (g = the torque or force
+constant per ampere). The measured velocity (``velocity_m_s`` / ``velocity_rad_s``) is an output a
+record may carry beside the position. ``configs/emps.toml`` is the EMPS benchmark's reference model of its
 prismatic axis, ``configs/emps_nominal.toml`` the same without Coulomb friction and offset.
 
 On a linear axis the framework's rotary signal names carry linear quantities (``models/axis_parts``):
@@ -33,10 +37,12 @@ from rehab_hil.plants.experiments import FitParameter, Scenario
 from rehab_hil.plants.registry import Plant
 from rehab_hil.plants.sections import PlantConfig
 
-__all__ = ["MotorAxis", "MotorAxisConfig", "axis_values", "build", "ports"]
+__all__ = ["MotorAxis", "MotorAxisConfig", "axis_values", "build", "drive_signal", "ports"]
 
-INPUTS = ("drive_input_v",)
-OUTPUTS = ("position_m", "angle_deg")  # a linear axis gives position_m, a rotary one angle_deg
+INPUTS = ("drive_input_v",)  # a voltage-commanded drive (the default); ``drive_signal`` gives the config's
+COMMAND_INPUTS = ("drive_torque_nm", "drive_force_n", "drive_current_a")
+# a linear axis gives position_m (and velocity_m_s), a rotary one angle_deg (and velocity_rad_s)
+OUTPUTS = ("position_m", "angle_deg", "velocity_m_s", "velocity_rad_s")
 
 
 class LoadSection(Section):
@@ -70,13 +76,25 @@ class LoadSection(Section):
 
 
 class DriveSection(Section):
-    """The motor and its amplifier: force (or torque) per volt of drive input, and the input range."""
+    """The motor and its amplifier: what commands it (a voltage, a torque or a current), the force (or
+    torque) per unit of command, and the command's range."""
 
+    command: Literal["voltage", "torque", "current"] = Field("voltage", description="what the record's drive "
+                                                             "input is: drive_input_v, drive_torque_nm (drive_force_n "
+                                                             "on a linear direct drive) or drive_current_a")
     force_constant_n_per_v: float | None = Field(None, gt=0.0, le=1e5, description="force at a linear load per "
                                                  "drive volt (EMPS: gtau = 35.15 N/V, the description's drive gain)")
     torque_constant_nm_per_v: float | None = Field(None, gt=0.0, le=1e4, description="torque per drive volt: at "
                                                    "a rotary load, or at the motor shaft with a transmission")
-    saturation_v: float = Field(gt=0.0, le=1e3, description="drive input range +- [V] (EMPS: viradm = 10 V)")
+    force_constant_n_per_a: float | None = Field(None, gt=0.0, le=1e5, description="force per ampere (a linear "
+                                                 "motor commanded in current)")
+    torque_constant_nm_per_a: float | None = Field(None, gt=0.0, le=1e3, description="k_t: torque per ampere "
+                                                   "(commanded in current; at the motor shaft with a transmission)")
+    saturation_v: float | None = Field(None, gt=0.0, le=1e3, description="drive input range +- [V] (EMPS: viradm = "
+                                       "10 V)")
+    saturation_nm: float | None = Field(None, gt=0.0, le=1e4, description="torque command range +- [N m]")
+    saturation_n: float | None = Field(None, gt=0.0, le=1e6, description="force command range +- [N]")
+    saturation_a: float | None = Field(None, gt=0.0, le=1e3, description="current command range +- [A]")
 
 
 class TransmissionSection(Section):
@@ -95,40 +113,76 @@ class MotorAxisConfig(PlantConfig):
     @model_validator(mode="after")
     def _drive_fits(self) -> MotorAxisConfig:
         d = self.drive
-        if self.transmission is None and self.load.kind == "linear" and d.force_constant_n_per_v is None:
-            raise ValueError("drive.force_constant_n_per_v is needed for a linear load without a transmission")
-        if (self.transmission is not None or self.load.kind == "rotary") and d.torque_constant_nm_per_v is None:
-            raise ValueError("drive.torque_constant_nm_per_v is needed for a rotary load or a transmission")
+        direct_linear = self.transmission is None and self.load.kind == "linear"
+        if d.command == "voltage":
+            need = "force_constant_n_per_v" if direct_linear else "torque_constant_nm_per_v"
+        elif d.command == "current":
+            need = "force_constant_n_per_a" if direct_linear else "torque_constant_nm_per_a"
+        else:
+            need = ""
+        if need and getattr(d, need) is None:
+            what = "a linear load without a transmission" if direct_linear else "a rotary load or a transmission"
+            raise ValueError(f"drive.{need} is needed for {what} commanded in {d.command}")
+        signal, _, sat_key = _command(self)
+        if getattr(d, sat_key) is None:
+            raise ValueError(f"drive.{sat_key} is needed: the range of the {d.command} command ({signal})")
         return self
+
+
+def _command(cfg: MotorAxisConfig) -> tuple[str, str, str]:
+    """(input signal, unit, range key) of the drive's command."""
+    d = cfg.drive
+    if d.command == "voltage":
+        return "drive_input_v", "v", "saturation_v"
+    if d.command == "current":
+        return "drive_current_a", "a", "saturation_a"
+    if cfg.transmission is None and cfg.load.kind == "linear":
+        return "drive_force_n", "n", "saturation_n"
+    return "drive_torque_nm", "nm", "saturation_nm"
+
+
+def drive_signal(cfg: MotorAxisConfig) -> str:
+    """The record's drive input under ``cfg``: drive_input_v, drive_torque_nm, drive_force_n or drive_current_a."""
+    return _command(cfg)[0]
+
+
+def _drive_gain(cfg: MotorAxisConfig) -> float:
+    """Force (or torque) at the load per unit of drive command."""
+    d, tr = cfg.drive, cfg.transmission
+    lin = cfg.load.kind == "linear" and tr is None
+    per_unit = {"voltage": d.force_constant_n_per_v if lin else d.torque_constant_nm_per_v,
+                "current": d.force_constant_n_per_a if lin else d.torque_constant_nm_per_a,
+                "torque": 1.0}[d.command]
+    return float(per_unit) * (tr.ratio if tr is not None else 1.0)  # type: ignore[arg-type]
 
 
 def axis_values(cfg: MotorAxisConfig) -> dict[str, float]:
     """The axis in one unit system (load side): inertia, viscous, Coulomb, offset, drive gain, peak force."""
-    ld, d, tr = cfg.load, cfg.drive, cfg.transmission
+    ld, tr = cfg.load, cfg.transmission
     lin = ld.kind == "linear"
-    gain = (d.torque_constant_nm_per_v * tr.ratio if tr is not None else  # type: ignore[operator]
-            (d.force_constant_n_per_v if lin else d.torque_constant_nm_per_v))
+    gain = _drive_gain(cfg)
     inertia = (ld.mass_kg if lin else ld.inertia_kg_m2) or 0.0
     if tr is not None:
         inertia += tr.rotor_inertia_kg_m2 * tr.ratio**2
     return {"inertia": inertia, "viscous": (ld.viscous_n_s_per_m if lin else ld.viscous_nm_s_per_rad) or 0.0,
             "coulomb": (ld.coulomb_n if lin else ld.coulomb_nm) or 0.0,
             "offset": (ld.offset_n if lin else ld.offset_nm) or 0.0,
-            "gain": float(gain), "peak_force": float(gain) * d.saturation_v}  # type: ignore[arg-type]
+            "gain": gain, "peak_force": gain * float(getattr(cfg.drive, _command(cfg)[2]))}
 
 
 def build(cfg: MotorAxisConfig) -> list[Part]:
-    """The axis as parts; external input drive_input_v. Every force on the load is summed on
-    ``axis_force`` except Coulomb friction, which reads that sum (stick or slip)."""
+    """The axis as parts; external input the drive's command (``drive_signal``). Every force on the load
+    is summed on ``axis_force`` except Coulomb friction, which reads that sum (stick or slip)."""
     v = axis_values(cfg)
     lin = cfg.load.kind == "linear"
+    signal, _, sat_key = _command(cfg)
     return [
         RotaryInertia("load", connect={"torque_nm": ["axis_force", "friction_force"]},
                       rename={"angle_rad": "load_position", "velocity_rad_s": "load_velocity"},
                       inertia_kg_m2=v["inertia"]),
-        Saturation("drive_limit", connect={"u": "drive_input_v"}, rename={"y": "drive_input_limited_v"},
-                   limit=cfg.drive.saturation_v),
-        Gain("drive", connect={"u": "drive_input_limited_v"}, rename={"y": "axis_force"}, gain=v["gain"]),
+        Saturation("drive_limit", connect={"u": signal}, rename={"y": "drive_command_limited"},
+                   limit=float(getattr(cfg.drive, sat_key))),
+        Gain("drive", connect={"u": "drive_command_limited"}, rename={"y": "axis_force"}, gain=v["gain"]),
         ViscousFriction("viscous", connect={"velocity_rad_s": "load_velocity"}, rename={"torque_nm": "axis_force"},
                         damping_nm_s_per_rad=v["viscous"]),
         ConstantLoad("offset", rename={"torque_nm": "axis_force"}, level_nm=v["offset"]),
@@ -138,6 +192,8 @@ def build(cfg: MotorAxisConfig) -> list[Part]:
                         stick_damping_nm_s_per_rad=cfg.load.stick_damping),
         Gain("sensor", connect={"u": "load_position"}, rename={"y": "position_m" if lin else "angle_deg"},
              gain=1.0 if lin else float(np.degrees(1.0))),
+        Gain("tachometer", connect={"u": "load_velocity"}, rename={"y": "velocity_m_s" if lin else "velocity_rad_s"},
+             gain=1.0),
     ]
 
 
@@ -146,13 +202,15 @@ def ports(cfg: MotorAxisConfig) -> Ports:
     position as measured (a lab's logger, no rig encoder on this plant)."""
     lin = cfg.load.kind == "linear"
     out = "position_m" if lin else "angle_deg"
+    signal, unit, sat_key = _command(cfg)
     return Ports(
-        actuators=(ActuatorPort(Wire("drive_input_v", (("drive_limit", "u"),)), "v", duty_channel=0,
-                                duty_scale=cfg.drive.saturation_v, signed=True),),
+        actuators=(ActuatorPort(Wire(signal, (("drive_limit", "u"),)), unit, duty_channel=0,
+                                duty_scale=float(getattr(cfg.drive, sat_key)), signed=True),),
         axes=(AxisPort("load", "load_position", "load_velocity", "axis_force", ("load", "torque_nm"),
                        stick_velocity_rad_s=cfg.load.stick_velocity, stick_damping_nm_s_per_rad=cfg.load.stick_damping,
-                       force_scale=axis_values(cfg)["peak_force"]),),
-        measured=(MeasuredPort(out, "position" if lin else "angle", "m" if lin else "deg"),),
+                       force_scale=axis_values(cfg)["peak_force"], linear=lin),),
+        measured=(MeasuredPort(out, "position" if lin else "angle", "m" if lin else "deg"),
+                  MeasuredPort("velocity_m_s" if lin else "velocity_rad_s", "velocity", "m/s" if lin else "rad/s")),
         sums=("axis_force",),
     )
 
@@ -170,8 +228,9 @@ def step_scenario(cfg: MotorAxisConfig, duration_s: float | None = None) -> Scen
         return {"final": float(y[-1]), "peak": float(np.max(np.abs(y)))}
 
     if rc is None:
-        u = np.where(np.arange(n) < n // 2, 0.1 * cfg.drive.saturation_v, 0.0)
-        return Scenario("step", n, inputs={"drive_input_v": u}, metrics=score)
+        signal, _, sat_key = _command(cfg)
+        u = np.where(np.arange(n) < n // 2, 0.1 * float(getattr(cfg.drive, sat_key)), 0.0)
+        return Scenario("step", n, inputs={signal: u}, metrics=score)
     ref = np.full(n, cfg.step_reference)
     return Scenario("step", n, parts=loop_parts(rc, 0.0), inputs={rc.reference: ref,
                     **{d: np.zeros(n) for d in rc.disturbances}}, extra_outputs=(rc.effort,), metrics=score,
@@ -184,6 +243,9 @@ class MotorAxis(Plant):
     name = "motor_axis"
     config = MotorAxisConfig
     inputs = INPUTS
+    optional_inputs = COMMAND_INPUTS  # the drive's command when it is not a voltage (``input_signals``)
+    vocabulary = MappingProxyType({"thing": "drive", "axis": "axis", "actuator": "drive amplifier",
+                                   "sources": "general"})
     outputs = OUTPUTS
     build = staticmethod(build)
     ports = staticmethod(ports)
@@ -199,7 +261,14 @@ class MotorAxis(Plant):
         FitParameter("load.offset_nm", diagram=("offset.level_nm",)),
         FitParameter("drive.force_constant_n_per_v", diagram=("drive.gain",)),
         FitParameter("drive.torque_constant_nm_per_v", diagram=("drive.gain",)),
+        FitParameter("drive.force_constant_n_per_a", diagram=("drive.gain",)),
+        FitParameter("drive.torque_constant_nm_per_a", diagram=("drive.gain",)),
     )
+
+    @classmethod
+    def input_signals(cls, cfg: PlantConfig) -> tuple[str, ...]:
+        """The drive's command under ``cfg`` (a voltage, torque, force or current column)."""
+        return (drive_signal(cfg),)  # type: ignore[arg-type]
 
 
 __all__ += ["RecordedControllerSection"]

@@ -14,6 +14,7 @@ import difflib
 import importlib
 import pkgutil
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
@@ -43,6 +44,10 @@ class Plant:
     scenarios: ClassVar[Mapping[str, Callable[..., Scenario]]] = {}
     excitation: ClassVar[Excitation | None] = None
     fit_parameters: ClassVar[tuple[FitParameter, ...]] = ()  # nominal parameters the discrepancy workflow fits
+    # how reports speak of this plant: what it is, its axis, its power stage, and whether the effects'
+    # sources are the seed papers of the finger rigs ("seed") or general references ("general")
+    vocabulary: ClassVar[Mapping[str, str]] = MappingProxyType({"thing": "finger rig", "axis": "joint axis",
+                                                                "actuator": "PWM power stage", "sources": "seed"})
 
     def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -69,9 +74,15 @@ class Plant:
         return max(1, round(duration_s / cls.step(cfg)[0]))
 
     @classmethod
+    def input_signals(cls, cfg: PlantConfig) -> tuple[str, ...]:
+        """The input columns a record of this plant under ``cfg`` carries (default: ``inputs``; a motor
+        axis commanded in torque or current takes that command instead of a voltage)."""
+        return cls.inputs
+
+    @classmethod
     def external_inputs(cls, cfg: PlantConfig) -> tuple[str, ...]:
         """Signals the plant's diagram may take from outside: its inputs and config constants."""
-        return tuple(dict.fromkeys([*cls.inputs, *cls.ports(cfg).constants]))
+        return tuple(dict.fromkeys([*cls.input_signals(cfg), *cls.ports(cfg).constants]))
 
     @classmethod
     def actuator_power_w(cls, cfg: PlantConfig, effort: np.ndarray, velocity_rad_s: np.ndarray) -> np.ndarray:
@@ -178,11 +189,11 @@ def run_scenario(spec: type[Plant], cfg: PlantConfig, scenario: Scenario,
                            extra_sums=scenario.sums)
     step_s, substeps = spec.step(cfg)
     system = diagram.compile(step_s, substeps)
-    record = [*spec.inputs, *spec.outputs, *scenario.extra_outputs]
+    record = [*spec.input_signals(cfg), *spec.outputs, *scenario.extra_outputs]
     record = [s for s in dict.fromkeys(record) if s in diagram.producers]
     external = {k: v for k, v in scenario.inputs.items() if k in system.input_names}
     res = system.simulate(scenario.n_steps, external, outputs=record)
-    for name in spec.inputs:  # external inputs are recorded as given
+    for name in spec.input_signals(cfg):  # external inputs are recorded as given
         if name not in res.signals and name in system.input_names:
             res.signals[name] = system.input_matrix(scenario.n_steps, external)[:, system.input_names.index(name)]
     return res

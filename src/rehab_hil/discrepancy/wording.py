@@ -1,0 +1,48 @@
+"""How a report speaks of a plant and its figures: an effect's words and source in the plant's own
+vocabulary (a drive, an axis, a finger rig: ``Plant.vocabulary``), and the unit of each effect
+parameter on the axis it attaches to (N on a linear axis, N m on a rotary one: a linear axis carries
+forces on the framework's ``*_nm`` names, ``models/axis_parts``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rehab_hil.effects import EFFECTS
+
+__all__ = ["effect_words", "is_linear", "param_label", "param_unit"]
+
+# parameter-name suffix -> (unit on a rotary axis, unit on a linear axis); longest suffixes first
+_SUFFIX_UNITS: tuple[tuple[str, str, str], ...] = (
+    ("_nm_s_per_rad", "N m s/rad", "N s/m"), ("_nm_per_rad", "N m/rad", "N/m"), ("_per_rad", "1/rad", "1/m"),
+    ("_w_per_k3", "W/K^3", "W/K^3"), ("_nm", "N m", "N"), ("_rad", "rad", "m"), ("_counts", "counts", "counts"),
+    ("_duty", "of full scale", "of full scale"), ("_fraction", "", ""), ("_s", "s", "s"), ("_c", "C", "C"),
+)
+
+
+def param_unit(name: str, linear: bool = False) -> str:
+    """The unit of an effect parameter on its axis: ``level_nm`` is N m on a rotary axis, N on a linear one."""
+    for suffix, rotary, lin in _SUFFIX_UNITS:
+        if name.endswith(suffix):
+            return lin if linear else rotary
+    return ""
+
+
+def param_label(name: str) -> str:
+    """A parameter's name without its unit suffix: ``level_nm`` -> ``level``."""
+    for suffix, _, _ in _SUFFIX_UNITS:
+        if name.endswith(suffix) and len(name) > len(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+def is_linear(replay: Any) -> bool:
+    """Does the replay's plant move a linear axis (its effects' forces are newtons)?"""
+    axes = getattr(getattr(replay, "ports", None), "axes", ()) or ()
+    return bool(axes) and bool(getattr(axes[0], "linear", False))
+
+
+def effect_words(effect: str, plant: str) -> tuple[str, str]:
+    """(description, source) of a library effect in the plant's words."""
+    from rehab_hil.plants import get_plant
+
+    return EFFECTS[effect].describe(get_plant(plant).vocabulary)
