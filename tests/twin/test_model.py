@@ -85,6 +85,18 @@ def test_a_model_too_slow_for_the_loop_is_refused_in_one_line() -> None:
     assert "cannot keep up with the loop" in str(e.value) and "\n" not in str(e.value)
 
 
+def test_a_lockstep_sessions_twin_is_not_refused_for_its_speed_the_loop_waits_for_it() -> None:
+    from rehab_hil.twin.session import start_twin
+
+    cfg = load_config(CONFIGS / "tcp_finger.toml")
+    cfg = cfg.model_copy(update={"twin": TwinSection(min_realtime_factor=1e9)})
+    binding = get_plant(cfg.plant).device(cfg)
+    with pytest.raises(TwinSetupError, match="cannot keep up"):
+        start_twin(cfg, binding, 0.001, lockstep=False)
+    run = start_twin(cfg, binding, 0.001, lockstep=True)
+    assert run.live.close() is None and run.twin.samples == 0
+
+
 def test_a_smooth_model_reads_the_encoder_angle_before_its_quantisation() -> None:
     """The estimate's model (``smooth``) predicts the angle the encoder measures, not its whole counts:
     a parameter change worth a fraction of a count moves it, where the counts stand still."""

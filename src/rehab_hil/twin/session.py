@@ -129,7 +129,9 @@ def start_twin(cfg: Any, binding: DeviceBinding, period_s: float, run_dir: str |
     if zenoh is not None:
         listeners.append(ZenohOutput(zenoh))
     try:
-        twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners, cycle_s=cycle_s)
+        # a lockstep session waits for its twin (wait_when_full): its speed only sets how long the session takes
+        twin = Twin(cfg, binding, period_s, settings, out_dir=run_dir, listeners=listeners, cycle_s=cycle_s,
+                    check_speed=not lockstep)
     except ValueError as e:  # a TwinSetupError, or a model the twin cannot bind: one line either way
         raise TwinSetupError(str(e)) from None
     return TwinRun(LiveTwin(twin, wait_when_full=lockstep), cfg, cycle_s)
