@@ -32,7 +32,7 @@ def test_load_run_adds_each_cycles_peak_force_from_the_record(tmp_path, make_run
     run = load_run(make_run(tmp_path, "r", peak_forces=(1.5, 2.5, 0.75)))
     assert [c["peak_force"] for c in run.cycles] == [1.5, 2.5, 0.75]
     assert run.period_s == pytest.approx(4.0)
-    assert run.angle_name == "theta_mcp_deg" and run.force_name == "contact_force_n"
+    assert run.angle_name == "theta_mcp_deg" and run.sensor_name == "contact_force_n"
     assert run.temperature is not None and set(run.duty) == {"applied_duty0_ratio"}  # duty1 is all zero
     assert np.all(np.diff(run.t) > 0)
 
