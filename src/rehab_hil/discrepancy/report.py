@@ -82,6 +82,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         },
         "gap_reduction_pct": gap,
         "rounds": _rounds(res),
+        "gaps": res.gaps, "at_bound": res.bounds, "records_lack": res.lacking, "dropped_from_best_set": res.dropped,
         "localisation": {
             "time_windows": localise.time_windows(res.t, combined0),
             "regions": localise.regions(res.t, res.measured, r0, res.channels, res.kinds),
@@ -202,7 +203,9 @@ def _markdown(rep: dict[str, Any]) -> str:
         b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
         L.append(f"| {ch} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | {a['mae']:.4g} | "
                  f"{b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | {rep['gap_reduction_pct'][ch]:.1f} % |")
-    L += _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
+    L += _gaps_md(rep.get("gaps")) + _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
+    if rep.get("records_lack"):
+        L += ["", "The records lack: " + "; ".join(rep["records_lack"]) + "."]
     for i, rd in enumerate(rep["rounds"], 1):
         L += ["", f"## Round {i}: candidates (held-out BIC, best first)", "",
               "| effect | parameters | ΔBIC | best channel cut | significant |", "|---|---|---|---|---|"]
@@ -222,6 +225,17 @@ def _markdown(rep: dict[str, Any]) -> str:
         L.append(f"| {ch} | {' | '.join(f)} |")
     L += [""] + [f"![{n}]({n})" for n in rep["figures"]] + [""]
     return "\n".join(L)
+
+
+def _gaps_md(gaps: dict[str, Any] | None) -> list[str]:
+    if not gaps:
+        return []
+    L = ["", f"## The gap per record ({gaps['measure']})", "", "| record | channel | RMSE nominal | RMSE augmented |",
+         "|---|---|---|---|"]
+    for g in gaps["records"]:
+        for ch, m in g["nominal"].items():
+            L.append(f"| {g['data']} | {ch} | {m['rmse']:.4g} | {g['augmented'][ch]['rmse']:.4g} |")
+    return L
 
 
 def _validation_md(val: dict[str, Any] | None) -> list[str]:
