@@ -37,7 +37,7 @@ from rehab_hil.models.mechanics import CoulombFriction, ViscousFriction
 from rehab_hil.models.ports import ActuatorPort, AxisPort, HeatPort, MeasuredPort, Ports, TemperatureWire, Wire
 from rehab_hil.models.system import DiagramError, Part
 
-__all__ = ["EFFECTS", "Attachment", "Effect", "EffectParam", "applicable", "attach", "check_spec",
+__all__ = ["EFFECTS", "Attachment", "Effect", "EffectParam", "applicable", "attach", "check_spec", "nested",
            "parse_effect_option"]
 
 
@@ -99,6 +99,10 @@ class Effect:
     description: str
     needs: str
     wire: Callable[[Any, float], Attachment]
+    # the library effect this one generalises (a level per direction of a Coulomb friction): equal
+    # parameters make it that effect, so the two are nested models, never aliases, and the simpler
+    # one is named when the two explain the data alike (``nested``)
+    refines: str = ""
 
     def param(self, name: str) -> EffectParam:
         for p in self.params:
@@ -206,7 +210,7 @@ EFFECTS: dict[str, Effect] = {
              EffectParam("level_neg_nm", 0.0, 1.0, 0.02, axis_scaled=True)),
             "Olsson et al. 1998, Friction models and friction compensation (asymmetric Coulomb levels); issue 38",
             "Coulomb friction with a level per direction of motion (turning +, turning -)",
-            "axis", _coulomb,
+            "axis", _coulomb, refines="coulomb_friction",
         ),
         Effect(
             "viscous_friction_directional", DirectionalViscousFriction,
@@ -214,7 +218,7 @@ EFFECTS: dict[str, Effect] = {
              EffectParam("damping_neg_nm_s_per_rad", 0.0, 0.5, 0.02, axis_scaled=True)),
             "Olsson et al. 1998 (direction-dependent viscous friction); issue 38",
             "viscous friction with a damping per direction of motion",
-            "axis", _viscous,
+            "axis", _viscous, refines="viscous_friction",
         ),
         Effect(
             "constant_load", ConstantLoad,
@@ -299,6 +303,12 @@ EFFECTS: dict[str, Effect] = {
         ),
     ]
 }
+
+
+def nested(a: str, b: str) -> bool:
+    """Does one of the two effects generalise the other (``Effect.refines``)?"""
+    ea, eb = EFFECTS.get(a), EFFECTS.get(b)
+    return bool((ea is not None and ea.refines == b) or (eb is not None and eb.refines == a))
 
 
 def applicable(ports: Ports) -> list[Effect]:

@@ -17,7 +17,9 @@ at nothing). Here candidate *sets* are compared under one information criterion 
    removal (the set without it, refitted) costs less than ``MIN_DELTA_BIC``, or that the fit left
    at "off" (``significance.relevant``), is dropped, and the smaller set is judged again. A set
    whose effect a declared parameter replaces within ``ALIAS_DELTA_BIC`` gives way to it
-   (parameter before structure, ``verdict.tied_parameter``'s rule). The final set must beat the
+   (parameter before structure, ``verdict.tied_parameter``'s rule), and a refinement (a level per
+   direction, ``Effect.refines``) that does not beat what it refines by ``MIN_DELTA_BIC`` gives way
+   to the simpler effect. The final set must beat the
    nominal model (``selection.is_significant``); refined sets of the same size that differ from it
    in one term and score within the alias margin are its near-aliases.
 """
@@ -36,6 +38,7 @@ from rehab_hil.discrepancy.fitting import Fit, Objective, Term, fit_joint, regre
 from rehab_hil.discrepancy.selection import MIN_DELTA_BIC, Score, effective_fraction, is_significant
 from rehab_hil.discrepancy.significance import relevant, score
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC
+from rehab_hil.effects import EFFECTS, nested
 
 __all__ = ["MAX_TERMS", "REFINE_SETS", "Screened", "SetFit", "SetSearch"]
 
@@ -93,7 +96,7 @@ class SetSearch:
     ranked: list[tuple[tuple[str, ...], float]] = field(default_factory=list)  # (set, linear BIC), best first
     fitted: dict[frozenset[str], SetFit] = field(default_factory=dict)
     chosen: SetFit | None = None
-    dropped: list[str] = field(default_factory=list)  # members of the best set that did not pay for themselves
+    dropped: list[str] = field(default_factory=list)  # members of the best-scoring set the chosen one lacks
     swaps: list[tuple[str, str]] = field(default_factory=list)  # (effect, parameter named instead)
 
     @property
@@ -107,12 +110,12 @@ class SetSearch:
         self.rank_sets()
         for names, _ in self.ranked[:REFINE_SETS]:
             self.refit(names)
-        best = min(self.fitted.values(), key=lambda s: s.score.bic)
-        best = self._prune(best)
-        best = self._parameter_first(best)
+        top = min(self.fitted.values(), key=lambda s: s.score.bic)
+        best = self._parameter_first(self._simpler_first(self._prune(top)))
         if best.names and not is_significant(best.score, base.score):
             best = base
         self.chosen = best
+        self.dropped = [n for n in top.names if n not in best.names]
         return best
 
     # 1. screen ----------------------------------------------------------------------------------
@@ -216,8 +219,19 @@ class SetSearch:
             weakest = min(costs, key=lambda k: costs[k])
             if costs[weakest] >= MIN_DELTA_BIC:
                 break
-            self.dropped.append(weakest)
             best = self.refit([n for n in best.names if n != weakest])
+        return best
+
+    def _simpler_first(self, best: SetFit) -> SetFit:
+        """A refinement (``Effect.refines``: a level per direction) that does not beat what it refines by
+        ``MIN_DELTA_BIC`` gives way to it (its extra parameter does not pay for itself)."""
+        names = {t.name for t in self.terms}
+        for name in best.names:
+            base = EFFECTS[name].refines if name in EFFECTS else ""
+            if base and base in names and base not in best.names:
+                alt = self.refit(tuple(base if n == name else n for n in best.names))
+                if alt.score.bic - best.score.bic < MIN_DELTA_BIC:
+                    return self._simpler_first(alt)
         return best
 
     def _parameter_first(self, best: SetFit) -> SetFit:
@@ -249,7 +263,9 @@ class SetSearch:
             gone, new = set(best.names) - set(key), set(key) - set(best.names)
             d = s.score.bic - best.score.bic
             if len(gone) == 1 and d < ALIAS_DELTA_BIC:
-                out.append((gone.pop(), new.pop(), float(d)))
+                a, b = gone.pop(), new.pop()
+                if not nested(a, b):  # a refinement and what it refines are nested models, not aliases
+                    out.append((a, b, float(d)))
         return out
 
 

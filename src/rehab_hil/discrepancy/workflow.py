@@ -40,7 +40,7 @@ from rehab_hil.discrepancy.selection import Score, bic, effective_fraction, impr
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.significance import demanding_channels, relevant, score, significant
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, tied_parameter, unexplained_channels
-from rehab_hil.effects import EFFECTS
+from rehab_hil.effects import EFFECTS, nested
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
@@ -199,6 +199,11 @@ class Search:
         param = tied_parameter(pick, near, lambda c: abs(c.score.bic - pick.score.bic) < ALIAS_DELTA_BIC)
         if param is not None:
             pick, near = param, [pick, *[c for c in near if c is not param]]
+        simpler = next((c for c in near if EFFECTS.get(pick.fit.effect) and EFFECTS[pick.fit.effect].refines
+                        == c.fit.effect), None)
+        if simpler is not None:  # a refinement that explains no better than what it refines: the simpler one
+            pick, near = simpler, [pick, *[c for c in near if c is not simpler]]
+        near = [c for c in near if not nested(pick.fit.effect, c.fit.effect)]  # nested models, not aliases
         descriptions = {e.name: e.description for e in EFFECTS.values()}
         for c in near:
             split = not is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])
