@@ -153,6 +153,8 @@ def _print_summary(res: Result, out: Path) -> None:
         print("  " + f.effect + ": " + ", ".join(f"{k} = {v:.4g} ± {f.stderr[k]:.2g}" for k, v in f.params.items()))
     for line in gap_lines(res.gaps):
         print(line)
+    if res.validation is not None:
+        print(f"  validation on {res.validation.data} ({res.validation.replay})")
     if res.lacking:
         print("  the records lack: " + "; ".join(res.lacking))
     print(f"wrote {out}/report.json, report.md, report.html, *.png, augmented.toml")

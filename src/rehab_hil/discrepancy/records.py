@@ -10,7 +10,8 @@ one scale per channel (the root mean square of the records' spreads), so a recor
 samples, not by how far it moved.
 
 The gap per record is measured one way for estimation and validation records alike (``gap``):
-each record replayed whole, open loop from its own start state, per-channel RMSE; what
+each record replayed whole from its own start state, never re-anchored (no multiple shooting; a
+recorded controller's loop is replayed as the config declares), per-channel RMSE; what
 ``rehab-hil replay`` prints for the record.
 """
 
@@ -26,21 +27,27 @@ from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.replay import NOISY_SPREAD, Replay, channel_metrics
 from rehab_hil.discrepancy.verdict import noise_floor
 
-__all__ = ["GAP_MEASURE", "RecordSet", "gap"]
+__all__ = ["GAP_MEASURE", "RecordSet", "gap", "whole_record"]
 
-GAP_MEASURE = "whole-record replay, open loop from the record's own start state (what `replay` prints)"
+GAP_MEASURE = ("whole-record replay from the record's own start state, never re-anchored to the measurements "
+               "(what `replay` prints)")
+
+
+def whole_record(replay: Replay, P: np.ndarray) -> dict[str, np.ndarray]:
+    """The model's outputs over the whole record from its own start state estimated under ``P``,
+    never re-anchored (``GAP_MEASURE``); the replay's start state, anchoring and fit start are put back."""
+    x0, xd0, start, gain = replay.x0, replay.xd0, replay.fit_start, replay.anchor_gain
+    try:
+        estimate_initial_state(replay, P, replay.t.size)
+        return replay.simulate(P, mode="open")
+    finally:
+        replay.x0, replay.xd0, replay.fit_start, replay.anchor_gain = x0, xd0, start, gain
 
 
 def gap(replay: Replay, P: np.ndarray) -> dict[str, dict[str, float]]:
-    """Per-channel RMSE, MAE and largest error of the whole record replayed open loop from its own
-    start state estimated under ``P`` (``GAP_MEASURE``); the replay's mode and start are put back."""
-    mode, x0, xd0, start = replay.mode, replay.x0, replay.xd0, replay.fit_start
-    try:
-        estimate_initial_state(replay, P, replay.t.size)
-        sim = replay.simulate(P, mode="open")
-        return {c: channel_metrics(replay.measured[c], sim[c]) for c in replay.channels}
-    finally:
-        replay.mode, replay.x0, replay.xd0, replay.fit_start = mode, x0, xd0, start
+    """Per-channel RMSE, MAE and largest error of ``whole_record`` (``GAP_MEASURE``)."""
+    sim = whole_record(replay, P)
+    return {c: channel_metrics(replay.measured[c], sim[c]) for c in replay.channels}
 
 
 @dataclass

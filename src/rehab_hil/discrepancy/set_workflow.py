@@ -51,7 +51,7 @@ def find_in_records(cfg: Any, recs: Sequence[Recording], paths: Sequence[str | P
     records = _bind(spec, cfg, recs, paths, options, progress)
     P0 = records.nominal_params()
     nominal = records.simulate(P0)
-    terms = candidate_terms(records.replays[0], options)
+    terms = candidate_terms(records.replays[0], options, refinements=True)
     progress.start(f"screening {len(terms)} candidate terms and their sets", None)
     search = SetSearch(records, terms, P0, records.n_train, progress.advance, max_terms=options.max_effects)
     best = search.run()

@@ -311,9 +311,13 @@ def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progr
                   {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexpl, where, joint=joint)
 
 
-def candidate_terms(replay: Replay, options: Options) -> list[Term]:
-    """The library effects that attach to the plant, then (``options.parameters``) its declared parameters."""
-    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates]
+def candidate_terms(replay: Replay, options: Options, refinements: bool = False) -> list[Term]:
+    """The library effects that attach to the plant, then (``options.parameters``) its declared parameters.
+    ``refinements``: also the effects that generalise another (``Effect.refines``: a level per direction),
+    which the set search compares with what they refine; the rounds of ``Search`` leave them out (one
+    record of one direction cannot tell them, and on EMPS a level per direction took the place of the
+    published Coulomb friction plus offset in one round)."""
+    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates if refinements or not e.refines]
     if options.parameters:
         terms += [parameter_term(p) for p in parameter_terms(replay)]
     return terms
