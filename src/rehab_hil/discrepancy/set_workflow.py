@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy.bounds import at_bound
+from rehab_hil.discrepancy.candidates import candidate_terms
 from rehab_hil.discrepancy.experiments import lacking, mend_suggestions
 from rehab_hil.discrepancy.fitting import fit_joint
 from rehab_hil.discrepancy.identify import identify_jointly
@@ -32,7 +33,7 @@ from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
 from rehab_hil.discrepancy.selection import improvement
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.subsets import SetSearch
-from rehab_hil.discrepancy.verdict import experiment
+from rehab_hil.discrepancy.verdict import experiment, unexplained
 from rehab_hil.effects import EFFECTS
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
@@ -43,8 +44,6 @@ __all__ = ["find_in_records"]
 def find_in_records(cfg: Any, recs: Sequence[Recording], paths: Sequence[str | Path], progress: Any,
                     options: Any) -> Result:
     """Run the set workflow on loaded records (module docstring); ``options`` as ``workflow.Options``."""
-    from rehab_hil.discrepancy.workflow import candidate_terms, unexplained
-
     t_start = time.perf_counter()
     spec = get_plant(cfg.plant)
     progress.start(f"replay nominal model on {len(recs)} records", len(recs))

@@ -28,18 +28,18 @@ import numpy as np
 
 from rehab_hil.discrepancy import localise
 from rehab_hil.discrepancy.bounds import at_bound
+from rehab_hil.discrepancy.candidates import candidate_terms
 from rehab_hil.discrepancy.experiments import lacking, mend_suggestions
-from rehab_hil.discrepancy.fitting import Fit, Term, effect_term, fit_joint, fit_term, parameter_term
+from rehab_hil.discrepancy.fitting import Fit, Term, fit_joint, fit_term
 from rehab_hil.discrepancy.identify import identify_jointly
 from rehab_hil.discrepancy.initial_state import InitialState, estimate_initial_state
-from rehab_hil.discrepancy.parameters import parameter_terms
 from rehab_hil.discrepancy.records import GAP_MEASURE, gap
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
 from rehab_hil.discrepancy.selection import Score, bic, effective_fraction, improvement
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.significance import demanding_channels, relevant, score, significant
-from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, tied_parameter, unexplained_channels
+from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, tied_parameter, unexplained
 from rehab_hil.effects import EFFECTS, nested
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
@@ -309,33 +309,3 @@ def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progr
                   search.chosen, search.rounds, split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
                   time.perf_counter() - t_start, {"replay": replay, "P": search.P}, search.initial, replay.mode,
                   {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexpl, where, joint=joint)
-
-
-def candidate_terms(replay: Replay, options: Options, refinements: bool = False) -> list[Term]:
-    """The library effects that attach to the plant, then (``options.parameters``) its declared parameters.
-    ``refinements``: also the effects that generalise another (``Effect.refines``: a level per direction),
-    which the set search compares with what they refine; the rounds of ``Search`` leave them out (one
-    record of one direction cannot tell them, and on EMPS a level per direction took the place of the
-    published Coulomb friction plus offset in one round)."""
-    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates if refinements or not e.refines]
-    if options.parameters:
-        terms += [parameter_term(p) for p in parameter_terms(replay)]
-    return terms
-
-
-def unexplained(replay: Replay, current: dict[str, np.ndarray], split_s: float,
-                 kinds: dict[str, str]) -> tuple[dict[str, dict[str, float]], dict[str, Any]]:
-    """The channels whose held-out error the final model leaves beyond the noise (step 3), and where
-    the residual is largest: the time window and the state region."""
-    hm = replay.t >= split_s
-    rms = {c: float(np.sqrt(np.mean((current[c][hm] - replay.measured[c][hm]) ** 2))) for c in replay.channels}
-    unexpl = unexplained_channels(replay.channels, {c: replay.measured[c] for c in replay.channels}, rms)
-    if not unexpl:
-        return unexpl, {}
-    r = replay.residual(current)
-    combined = np.sqrt(np.mean(r**2, axis=0))
-    win = max(localise.time_windows(replay.t, combined), key=lambda w: w["rms"])
-    regs = [g for g in localise.regions(replay.t, replay.measured, r, replay.channels, kinds)
-            if g["ratio"] == g["ratio"]]
-    top = max(regs, key=lambda g: float(g["ratio"])) if regs else {"region": "everywhere"}  # type: ignore[arg-type]
-    return unexpl, {"window_start_s": win["start_s"], "window_end_s": win["end_s"], "region": top["region"]}
