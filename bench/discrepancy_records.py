@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -37,15 +39,18 @@ TARGET_WALL_S = 60.0
 TARGET_LEVEL = 0.30  # levels within 30 % of the independent fit
 
 
-def independent_fit(t: np.ndarray, angle_deg: np.ndarray, u: np.ndarray, gain: float) -> dict[str, float]:
-    """J, b, c+, c- by least squares on the moving samples of the records (module docstring)."""
-    q = np.radians(angle_deg)
-    dt = float(np.median(np.diff(t)))
-    w = savgol_filter(q, 41, 3, deriv=1, delta=dt)
-    a = savgol_filter(q, 41, 3, deriv=2, delta=dt)
-    moving = np.abs(w) > 5.0
-    A = np.column_stack([a, w, (w > 0).astype(float), -(w < 0).astype(float)])[moving]
-    coef, *_ = np.linalg.lstsq(A, gain * u[moving], rcond=None)
+def independent_fit(records: list, gain: float) -> dict[str, float]:
+    """J, b, c+, c- by least squares on the moving samples of every record (module docstring)."""
+    rows, rhs = [], []
+    for r in records:
+        q = np.radians(r.signals["angle_deg"])
+        dt = float(np.median(np.diff(r.t)))
+        w = savgol_filter(q, 41, 3, deriv=1, delta=dt)
+        a = savgol_filter(q, 41, 3, deriv=2, delta=dt)
+        moving = np.abs(w) > 5.0
+        rows.append(np.column_stack([a, w, (w > 0).astype(float), -(w < 0).astype(float)])[moving])
+        rhs.append(gain * r.signals["drive_input_v"][moving])
+    coef, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
     return {"inertia_kg_m2": coef[0], "viscous_nm_s_per_rad": coef[1], "level_pos_nm": coef[2], "level_neg_nm": coef[3]}
 
 
@@ -66,14 +71,18 @@ def run(cfg: Path, data: list[Path], out: Path) -> dict:
             "--max-effects", "3"]
     for d in data:
         args += ["--data", str(d)]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     p = subprocess.run(args, capture_output=True, text=True, cwd=ROOT)
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if p.returncode != 0:
         raise SystemExit(f"exit {p.returncode}\n{p.stdout}\n{p.stderr[-3000:]}")
     rep = json.loads((out / "report.json").read_text())
     chosen = {c["effect"]: c["params"] for c in rep["chosen"]}
-    return {"wall_s": wall, "conclusion": rep["conclusion"], "chosen": chosen, "gaps": rep["gaps"], "stdout": p.stdout}
+    return {"wall_s": wall, "cpu_s": cpu, "load_1min": os.getloadavg()[0], "conclusion": rep["conclusion"],
+            "chosen": chosen, "gaps": rep["gaps"], "stdout": p.stdout}
 
 
 def main() -> None:
@@ -86,9 +95,7 @@ def main() -> None:
     recs = step_records(spec, cfg, HIDDEN, duration_s=a.duration,
                         scale_params={"viscous.damping_nm_s_per_rad": VISCOUS_FACTOR}, seed=1)
     gain = cfg.drive.torque_constant_nm_per_v
-    indep = independent_fit(np.concatenate([r.t + 100.0 * i for i, r in enumerate(recs)]),
-                            np.concatenate([r.signals["angle_deg"] for r in recs]),
-                            np.concatenate([r.signals["drive_input_v"] for r in recs]), gain)
+    indep = independent_fit(recs, gain)
     out: dict = {"independent_fit": indep}
     with tempfile.TemporaryDirectory() as tmp:
         paths = [write_csv(Path(tmp) / f"servo_{i}.csv", r.t, r.signals) for i, r in enumerate(recs)]
@@ -98,7 +105,8 @@ def main() -> None:
     nom = out["nominal"]
     fitted = nom["chosen"].get("coulomb_friction_directional", {})
     print(f"{len(recs)} records of {a.duration:g} s at 1 kHz, from the nominal model (no Coulomb friction):")
-    print(f"  wall {nom['wall_s']:.1f} s (target <= {TARGET_WALL_S:g} s)")
+    print(f"  wall {nom['wall_s']:.1f} s, CPU {nom['cpu_s']:.1f} s (target <= {TARGET_WALL_S:g} s wall on 2 cores; "
+          f"load average {nom['load_1min']:.1f} from other work on the machine during the run)")
     print(f"  conclusion: {nom['conclusion']}")
     for k in ("level_pos_nm", "level_neg_nm"):
         f, i = fitted.get(k, float("nan")), indep[k]

@@ -16,7 +16,8 @@ at nothing). Here candidate *sets* are compared under one information criterion 
 4. Choose: the set of lowest held-out BIC; then every member must pay for itself: a member whose
    removal (the set without it, refitted) costs less than ``MIN_DELTA_BIC``, or that the fit left
    at "off" (``significance.relevant``), is dropped, and the smaller set is judged again. A set
-   whose effect a declared parameter replaces within ``ALIAS_DELTA_BIC`` gives way to it
+   whose effect a declared parameter replaces within ``ALIAS_DELTA_BIC`` (a parameter whose sensitivity
+   column lies in the effect's span, ``ALIKE``; others are not refitted) gives way to it
    (parameter before structure, ``verdict.tied_parameter``'s rule), and a refinement (a level per
    direction, ``Effect.refines``) that does not beat what it refines by ``MIN_DELTA_BIC`` gives way
    to the simpler effect. The final set must beat the
@@ -44,6 +45,7 @@ __all__ = ["MAX_TERMS", "REFINE_SETS", "Screened", "SetFit", "SetSearch"]
 
 MAX_TERMS = 3  # the largest set compared
 REFINE_SETS = 3  # sets fitted nonlinearly after the linear ranking
+ALIKE = 0.9  # a parameter may stand for an effect when this share of its column lies in the effect's span
 SHAPE_RANGE = (0.0, 1.5)  # a shape-only term's column (its best grid point) is scaled within this range
 
 
@@ -169,14 +171,18 @@ class SetSearch:
         self.ranked = [(c[0], float(c[1])) for c in ranked]
 
     # 3. refine ----------------------------------------------------------------------------------
-    def refit(self, names: Sequence[str]) -> SetFit:
-        """The set ``names`` fitted jointly over the fit part and scored on the held-out part (memoised)."""
+    def refit(self, names: Sequence[str], near: SetFit | None = None) -> SetFit:
+        """The set ``names`` fitted jointly over the fit part and scored on the held-out part (memoised);
+        members of ``near`` (a fitted set it differs from by a term) start from their values there."""
         key = frozenset(names)
         if key in self.fitted:
             return self.fitted[key]
         terms = [t for t in self.terms if t.name in key]
         if terms:
             starts = self._starts(tuple(t.name for t in terms))
+            if near is not None:
+                have = {f.effect: f.params for f in near.fits}
+                starts = [dict(have.get(t.name, s)) for t, s in zip(terms, starts, strict=True)]
             fits = fit_joint(self.replay, self.P0, terms, starts, self.n_train, self.tick)
             P = fits[-1].P
         else:
@@ -215,11 +221,11 @@ class SetSearch:
                 if not relevant(self.replay, term, fit, best.sim, self.hold, now):
                     costs[name] = -np.inf
                     continue
-                costs[name] = self.refit([n for n in best.names if n != name]).score.bic - best.score.bic
+                costs[name] = self.refit([n for n in best.names if n != name], best).score.bic - best.score.bic
             weakest = min(costs, key=lambda k: costs[k])
             if costs[weakest] >= MIN_DELTA_BIC:
                 break
-            best = self.refit([n for n in best.names if n != weakest])
+            best = self.refit([n for n in best.names if n != weakest], best)
         return best
 
     def _simpler_first(self, best: SetFit) -> SetFit:
@@ -229,7 +235,7 @@ class SetSearch:
         for name in best.names:
             base = EFFECTS[name].refines if name in EFFECTS else ""
             if base and base in names and base not in best.names:
-                alt = self.refit(tuple(base if n == name else n for n in best.names))
+                alt = self.refit(tuple(base if n == name else n for n in best.names), best)
                 if alt.score.bic - best.score.bic < MIN_DELTA_BIC:
                     return self._simpler_first(alt)
         return best
@@ -239,16 +245,24 @@ class SetSearch:
         kinds = {t.name: t.kind for t in self.terms}
         for name in [n for n in best.names if kinds[n] == "effect"]:
             for p in [t.name for t in self.terms if t.kind == "parameter" and t.name not in best.names]:
+                if self._alike(name, p) < ALIKE:
+                    continue  # the parameter moves the outputs otherwise: it cannot stand for the effect
                 swapped = tuple(p if n == name else n for n in best.names)
-                lin = next((b for k, b in self.ranked if set(k) == set(swapped)), None)
-                ref = next((b for k, b in self.ranked if set(k) == set(best.names)), None)
-                if lin is None or ref is None or lin - ref > 4 * ALIAS_DELTA_BIC:
-                    continue  # the linear screen already says it explains much less
-                alt = self.refit(swapped)
+                alt = self.refit(swapped, best)
                 if alt.score.bic - best.score.bic < ALIAS_DELTA_BIC:
                     self.swaps.append((name, p))
                     return self._parameter_first(alt)
         return best
+
+    def _alike(self, effect: str, parameter: str) -> float:
+        """How much of the parameter's column lies in the span of the effect's columns (0 .. 1)."""
+        a, b = self.screened.get(effect), self.screened.get(parameter)
+        if a is None or b is None:
+            return 0.0
+        col = b.columns[:, 0]
+        coef, *_ = np.linalg.lstsq(a.columns, col, rcond=None)
+        n = float(np.linalg.norm(col))
+        return float(np.linalg.norm(a.columns @ coef)) / n if n > 0 else 0.0
 
     def near_aliases(self) -> list[tuple[str, str, float]]:
         """(chosen term, other term, delta BIC) for refined sets of the chosen size differing in one term
