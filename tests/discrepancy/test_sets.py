@@ -14,6 +14,7 @@ from rehab_hil.discrepancy.bounds import at_bound
 from rehab_hil.discrepancy.experiments import coverage
 from rehab_hil.discrepancy.fitting import Fit, Term
 from rehab_hil.discrepancy.parameters import ERROR_PARAM
+from rehab_hil.discrepancy.result import Result
 from rehab_hil.discrepancy.synthetic import step_records
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
 from rehab_hil.interchange import Recording
@@ -93,3 +94,7 @@ def test_a_parameter_that_ends_on_its_bound_is_reported_as_such_not_as_a_finding
     assert sentence.startswith("load.inertia_kg_m2 ended on its upper bound (+100 %)")
     assert "not a finding" in sentence
     assert at_bound([term], [inside]) == []
+    t = np.arange(3.0)
+    res = Result("motor_axis", ["angle_deg"], {"angle_deg": "angle"}, t, {"angle_deg": t}, {"angle_deg": t},
+                 {"angle_deg": t}, [fit], [], 1.0, {"angle_deg": 1.0}, bounds=[sentence])
+    assert "off by" not in res.conclusion and sentence in res.conclusion
