@@ -39,7 +39,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "or an interchange CSV; repeat it to fit one parameter set over several records (each "
                         "from its own start state, effects chosen as a set)")
     p.add_argument("--out", required=True, type=Path, help="report directory to write")
-    p.add_argument("--max-effects", type=int, default=2, help="most effects to add in turn (default 2)")
+    p.add_argument("--max-effects", type=int, default=None,
+                   help="most terms named: rounds of the search (default 2), or the largest set compared (default 3)")
+    p.add_argument("--search", choices=("auto", "sets", "rounds"), default="auto",
+                   help="how effects are chosen: as a set (several records: the default) or in rounds, one "
+                        "at a time (one record: the default); docs/discrepancy.md")
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
     p.add_argument("--validate", type=Path, action="append", default=[], metavar="DATA",
                    help="another record of the same plant: the nominal and the augmented model are scored on it "
@@ -56,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.discrepancy.workflow import find_missing_effects
     from rehab_hil.report.discrepancy import discrepancy_page
 
-    if not 1 <= args.max_effects <= 5:
+    if args.max_effects is not None and not 1 <= args.max_effects <= 5:
         raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
     if not 0.1 <= args.holdout <= 0.9:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
@@ -68,8 +72,11 @@ def run(args: argparse.Namespace) -> int:
             TextColumn("simulations"), TimeElapsedColumn())
     with Progress(*cols, console=console, transient=False) as bar:
         progress = RichProgress(bar)
+        sets = args.search == "sets" or (args.search == "auto" and len(recs) > 1)
+        opts = Options(holdout_fraction=args.holdout, max_effects=args.max_effects or (3 if sets else 2),
+                       search=args.search)
         res = find_missing_effects(cfg, recs if len(recs) > 1 else recs[0], sources if len(recs) > 1 else sources[0],
-                                   progress, Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+                                   progress, opts)
         _validate(res, cfg, val_recs, args.validate, progress)
         progress.start("writing report", None)
         rep = write_report(res, Path(args.config), Path(args.data[0]), Path(args.out))
