@@ -41,3 +41,19 @@ def test_two_records_of_opposite_directions_and_a_validation_record_from_the_cli
     for g in rep["gaps"]["records"] + rep["gaps"]["validation"]:
         assert g["augmented"]["angle_deg"]["rmse"] < 0.01 * g["nominal"]["angle_deg"]["rmse"]
     assert load_config(out / "augmented.toml").effects[0].name == "coulomb_friction_directional"
+
+
+def test_discrepancy_before_and_replay_of_the_nominal_model_give_the_same_figure(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    # issue 41 item 6: on the same data and config `discrepancy` printed "before 2.773 deg" (multiple
+    # shooting) and `replay` 16.75 (open loop from rest); both now give the whole-record replay from the
+    # start state estimated from the record, never re-anchored
+    emps = Path(__file__).resolve().parents[1] / "data" / "emps" / "estimation_6s_500hz.csv"
+    config = str(CONFIGS / "emps_nominal.toml")
+    assert main(["replay", "--config", config, "--data", str(emps)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("position_m"))
+    replayed = float(line.split("RMSE")[1].split()[0])
+    assert main(["discrepancy", "--config", config, "--data", str(emps), "--out", str(tmp_path / "r")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "estimation" in ln and "position_m" in ln)
+    before = float(line.split("position_m")[1].split("->")[0])
+    assert before == pytest.approx(replayed, rel=1e-3)
