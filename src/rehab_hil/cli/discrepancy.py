@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                                    progress, opts)
         _validate(res, cfg, val_recs, args.validate, progress)
         progress.start("writing report", None)
-        rep = write_report(res, Path(args.config), Path(args.data[0]), Path(args.out))
+        rep = write_report(res, Path(args.config), ", ".join(str(d) for d in args.data), Path(args.out))
         discrepancy_page(res, rep).write(Path(args.out) / "report.html")
     _print_summary(res, args.out)
     return 0

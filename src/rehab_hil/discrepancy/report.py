@@ -40,7 +40,7 @@ def _residual(res: Result, model: dict[str, np.ndarray]) -> np.ndarray:
     return np.vstack([(model[c] - res.measured[c]) / res.scale[c] for c in res.channels])
 
 
-def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[str]) -> dict[str, Any]:
+def report_dict(res: Result, config_path: Path, data_path: Path | str, figures: list[str]) -> dict[str, Any]:
     """The report as a JSON-ready dict (docs/discrepancy.md describes every key)."""
     before, after = res.metrics("nominal"), res.metrics("augmented")
     r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
@@ -197,7 +197,10 @@ def _markdown(rep: dict[str, Any]) -> str:
           f"Mode: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
           f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
               + ("; ".join(rep["initial_state"]["summary"]) or "the config's rest state") + "."]
-    L += ["", "| channel | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut |",
+    L += ["", f"The search's own figures ({rep['replay']['mode']} replay"
+          + (", every record's fit part then every held-out part" if len(rep.get("gaps", {}).get("records", [])) > 1
+             else "") + "; the gap per record below is the measure a validation record gets):",
+          "", "| channel | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut |",
           "|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:
         b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
@@ -264,7 +267,7 @@ def _joint_md(joint: dict[str, Any] | None) -> list[str]:
     return L
 
 
-def write_report(res: Result, config_path: Path, data_path: Path, out: Path) -> dict[str, Any]:
+def write_report(res: Result, config_path: Path, data_path: Path | str, out: Path) -> dict[str, Any]:
     """Write every report file into ``out``; checks augmented.toml loads."""
     out.mkdir(parents=True, exist_ok=True)
     figures = _figures(res, out)
