@@ -24,6 +24,8 @@ from rehab_hil.models.effect_parts import (
     ActuatorDeadZone,
     Backlash,
     ContactSpringDamper,
+    DirectionalCoulombFriction,
+    DirectionalViscousFriction,
     NonlinearConvection,
     PassiveMuscle,
     SensorCreepHysteresis,
@@ -35,7 +37,7 @@ from rehab_hil.models.mechanics import CoulombFriction, ViscousFriction
 from rehab_hil.models.ports import ActuatorPort, AxisPort, HeatPort, MeasuredPort, Ports, TemperatureWire, Wire
 from rehab_hil.models.system import DiagramError, Part
 
-__all__ = ["EFFECTS", "Attachment", "Effect", "EffectParam", "applicable", "attach", "check_spec",
+__all__ = ["EFFECTS", "Attachment", "Effect", "EffectParam", "applicable", "attach", "check_spec", "nested",
            "parse_effect_option"]
 
 
@@ -97,6 +99,10 @@ class Effect:
     description: str
     needs: str
     wire: Callable[[Any, float], Attachment]
+    # the library effect this one generalises (a level per direction of a Coulomb friction): equal
+    # parameters make it that effect, so the two are nested models, never aliases, and the simpler
+    # one is named when the two explain the data alike (``nested``)
+    refines: str = ""
 
     def describe(self, vocabulary: Mapping[str, str]) -> tuple[str, str]:
         """(description, source) in a plant's words (``Plant.vocabulary``): a generic drive or axis gets
@@ -207,6 +213,22 @@ EFFECTS: dict[str, Effect] = {
             "axis", _viscous,
         ),
         Effect(
+            "coulomb_friction_directional", DirectionalCoulombFriction,
+            (EffectParam("level_pos_nm", 0.0, 1.0, 0.02, axis_scaled=True),
+             EffectParam("level_neg_nm", 0.0, 1.0, 0.02, axis_scaled=True)),
+            "Olsson et al. 1998, Friction models and friction compensation (asymmetric Coulomb levels); issue 38",
+            "Coulomb friction with a level per direction of motion (turning +, turning -)",
+            "axis", _coulomb, refines="coulomb_friction",
+        ),
+        Effect(
+            "viscous_friction_directional", DirectionalViscousFriction,
+            (EffectParam("damping_pos_nm_s_per_rad", 0.0, 0.5, 0.02, axis_scaled=True),
+             EffectParam("damping_neg_nm_s_per_rad", 0.0, 0.5, 0.02, axis_scaled=True)),
+            "Olsson et al. 1998 (direction-dependent viscous friction); issue 38",
+            "viscous friction with a damping per direction of motion",
+            "axis", _viscous, refines="viscous_friction",
+        ),
+        Effect(
             "constant_load", ConstantLoad,
             (EffectParam("level_nm", -1.0, 1.0, 0.01, axis_scaled=True),),
             "Janot, Gautier and Brunot 2019, EMPS eq 1 (the offset)",
@@ -306,6 +328,12 @@ GENERAL: dict[str, tuple[str, str]] = {
     "backlash": ("play between the drive and the measured position: a dead zone at every reversal",
                  "play (backlash) operator, Tao & Kokotovic 1996"),
 }
+
+
+def nested(a: str, b: str) -> bool:
+    """Does one of the two effects generalise the other (``Effect.refines``)?"""
+    ea, eb = EFFECTS.get(a), EFFECTS.get(b)
+    return bool((ea is not None and ea.refines == b) or (eb is not None and eb.refines == a))
 
 
 def applicable(ports: Ports) -> list[Effect]:

@@ -34,20 +34,25 @@ class RichProgress(Progress):
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("discrepancy", help="find the effect missing from the model in measured data")
     p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--data", required=True, type=Path,
+    p.add_argument("--data", required=True, type=Path, action="append",
                    help="measured data: a run directory of `rehab-hil run --record`, its run.csv or run.mcap, "
-                        "or an interchange CSV")
+                        "or an interchange CSV; repeat it to fit one parameter set over several records (each "
+                        "from its own start state, effects chosen as a set)")
     p.add_argument("--out", required=True, type=Path, help="report directory to write")
-    p.add_argument("--max-effects", type=int, default=2, help="most effects to add in turn (default 2)")
+    p.add_argument("--max-effects", type=int, default=None,
+                   help="most terms named: rounds of the search (default 2), or the largest set compared (default 3)")
+    p.add_argument("--search", choices=("auto", "sets", "rounds"), default="auto",
+                   help="how effects are chosen: as a set (several records: the default) or in rounds, one "
+                        "at a time (one record: the default); docs/discrepancy.md")
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
     p.add_argument("--start", choices=("auto", "rest", "estimate"), default="auto",
                    help="the record's start state: rest (the config's rest, measured states from the first "
                         "sample), estimate (unmeasured states fitted on the first 1.5 s), or auto (default: as "
                         "estimate, but a record whose channels do not move in the first 50 ms keeps its start "
                         "velocities at 0 when the fitted ones would show)")
-    p.add_argument("--validate", type=Path, default=None, metavar="DATA",
+    p.add_argument("--validate", type=Path, action="append", default=[], metavar="DATA",
                    help="another record of the same plant: the nominal and the augmented model are scored on it "
-                        "(fit on --data, validate on DATA)")
+                        "(fit on --data, validate on DATA); may be repeated")
     return p
 
 
@@ -60,36 +65,48 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.discrepancy.workflow import find_missing_effects
     from rehab_hil.report.discrepancy import discrepancy_page
 
-    if not 1 <= args.max_effects <= 5:
+    if args.max_effects is not None and not 1 <= args.max_effects <= 5:
         raise UserError(f"--max-effects must be 1..5, got {args.max_effects}")
     if not 0.1 <= args.holdout <= 0.9:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
     # check the inputs before the progress display starts, so a user error prints one line only
-    cfg, rec, source, val_rec = _load_records(args)
+    cfg, recs, sources, val_recs = _load_records(args)
     writable_folder(Path(args.out), "--out", "the report is several files")  # before the fit: nothing lost
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())
     with Progress(*cols, console=console, transient=False) as bar:
         progress = RichProgress(bar)
-        res = find_missing_effects(cfg, rec, source, progress,
-                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects,
-                                           start=args.start))
-        if val_rec is not None:
-            from rehab_hil.discrepancy.validation import validate
-
-            progress.start("validating on the second record", None)
-            res.validation = validate(res, cfg, val_rec, args.validate)
+        sets = args.search == "sets" or (args.search == "auto" and len(recs) > 1)
+        opts = Options(holdout_fraction=args.holdout, max_effects=args.max_effects or (3 if sets else 2),
+                       search=args.search, start=args.start)
+        res = find_missing_effects(cfg, recs if len(recs) > 1 else recs[0], sources if len(recs) > 1 else sources[0],
+                                   progress, opts)
+        _validate(res, cfg, val_recs, args.validate, progress)
         progress.start("writing report", None)
-        rep = write_report(res, Path(args.config), Path(args.data), Path(args.out))
+        rep = write_report(res, Path(args.config), ", ".join(str(d) for d in args.data), Path(args.out))
         discrepancy_page(res, rep).write(Path(args.out) / "report.html")
     _print_summary(res, args.out)
     return 0
 
 
-def _load_records(args: argparse.Namespace) -> tuple[Any, Recording, Path, Recording | None]:
-    """The config, the record (``args.data`` resolved in place), its source name and the validation
-    record (or None), each checked replayable; warnings on stderr."""
+def _validate(res: Result, cfg: Any, val_recs: list[Recording], paths: list[Path], progress: Any) -> None:
+    """Score the models on each validation record; the first is the report's validation, every one is
+    a row of the gap table (the same measure as the estimation records')."""
+    from rehab_hil.discrepancy.validation import validate
+
+    for i, (rec, path) in enumerate(zip(val_recs, paths, strict=True)):
+        progress.start(f"validating on {path}", None)
+        v = validate(res, cfg, rec, path)
+        if i == 0:
+            res.validation = v
+        res.gaps.setdefault("validation", []).append({"data": str(path), "nominal": v.nominal,
+                                                      "augmented": v.augmented})
+
+
+def _load_records(args: argparse.Namespace) -> tuple[Any, list[Recording], list[Path], list[Recording]]:
+    """The config, the records (``args.data`` resolved in place), their source names and the validation
+    records, each checked replayable; warnings on stderr."""
     from rehab_hil.cli.data_path import missing_channels, resolve_data
     from rehab_hil.discrepancy.replay import check_recording
     from rehab_hil.loading import load_config
@@ -98,23 +115,47 @@ def _load_records(args: argparse.Namespace) -> tuple[Any, Recording, Path, Recor
 
     cfg = load_config(args.config)
     plant = get_plant(cfg.plant)
-    args.data = resolve_data(Path(args.data), "discrepancy")
-    loaded = load_recording(args.data, plant, cfg)
-    rec = loaded.recording
-    for note in loaded.notes:
-        print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
-    for c in missing_channels(plant, cfg, rec.signals):
-        print(f"rehab-hil discrepancy: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
-              "records): the analysis runs without it", file=sys.stderr)
-    check_recording(plant, rec, loaded.source, cfg)
-    val_rec = None
-    if args.validate is not None:
-        val_loaded = load_recording(args.validate, plant, cfg)
+    args.data = [resolve_data(Path(d), "discrepancy") for d in args.data]
+    recs, sources = [], []
+    for d in args.data:
+        loaded = load_recording(d, plant, cfg)
+        for note in loaded.notes:
+            print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
+        for c in missing_channels(plant, cfg, loaded.recording.signals):
+            print(f"rehab-hil discrepancy: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
+                  "records): the analysis runs without it", file=sys.stderr)
+        check_recording(plant, loaded.recording, loaded.source, cfg)
+        recs.append(loaded.recording)
+        sources.append(loaded.source)
+    val_recs = []
+    for v in args.validate:
+        val_loaded = load_recording(v, plant, cfg)
         for note in val_loaded.notes:
             print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
         check_recording(plant, val_loaded.recording, val_loaded.source, cfg)
-        val_rec = val_loaded.recording
-    return cfg, rec, loaded.source, val_rec
+        val_recs.append(val_loaded.recording)
+    return cfg, recs, sources, val_recs
+
+
+def gap_lines(gaps: dict[str, Any]) -> list[str]:
+    """The gap per record, estimation and validation, and overall (the root mean square over the
+    records), each channel's RMSE nominal -> augmented, in the one measure the gaps say."""
+    if not gaps:
+        return []
+    out = [f"  RMSE per record ({gaps['measure']}):"]
+    rows = [("estimation", g) for g in gaps["records"]] + [("validation", g) for g in gaps.get("validation", [])]
+    for role, g in rows:
+        for c, m in g["nominal"].items():
+            after = g["augmented"][c]["rmse"]
+            out.append(f"    {role:10s} {Path(g['data']).name:24s} {c:14s} {m['rmse']:.4g} -> {after:.4g}")
+    for role in ("estimation", "validation"):
+        sel = [g for r, g in rows if r == role]
+        if len(sel) > 1:
+            for c in sel[0]["nominal"]:
+                b = (sum(g["nominal"][c]["rmse"] ** 2 for g in sel) / len(sel)) ** 0.5
+                a = (sum(g["augmented"][c]["rmse"] ** 2 for g in sel) / len(sel)) ** 0.5
+                out.append(f"    {role:10s} {'overall':24s} {c:14s} {b:.4g} -> {a:.4g}")
+    return out
 
 
 def _print_summary(res: Result, out: Path) -> None:
@@ -132,10 +173,13 @@ def _print_summary(res: Result, out: Path) -> None:
             continue
         units = {k: param_unit(k, linear) for k in f.params}
         print("  " + f.effect + ": " + effect_params_text({"params": f.params, "stderr": f.stderr, "units": units}))
-    before, after = res.metrics("nominal"), res.metrics("augmented")
-    print(f"  RMSE nominal -> augmented ({res.measure}):")
-    for c in res.channels:
-        print(f"  {c:24s} {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g} {channel_unit(c)}")
-    for line in res.validation.lines() if res.validation is not None else []:
+    lines = gap_lines(res.gaps)
+    if not lines:
+        before, after = res.metrics("nominal"), res.metrics("augmented")
+        lines = [f"  RMSE nominal -> augmented ({res.measure}):"] + [
+            f"  {c:24s} {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g} {channel_unit(c)}" for c in res.channels]
+    for line in lines + (res.validation.lines() if res.validation is not None else []):
         print(line)
+    if res.lacking:
+        print("  the records lack: " + "; ".join(res.lacking))
     print(f"wrote {out}/report.json, report.md, report.html, *.png, augmented.toml")

@@ -21,6 +21,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from rehab_hil.cli.data_path import missing_channels, resolve_data
+    from rehab_hil.discrepancy.records import GAP_MEASURE, whole_record
     from rehab_hil.discrepancy.replay import Replay, channel_metrics, check_recording
     from rehab_hil.interchange import write_csv
     from rehab_hil.loading import load_config
@@ -37,10 +38,10 @@ def run(args: argparse.Namespace) -> int:
               "records): compared without it", file=sys.stderr)
     check_recording(plant, loaded.recording, loaded.source, cfg)
     replay = Replay.build(plant, cfg, loaded.recording, loaded.source)
-    model = replay.simulate(replay.nominal_params())
+    model = whole_record(replay, replay.nominal_params())
     effects = ", ".join(e.name for e in getattr(cfg, "effects", ())) or "none"
     print(f"{cfg.plant} model of {args.config} (effects: {effects}) on {loaded.source} "
-          f"({replay.t.size} samples, {replay.t[-1]:.2f} s)")
+          f"({replay.t.size} samples, {replay.t[-1]:.2f} s; {GAP_MEASURE}, as `discrepancy` gives the gap)")
     for c in replay.channels:
         m = channel_metrics(replay.measured[c], model[c])
         print(f"  {c:24s} RMSE {m['rmse']:.4g}  MAE {m['mae']:.4g}  max {m['max_abs_error']:.4g}")

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from rehab_hil.discrepancy.bounds import on_bound
 from rehab_hil.discrepancy.fitting import DIFF_STEP, Fit, Term, fit_joint, parameter_term
 from rehab_hil.discrepancy.parameters import ERROR_PARAM, config_value, parameter_terms
 from rehab_hil.discrepancy.replay import Replay
@@ -49,6 +50,7 @@ class JointIdentification:
     held: dict[str, list[str]] = field(default_factory=dict)  # held parameter -> the group it could not leave
     corrected: dict[str, float] = field(default_factory=dict)  # parameter config key -> value after the fit
     n_simulations: int = 0
+    at_bound: dict[str, tuple[Any, float, str]] = field(default_factory=dict)  # label -> (param, value, side)
 
     def sentences(self) -> list[str]:
         """One per inseparable group: every name, and what was done about it."""
@@ -69,7 +71,8 @@ class JointIdentification:
                                          if np.isfinite(self.stderr.get(n, np.nan)) else None),
                                 "held_at_config": n in self.held} for n in names],
                 "corrected": self.corrected, "inseparable": self.inseparable,
-                "held": self.held, "correlation": {"names": names, "matrix": np.round(self.correlation, 4).tolist()},
+                "held": self.held, "at_bound": sorted(self.at_bound),
+                "correlation": {"names": names, "matrix": np.round(self.correlation, 4).tolist()},
                 "sentences": self.sentences(), "n_simulations": self.n_simulations}
 
 
@@ -149,8 +152,10 @@ def identify_jointly(replay: Replay, P0: np.ndarray, chosen_terms: Sequence[Term
     names = [*labels, *held]
     full = np.full((len(names), len(names)), np.nan)
     full[:len(labels), :len(labels)] = corr
+    bound = {_label(t, p.name): (p, f.params[p.name], side) for f, t in zip(fits, terms, strict=True)
+             for p in t.params for side in [on_bound(p, f.params[p.name])] if side}
     return JointIdentification(names, values, stderr, full, groups, held, _corrected(replay, terms, values, held),
-                               count)
+                               count, bound)
 
 
 def _declared_terms(replay: Replay, chosen_terms: Sequence[Term]) -> list[Term]:

@@ -42,7 +42,7 @@ def _residual(res: Result, model: dict[str, np.ndarray]) -> np.ndarray:
     return np.vstack([(model[c] - res.measured[c]) / res.scale[c] for c in res.channels])
 
 
-def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[str]) -> dict[str, Any]:
+def report_dict(res: Result, config_path: Path, data_path: Path | str, figures: list[str]) -> dict[str, Any]:
     """The report as a JSON-ready dict (docs/discrepancy.md describes every key)."""
     before, after = res.metrics("nominal"), res.metrics("augmented")
     r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
@@ -83,6 +83,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path, figures: list[s
         },
         "gap_reduction_pct": gap,
         "rounds": _rounds(res),
+        "gaps": res.gaps, "at_bound": res.bounds, "records_lack": res.lacking, "dropped_from_best_set": res.dropped,
         "localisation": {
             "time_windows": localise.time_windows(res.t, combined0),
             "regions": localise.regions(res.t, res.measured, r0, res.channels, res.kinds),
@@ -223,8 +224,11 @@ def _markdown(rep: dict[str, Any]) -> str:
           f"Mode: {rep['replay']['mode']} (open-loop RMS {rep['replay'].get('open_rms') or float('nan'):.3g}, "
           f"shooting RMS {rep['replay'].get('shooting_rms') or float('nan'):.3g}, scaled). Start state: "
               + ("; ".join(rep["initial_state"]["summary"]) or "the config's rest state") + "."]
-    L += ["", f"Errors of both models measured the same way ({rep['replay']['measure']}; the validation below "
-          "is always a whole-record open-loop replay):", "",
+    several = len(rep.get("gaps", {}).get("records", [])) > 1
+    L += ["", f"The search's own figures, both models measured the same way ({rep['replay']['measure']}"
+          + ("; every record's fit part then every held-out part" if several else "")
+          + "; the gap per record below is the measure a validation record gets, and the validation is always "
+          "a whole-record open-loop replay):", "",
           "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut | "
           "held-out residual | noise floor |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:
@@ -233,7 +237,9 @@ def _markdown(rep: dict[str, Any]) -> str:
         L.append(f"| {ch} | {rep['channel_units'][ch]} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | "
                  f"{a['mae']:.4g} | {b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | "
                  f"{rep['gap_reduction_pct'][ch]:.1f} % | {r['rms']:.3g} | {r['noise_floor']:.3g} |")
-    L += _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
+    L += _gaps_md(rep.get("gaps")) + _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
+    if rep.get("records_lack"):
+        L += ["", "The records lack: " + "; ".join(rep["records_lack"]) + "."]
     for i, rd in enumerate(rep["rounds"], 1):
         L += ["", f"## Round {i}: candidates (held-out BIC, best first)", "",
               "| effect | parameters | ΔBIC | best channel cut | significant |", "|---|---|---|---|---|"]
@@ -269,6 +275,17 @@ def effect_params_text(c: dict[str, Any]) -> str:
     return ", ".join(out)
 
 
+def _gaps_md(gaps: dict[str, Any] | None) -> list[str]:
+    if not gaps:
+        return []
+    L = ["", f"## The gap per record ({gaps['measure']})", "", "| record | channel | RMSE nominal | RMSE augmented |",
+         "|---|---|---|---|"]
+    for g in gaps["records"]:
+        for ch, m in g["nominal"].items():
+            L.append(f"| {g['data']} | {ch} | {m['rmse']:.4g} | {g['augmented'][ch]['rmse']:.4g} |")
+    return L
+
+
 def _validation_md(val: dict[str, Any] | None) -> list[str]:
     if not val:
         return []
@@ -295,7 +312,7 @@ def _joint_md(joint: dict[str, Any] | None) -> list[str]:
     return L
 
 
-def write_report(res: Result, config_path: Path, data_path: Path, out: Path) -> dict[str, Any]:
+def write_report(res: Result, config_path: Path, data_path: Path | str, out: Path) -> dict[str, Any]:
     """Write every report file into ``out``; checks augmented.toml loads."""
     out.mkdir(parents=True, exist_ok=True)
     figures = _figures(res, out)

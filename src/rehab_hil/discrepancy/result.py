@@ -16,7 +16,7 @@ from rehab_hil.discrepancy.selection import Score
 from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, ALIAS_RMS_SHARE, channel_unit, residual_stats
 
-__all__ = ["Alias", "Candidate", "Result", "Round", "parameter_sentence"]
+__all__ = ["Alias", "Candidate", "Result", "Round", "effect_phrase", "parameter_sentence"]
 
 Z95 = 1.96
 
@@ -74,6 +74,19 @@ class Alias:
         return frozenset((self.chosen, self.other))
 
 
+def effect_phrase(fit: Fit, unit: str = "N m") -> str:
+    """An effect as the conclusion names it: a direction-dependent friction by its level each way
+    ("coulomb_friction_directional (friction 0.030 N m turning +, 0.012 N m turning -)"), others by name."""
+    p = fit.params
+    if fit.effect == "coulomb_friction_directional":
+        return (f"{fit.effect} (friction {p['level_pos_nm']:.3g} {unit} turning +, {p['level_neg_nm']:.3g} {unit} "
+                "turning -)")
+    if fit.effect == "viscous_friction_directional":
+        return (f"{fit.effect} (damping {p['damping_pos_nm_s_per_rad']:.3g} {unit} s per unit turning +, "
+                f"{p['damping_neg_nm_s_per_rad']:.3g} turning -)")
+    return fit.effect
+
+
 def parameter_sentence(fit: Fit, inseparable: bool = False) -> str:
     """'parameter X is off by N % (95 % CI a .. b %)'; no interval for a parameter the record cannot
     separate from another (``identify``): its own interval would be a wrong story told with confidence."""
@@ -108,6 +121,12 @@ class Result:
     unexplained_where: dict[str, Any] = field(default_factory=dict)
     validation: Any = None  # validation.Validation: scored on a second record (--validate)
     joint: Any = None  # identify.JointIdentification: every nominal parameter fitted together
+    # {"measure": how, "records": [{"data", "nominal", "augmented"} per-channel metrics]}: the gap per
+    # record in one measure (``records.GAP_MEASURE``), the same as a validation record's
+    gaps: dict[str, Any] = field(default_factory=dict)
+    bounds: list[str] = field(default_factory=list)  # sentences: a fitted value that ended on its bound
+    lacking: list[str] = field(default_factory=list)  # experiments the records lack (``experiments``)
+    dropped: list[str] = field(default_factory=list)  # terms of the best set that did not pay for themselves
 
     @property
     def named(self) -> list[str]:
@@ -124,9 +143,13 @@ class Result:
         its size beside the noise floor and the spread, or a fit within the noise (with both figures)."""
         parts = []
         if self.named:
-            parts.append(f"missing effect found: {', '.join(self.named)}")
+            unit = "N" if "position" in self.kinds.values() else "N m"
+            phrases = [effect_phrase(f, unit) for f in self.chosen if f.kind == "effect"]
+            parts.append(f"missing effect found: {', '.join(phrases)}")
         mixed = {m for g in (self.joint.inseparable if self.joint is not None else []) for m in g}
-        parts += [parameter_sentence(f, f.effect in mixed) for f in self.parameters]
+        on_bound = {b.split(" ended on")[0] for b in self.bounds}
+        parts += [parameter_sentence(f, f.effect in mixed) for f in self.parameters if f.effect not in on_bound]
+        parts += self.bounds
         seen: set[frozenset[str]] = set()
         for a in self.aliases:  # a pair met again in a later round is said once
             if a.pair not in seen:

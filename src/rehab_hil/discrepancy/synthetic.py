@@ -19,7 +19,7 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.interchange import Recording
 from rehab_hil.plants.registry import Plant
 
-__all__ = ["hidden_effect_recording"]
+__all__ = ["hidden_effect_recording", "step_records"]
 
 
 def hidden_effect_recording(spec: type[Plant], cfg: Any, effects: Mapping[str, Mapping[str, float]],
@@ -53,3 +53,36 @@ def hidden_effect_recording(spec: type[Plant], cfg: Any, effects: Mapping[str, M
         sd = plan.noise.get(c, 0.0) * noise_scale
         signals[c] = res.signals[c][idx] + (rng.normal(0.0, sd, tm.size) if sd > 0 else 0.0)
     return Recording(tm, signals)
+
+
+def step_records(spec: type[Plant], cfg: Any, effects: Mapping[str, Mapping[str, float]],
+                 directions: tuple[int, ...] = (1, -1, 1, -1), duration_s: float = 20.0, hold_s: float = 2.0,
+                 levels: tuple[float, float] = (0.04, 0.09), noise: float = 0.01, seed: int = 0,
+                 scale_params: Mapping[str, float] | None = None, replay: Replay | None = None) -> list[Recording]:
+    """Open-loop drive-step records, one direction of motion each (a servo's identification runs:
+    steps of the first input, each ``hold_s`` long, between ``levels`` of the drive's full scale and
+    rests at zero, all of sign ``directions[i]``), with ``effects`` hidden, diagram parameters scaled
+    by ``scale_params`` ({diagram parameter: factor}), and Gaussian noise of std ``noise`` on every
+    output. Each record starts at rest."""
+    rng = np.random.default_rng(seed)
+    step_s = spec.step(cfg)[0]
+    n = round(duration_s / step_s)
+    t = np.arange(n) * step_s
+    name = spec.inputs[0]
+    full = spec.ports(cfg).actuators[0].duty_scale
+    if replay is None or replay.spec.name != spec.name:
+        dummy = {name: np.linspace(0.0, 1.0, n), **{c: np.zeros(n) for c in spec.outputs}}
+        replay = Replay.build(spec, cfg, Recording(t, dummy))
+    P = replay.with_effects(replay.nominal_params(), effects)[:replay.n_diagram_params]
+    for key, factor in (scale_params or {}).items():
+        P[replay.system.diagram.param_index(key)] *= factor
+    out = []
+    for sign in directions:
+        k = np.floor(t / hold_s).astype(int)
+        amp = rng.uniform(*levels, size=k.max() + 1) * full
+        u = np.where(k % 2 == 1, sign * amp[k], 0.0)
+        res = replay.system.simulate(n, {name: u}, outputs=[c for c in spec.outputs
+                                                            if c in replay.system.diagram.signal_names], params=P)
+        signals = {name: u, **{c: v + rng.normal(0.0, noise, n) for c, v in res.signals.items()}}
+        out.append(Recording(t.copy(), signals))
+    return out

@@ -20,12 +20,15 @@ of calling the model a fit.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
+from rehab_hil.discrepancy import localise
+
 __all__ = ["ALIAS_DELTA_BIC", "ALIAS_RMS_SHARE", "EXPERIMENTS", "NOISE_FACTOR", "SPREAD_SHARE", "channel_unit",
-           "experiment", "is_alias", "noise_floor", "residual_stats", "tied_parameter", "unexplained_channels"]
+           "experiment", "is_alias", "noise_floor", "residual_stats", "tied_parameter", "unexplained",
+           "unexplained_channels"]
 
 ALIAS_DELTA_BIC = 10.0  # the significance margin (selection.MIN_DELTA_BIC): less is not "very strong"
 ALIAS_RMS_SHARE = 0.10  # held-out RMS on the decisive channel within 10 % of each other
@@ -135,3 +138,21 @@ def tied_parameter(best: K, others: Iterable[K], ties: Callable[[K], bool]) -> K
     if best.kind != "effect":
         return None
     return next((c for c in others if c.kind == "parameter" and ties(c)), None)
+
+
+def unexplained(replay: Any, current: dict[str, np.ndarray], split_s: float,
+                 kinds: dict[str, str]) -> tuple[dict[str, dict[str, float]], dict[str, Any]]:
+    """The channels whose held-out error the final model leaves beyond the noise (the workflow's step 3), and where
+    the residual is largest: the time window and the state region."""
+    hm = replay.t >= split_s
+    rms = {c: float(np.sqrt(np.mean((current[c][hm] - replay.measured[c][hm]) ** 2))) for c in replay.channels}
+    unexpl = unexplained_channels(replay.channels, {c: replay.measured[c] for c in replay.channels}, rms)
+    if not unexpl:
+        return unexpl, {}
+    r = replay.residual(current)
+    combined = np.sqrt(np.mean(r**2, axis=0))
+    win = max(localise.time_windows(replay.t, combined), key=lambda w: w["rms"])
+    regs = [g for g in localise.regions(replay.t, replay.measured, r, replay.channels, kinds)
+            if g["ratio"] == g["ratio"]]
+    top = max(regs, key=lambda g: float(g["ratio"])) if regs else {"region": "everywhere"}  # type: ignore[arg-type]
+    return unexpl, {"window_start_s": win["start_s"], "window_end_s": win["end_s"], "region": top["region"]}

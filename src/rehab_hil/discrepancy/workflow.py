@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,21 +27,25 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy import localise
-from rehab_hil.discrepancy.fitting import Fit, Term, effect_term, fit_joint, fit_term, parameter_term
+from rehab_hil.discrepancy.bounds import at_bound
+from rehab_hil.discrepancy.candidates import candidate_terms
+from rehab_hil.discrepancy.experiments import lacking, mend_suggestions
+from rehab_hil.discrepancy.fitting import Fit, Term, fit_joint, fit_term
 from rehab_hil.discrepancy.identify import identify_jointly
 from rehab_hil.discrepancy.initial_state import InitialState, estimate_initial_state
-from rehab_hil.discrepancy.parameters import parameter_terms
+from rehab_hil.discrepancy.records import GAP_MEASURE, gap
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
 from rehab_hil.discrepancy.selection import Score, bic, effective_fraction, improvement
 from rehab_hil.discrepancy.shooting import choose_mode
 from rehab_hil.discrepancy.significance import demanding_channels, relevant, score, significant
-from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, tied_parameter, unexplained_channels
-from rehab_hil.effects import EFFECTS
+from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, experiment, is_alias, tied_parameter, unexplained
+from rehab_hil.effects import EFFECTS, nested
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
-__all__ = ["JOINT_CANDIDATES", "Candidate", "Options", "Progress", "Result", "Round", "Search", "find_missing_effects"]
+__all__ = ["JOINT_CANDIDATES", "Candidate", "Options", "Progress", "Result", "Round", "Search", "candidate_terms",
+           "find_missing_effects", "unexplained"]
 
 JOINT_CANDIDATES = 3  # from the second round, the best few candidates are refitted with the chosen terms
 
@@ -67,6 +72,9 @@ class Options:
     # the record's start: "estimate" (the API's default: every held-out benchmark result unchanged), "rest", or
     # "auto" (the CLI's default: at rest when no channel moves at first and a fitted velocity would show)
     start: str = "estimate"
+    # "auto": effects chosen as a set (``subsets``) when several records are given, the rounds of
+    # ``Search`` on one record; "sets" or "rounds" forces one
+    search: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -194,6 +202,11 @@ class Search:
         param = tied_parameter(pick, near, lambda c: abs(c.score.bic - pick.score.bic) < ALIAS_DELTA_BIC)
         if param is not None:
             pick, near = param, [pick, *[c for c in near if c is not param]]
+        simpler = next((c for c in near if EFFECTS.get(pick.fit.effect) and EFFECTS[pick.fit.effect].refines
+                        == c.fit.effect), None)
+        if simpler is not None:  # a refinement that explains no better than what it refines: the simpler one
+            pick, near = simpler, [pick, *[c for c in near if c is not simpler]]
+        near = [c for c in near if not nested(pick.fit.effect, c.fit.effect)]  # nested models, not aliases
         descriptions = {e.name: e.description for e in EFFECTS.values()}
         for c in near:
             split = not is_alias(pick.score.bic, c.score.bic, pick.score.channel_rms[j], c.score.channel_rms[j])
@@ -239,12 +252,36 @@ class Search:
         self.current = self.replay.simulate(P)
 
 
-def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<data>",
+def find_missing_effects(cfg: Any, rec: Recording | Sequence[Recording], data_path: Any = "<data>",
                          progress: Progress | None = None, options: Options | None = None) -> Result:
-    """Run the workflow on a loaded config and recording; see the module docstring."""
-    t_start = time.perf_counter()
+    """Run the workflow on a loaded config and recording (or several records, each with its path in
+    ``data_path``: ``set_workflow``); see the module docstring. The result's ``gaps`` give each
+    record's RMSE before and after in one measure (``records.GAP_MEASURE``)."""
     progress = progress or Progress()
     options = options or Options()
+    recs = [rec] if isinstance(rec, Recording) else list(rec)
+    paths = [data_path] if isinstance(rec, Recording) else list(data_path)
+    if options.search == "sets" or (options.search == "auto" and len(recs) > 1):
+        from rehab_hil.discrepancy.set_workflow import find_in_records
+
+        return find_in_records(cfg, recs, paths, progress, options)
+    res = _one_record(cfg, recs[0], paths[0], progress, options)
+    progress.start("the gap over the whole record", None)
+    replay = res.extras["replay"]
+    x0, xd0 = replay.x0, replay.xd0
+    res.gaps = {"measure": GAP_MEASURE, "records": [{"data": str(paths[0]),
+                                                     "nominal": gap(replay, replay.nominal_params()),
+                                                     "augmented": gap(replay, res.extras["P"])}]}
+    replay.x0, replay.xd0 = x0, xd0
+    res.bounds = at_bound([], [], res.joint)
+    res.lacking = lacking(replay)
+    mend_suggestions(res.aliases, replay)
+    return res
+
+
+def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progress, options: Options) -> Result:
+    """The rounds of ``Search`` on one record."""
+    t_start = time.perf_counter()
     spec = get_plant(cfg.plant)
     progress.start("replay nominal model", 1)
     replay = Replay.build(spec, cfg, rec, data_path, closed_loop=options.closed_loop)
@@ -261,7 +298,7 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
     nominal = replay.simulate(P0)
     progress.advance()
     kinds = replay.kinds
-    search = Search(replay, _candidate_terms(replay, options), n_train, P0, nominal, initial, progress,
+    search = Search(replay, candidate_terms(replay, options), n_train, P0, nominal, initial, progress,
                     localise.delay_seeds(replay.t, replay.measured, nominal, replay.channels, kinds),
                     remode=options.mode == "auto" and not replay.loop)
     search.run(options.max_effects)
@@ -271,34 +308,8 @@ def find_missing_effects(cfg: Any, rec: Recording, data_path: str | Path = "<dat
         joint = identify_jointly(replay, P0, search.chosen_terms, search.chosen, n_train, progress.advance)
     search.forget_simulations()
     split_s = float(replay.t[n_train]) if n_train < N else float(replay.t[-1])
-    unexplained, where = _unexplained(replay, search.current, split_s, kinds)
+    unexpl, where = unexplained(replay, search.current, split_s, kinds)
     return Result(spec.name, replay.channels, kinds, replay.t, replay.measured, nominal, search.current,
                   search.chosen, search.rounds, split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
                   time.perf_counter() - t_start, {"replay": replay, "P": search.P}, search.initial, replay.mode,
-                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexplained, where, joint=joint)
-
-
-def _candidate_terms(replay: Replay, options: Options) -> list[Term]:
-    """The library effects that attach to the plant, then (``options.parameters``) its declared parameters."""
-    terms: list[Term] = [effect_term(replay, e) for e in replay.candidates]
-    if options.parameters:
-        terms += [parameter_term(p) for p in parameter_terms(replay)]
-    return terms
-
-
-def _unexplained(replay: Replay, current: dict[str, np.ndarray], split_s: float,
-                 kinds: dict[str, str]) -> tuple[dict[str, dict[str, float]], dict[str, Any]]:
-    """The channels whose held-out error the final model leaves beyond the noise (step 3), and where
-    the residual is largest: the time window and the state region."""
-    hm = replay.t >= split_s
-    rms = {c: float(np.sqrt(np.mean((current[c][hm] - replay.measured[c][hm]) ** 2))) for c in replay.channels}
-    unexplained = unexplained_channels(replay.channels, {c: replay.measured[c] for c in replay.channels}, rms)
-    if not unexplained:
-        return unexplained, {}
-    r = replay.residual(current)
-    combined = np.sqrt(np.mean(r**2, axis=0))
-    win = max(localise.time_windows(replay.t, combined), key=lambda w: w["rms"])
-    regs = [g for g in localise.regions(replay.t, replay.measured, r, replay.channels, kinds)
-            if g["ratio"] == g["ratio"]]
-    top = max(regs, key=lambda g: float(g["ratio"])) if regs else {"region": "everywhere"}  # type: ignore[arg-type]
-    return unexplained, {"window_start_s": win["start_s"], "window_end_s": win["end_s"], "region": top["region"]}
+                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexpl, where, joint=joint)

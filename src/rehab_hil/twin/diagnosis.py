@@ -192,7 +192,8 @@ def _session_terms(replay: Replay) -> list[ParameterTerm]:
 def candidate_terms(replay: Replay) -> list[Term]:
     """Every candidate of the diagnosis: the library effects that attach to the plant, its declared
     fit parameters, the session parameters and the configured effects' magnitudes."""
-    terms = [effect_term(replay, e) for e in replay.candidates]
+    # a refinement (a level per direction) needs records of both directions: the set search's, not a window's
+    terms = [effect_term(replay, e) for e in replay.candidates if not e.refines]
     params: dict[str, ParameterTerm] = {}
     for p in [*parameter_terms(replay), *_session_terms(replay), *_configured_effect_terms(replay)]:
         params.setdefault(p.name, p)
