@@ -91,6 +91,8 @@ def test_a_typod_key_is_reported_as_the_typo(name, tmp_path, capsys, data_csv):
     ["discrepancy", "--config", str(FE), "--data", "{tmp}/nothing.csv", "--out", "{tmp}/rep"],
     ["replay", "--config", str(FE), "--data", "{tmp}"],
     ["report", "{tmp}/file"],
+    ["run", "--config", str(FE), "--device", "simm", "--duration", "0.2"],
+    ["doctor", "--config", str(FE), "--device", "inproces", "--yes"],
     ["calibrate", "force", "--config", str(FE), "--device", "inprocess", "--weights-g", "200,100", "--sensor-id", "s1"],
 ], ids=lambda a: " ".join(a[:1] + [x for x in a if x.startswith("--")][-1:]))
 def test_a_bad_path_or_argument_is_one_line(argv, tmp_path, capsys, data_csv):

@@ -18,7 +18,7 @@ from pathlib import Path
 # 4 ms in the twin's thread with the default pool on 2 busy cores). Set before numpy is first loaded.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__all__ = ["SUBCOMMANDS", "UserError", "main", "writable_folder"]
+__all__ = ["SUBCOMMANDS", "UserError", "device_arg", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
@@ -40,6 +40,18 @@ def writable_folder(path: Path, flag: str, why: str) -> None:
         raise UserError(f"{flag} {path}: cannot create: {e.strerror}") from None
     if not os.access(path, os.W_OK | os.X_OK):
         raise UserError(f"{flag} {path}: not writable")
+
+
+def device_arg(text: str) -> str:
+    """``--device``: a near-miss of sim, avr, inprocess or auto (``simm``) is refused with the name
+    meant, at once, instead of being opened as a serial path after the model is built."""
+    from rehab_hil.hardware import HardwareError
+    from rehab_hil.hardware.discovery import check_device_name
+
+    try:
+        return check_device_name(text)
+    except HardwareError as e:
+        raise UserError(f"--device: {e}") from None
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:

@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from rehab_hil.cli import UserError, writable_folder
+from rehab_hil.cli import UserError, device_arg, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError
 from rehab_hil.service import assembly
 from rehab_hil.service.errors import SessionError
@@ -34,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
     p.add_argument("--profile", type=Path, default=None, help="per-patient profile (profiles/*.toml): session "
                    "and tighter limits (rehab_hil.profiles)")
-    p.add_argument("--device", default=None,
+    p.add_argument("--device", default=None, type=device_arg,
                    help=f"{', '.join(repr(k) for k in RIG_KINDS)} or a serial path (default: [rig].port)")
     p.add_argument("--duration", type=float, default=30.0, help="session length [s]")
     p.add_argument("--record", type=Path, default=None, metavar="DIR",
