@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rehab_hil.outputs import replacing
+
 __all__ = ["SIGNAL_NAME", "CsvError", "Recording", "read_csv", "write_csv"]
 
 SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9]*(_[a-z0-9]+)+$")
@@ -61,7 +63,8 @@ def write_csv(path: str | Path, t: np.ndarray, signals: Mapping[str, np.ndarray]
             raise ValueError(f"column {n!r} has {c.shape[0]} rows, time has {t.shape[0]}")
     path.parent.mkdir(parents=True, exist_ok=True)
     data = np.column_stack([t, *cols]) if cols else t[:, None]
-    np.savetxt(path, data, delimiter=",", header=",".join(["time_s", *names]), comments="", fmt="%.10g")
+    with replacing(path) as tmp:  # a reader never sees half a file, nor does Ctrl-C leave one
+        np.savetxt(tmp, data, delimiter=",", header=",".join(["time_s", *names]), comments="", fmt="%.10g")
     return path
 
 

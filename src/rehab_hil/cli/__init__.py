@@ -18,7 +18,7 @@ from pathlib import Path
 # 4 ms in the twin's thread with the default pool on 2 busy cores). Set before numpy is first loaded.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__all__ = ["SUBCOMMANDS", "UserError", "device_arg", "main", "writable_folder"]
+__all__ = ["SUBCOMMANDS", "UserError", "device_arg", "interrupted", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
@@ -83,15 +83,44 @@ STDIN_CLOSED = ("standard input closed while waiting for an answer: answer on a 
                 "(doctor, calibrate) or --home none (run)")
 
 
+def interrupted(exc: BaseException) -> bool:
+    """Ctrl-C, also when a library wrapped it: numba's compiler turns a KeyboardInterrupt raised in
+    its callbacks into a ``SystemError`` whose cause or context is the interrupt."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command line: 0 done, 1 a session that tripped, 2 a user error (one line), 130 Ctrl-C
+    (one line, wherever it came: while importing, compiling the model or fitting)."""
     words = list(sys.argv[1:] if argv is None else argv)
+    command = next((w for w in words if not w.startswith("-")), "")
+    try:
+        return _main(words)
+    except BaseException as e:
+        if not interrupted(e):
+            raise
+        print(f"\nrehab-hil {command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(words: list[str]) -> int:
+    from rehab_hil import progress
+
+    progress.set_sink(lambda line: print(f"rehab-hil: {line}", file=sys.stderr, flush=True))  # slow steps say so
     named = {name.replace("_data", ""): name for name in SUBCOMMANDS}
     first = next((w for w in words if not w.startswith("-")), None)
     parser = build_parser(named.get(first) if first is not None else None)
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(words)
     except _user_errors() as e:  # an argument's own check (argparse type=) said what is wrong
-        command = next((a for a in (sys.argv[1:] if argv is None else argv) if a in SUBCOMMANDS), "")
+        command = next((a for a in words if a in named), "")
         print(f"rehab-hil {command}: error: {e}".replace("  ", " "), file=sys.stderr)
         return 2
     try:
@@ -102,9 +131,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except EOFError:  # input() on a closed standard input, or Ctrl-D at a prompt
         print(f"\nrehab-hil {args.command}: error: {STDIN_CLOSED}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"\nrehab-hil {args.command}: interrupted", file=sys.stderr)
-        return 130
+    finally:
+        progress.set_sink(None)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -53,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli import UserError, writable_folder
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
+    from rehab_hil.outputs import staged_folder
     from rehab_hil.report.discrepancy import discrepancy_page
 
     if not 1 <= args.max_effects <= 5:
@@ -61,22 +63,31 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
     # check the inputs before the progress display starts, so a user error prints one line only
     cfg, rec, source, val_rec = _load_records(args)
-    writable_folder(Path(args.out), "--out", "the report is several files")  # before the fit: nothing lost
+    out = Path(args.out)
+    made = not out.exists()
+    writable_folder(out, "--out", "the report is several files")  # before the fit: nothing lost
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())
-    with Progress(*cols, console=console, transient=False) as bar:
-        progress = RichProgress(bar)
-        res = find_missing_effects(cfg, rec, source, progress,
-                                   Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
-        if val_rec is not None:
-            from rehab_hil.discrepancy.validation import validate
+    try:
+        with Progress(*cols, console=console, transient=False) as bar:
+            progress = RichProgress(bar)
+            res = find_missing_effects(cfg, rec, source, progress,
+                                       Options(holdout_fraction=args.holdout, max_effects=args.max_effects))
+            if val_rec is not None:
+                from rehab_hil.discrepancy.validation import validate
 
-            progress.start("validating on the second record", None)
-            res.validation = validate(res, cfg, val_rec, args.validate)
-        progress.start("writing report", None)
-        rep = write_report(res, Path(args.config), Path(args.data), Path(args.out))
-        discrepancy_page(res, rep).write(Path(args.out) / "report.html")
+                progress.start("validating on the second record", None)
+                res.validation = validate(res, cfg, val_rec, args.validate)
+            progress.start("writing report", None)
+            with staged_folder(out) as tmp:  # every file, or none: Ctrl-C never leaves a folder with one plot
+                rep = write_report(res, Path(args.config), Path(args.data), tmp)
+                discrepancy_page(res, rep).write(tmp / "report.html")
+    except BaseException:
+        if made:  # the folder made for the report goes again, unless something else was put in it
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
     _print_summary(res, args.out)
     return 0
 

@@ -215,11 +215,16 @@ def _option_error(e: SessionError) -> str:
     return f"--{e.option.replace('_', '-')}: {e.message}" if e.option else e.message
 
 
-def _run_in_thread(session: RigSession, duration_s: float, display: bool, console: Console) -> RunResult:
+def _run_in_thread(session: RigSession, duration_s: float, display: bool, console: Console,
+                   signals: list[int]) -> RunResult:
     """Run the loop on its own thread, so the main thread stays free for signals and the live display;
-    Ctrl-C and SIGTERM stop it through the safe state."""
+    Ctrl-C and SIGTERM stop it through the safe state (``signals`` collects them, for the exit code)."""
     result: list[RunResult] = []
     errors: list[BaseException] = []
+
+    def stop(n: int, frame: Any) -> None:
+        signals.append(n)
+        session.request_stop(signal.Signals(n).name)
 
     def work() -> None:
         try:
@@ -227,8 +232,7 @@ def _run_in_thread(session: RigSession, duration_s: float, display: bool, consol
         except BaseException as e:  # reported on the main thread
             errors.append(e)
 
-    previous = {s: signal.signal(s, lambda n, f: session.request_stop(signal.Signals(n).name))
-                for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         th = threading.Thread(target=work, name="loop")
         th.start()
@@ -263,8 +267,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"homed ({session.homed.mode}): encoder count {session.homed.count} at the home pose")
         if session.foxglove is not None:
             print(f"Foxglove live view: {session.foxglove.live.url} (layout: docs/foxglove_layout.json)")
-        result = _run_in_thread(session, args.duration, not args.no_display, console)
+        signals: list[int] = []
+        result = _run_in_thread(session, args.duration, not args.no_display, console, signals)
     console.print(summary_table(result))
     if (line := recorded_line(result)) is not None:
         print(line)
+    if signals:  # stopped by Ctrl-C or SIGTERM: the shell's convention, 128 + the signal
+        print(f"rehab-hil run: interrupted ({signal.Signals(signals[0]).name}); the rig was left in the safe state",
+              file=sys.stderr)
+        return 128 + signals[0]
     return 1 if result.events and result.events[0].reason != "stop_request" else 0
