@@ -8,23 +8,24 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.service.run_dir import is_run_dir
+
 __all__ = ["missing_channels", "resolve_data"]
-
-RUN_FILES = ("run.csv", "run.mcap")
-
-
-def _is_run(d: Path) -> bool:
-    return d.is_dir() and any((d / f).is_file() for f in RUN_FILES)
-
 
 def resolve_data(path: Path, command: str) -> Path:
     """``path``, or the newest run directory inside it when it is a folder of runs (run directories
-    start with their UTC start time): that choice is printed to standard error."""
-    if not path.is_dir() or _is_run(path):
+    start with their UTC start time): that choice is printed to standard error. Only run directories
+    count: a ``simulate --out`` CSV beside them in the folder is not taken for a run."""
+    if not path.is_dir() or is_run_dir(path):
         return path
-    runs = sorted(d for d in path.iterdir() if _is_run(d))
+    runs = sorted(d for d in path.iterdir() if is_run_dir(d))
     if not runs:
-        return path  # the reader names the empty folder
+        from rehab_hil.cli import UserError
+
+        files = sorted(f.name for f in path.iterdir() if f.suffix in (".csv", ".mcap", ".mat"))
+        hint = f"; to use a file in it, name the file ({', '.join(files[:3])})" if files else ""
+        raise UserError(f"--data {path}: no run directory here (`rehab-hil run --record DIR` writes "
+                        f"DIR/<UTC time>-<rig id>/ with metadata.json){hint}")
     newest = runs[-1]
     others = f"; the other {len(runs) - 1}: " + ", ".join(d.name for d in runs[-2::-1][:5]) + \
         (" ..." if len(runs) > 6 else "") if len(runs) > 1 else ""
