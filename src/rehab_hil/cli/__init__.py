@@ -18,7 +18,7 @@ from pathlib import Path
 # 4 ms in the twin's thread with the default pool on 2 busy cores). Set before numpy is first loaded.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__all__ = ["SUBCOMMANDS", "UserError", "device_arg", "interrupted", "main", "writable_folder"]
+__all__ = ["SUBCOMMANDS", "UserError", "config_file", "device_arg", "interrupted", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
@@ -40,6 +40,18 @@ def writable_folder(path: Path, flag: str, why: str) -> None:
         raise UserError(f"{flag} {path}: cannot create: {e.strerror}") from None
     if not os.access(path, os.W_OK | os.X_OK):
         raise UserError(f"{flag} {path}: not writable")
+
+
+def config_file(text: str) -> Path:
+    """``--config`` / ``--profile`` / ``--sim-plant``: the file as typed; a ``configs/NAME`` or
+    ``profiles/NAME`` that is not where the user stands is the shipped one (an installed package run
+    from any folder), said on standard error."""
+    from rehab_hil.shipped import resolve
+
+    path = resolve(text)
+    if path != Path(text):
+        print(f"rehab-hil: {text}: not in {Path.cwd()}; using the one shipped with rehab-hil, {path}", file=sys.stderr)
+    return path
 
 
 def device_arg(text: str) -> str:

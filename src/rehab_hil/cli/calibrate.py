@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rehab_hil.calibration import G0, Calibration, CalibrationPoint, fit_calibration, write_calibration
-from rehab_hil.cli import UserError, device_arg
+from rehab_hil.cli import UserError, config_file, device_arg
 from rehab_hil.cli.doctor import collect, firmware_configure_fallback, locked_configure
 from rehab_hil.hardware import HardwareError, HardwareInterface
 
@@ -83,7 +83,7 @@ def report(cal: Calibration, rms: dict[str, float], points: list[CalibrationPoin
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="calibrate a sensor with known loads (force: the Flexiforce on A0)")
     p.add_argument("what", choices=("force",))
-    p.add_argument("--config", type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--config", type=config_file, help="plant config (configs/*.toml)")
     p.add_argument("--device", default=None, type=device_arg,
                    help="sim, avr, auto or a serial path (default: [rig].port)")
     p.add_argument("--sensor-id", help="the sensor's label (names calibrations/<id>.toml)")

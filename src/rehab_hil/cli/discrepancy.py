@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rehab_hil.cli import config_file
 from rehab_hil.discrepancy.workflow import Options, Progress
 
 if TYPE_CHECKING:
@@ -34,7 +35,7 @@ class RichProgress(Progress):
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("discrepancy", help="find the effect missing from the model in measured data")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--config", required=True, type=config_file, help="plant config (configs/*.toml)")
     p.add_argument("--data", required=True, type=Path,
                    help="measured data: a run directory of `rehab-hil run --record`, its run.csv or run.mcap, "
                         "or an interchange CSV")

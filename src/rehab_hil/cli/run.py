@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from rehab_hil.cli import UserError, device_arg, writable_folder
+from rehab_hil.cli import UserError, config_file, device_arg, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError
 from rehab_hil.service import assembly
 from rehab_hil.service.errors import SessionError
@@ -31,8 +31,8 @@ from rehab_hil.service.session import FoxgloveOptions, RigSession, TelemetryOpti
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a session on the rig (sim, avr, inprocess or a serial port) and summarise it")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--profile", type=Path, default=None, help="per-patient profile (profiles/*.toml): session "
+    p.add_argument("--config", required=True, type=config_file, help="plant config (configs/*.toml)")
+    p.add_argument("--profile", type=config_file, default=None, help="per-patient profile (profiles/*.toml): session "
                    "and tighter limits (rehab_hil.profiles)")
     p.add_argument("--device", default=None, type=device_arg,
                    help=f"{', '.join(repr(k) for k in RIG_KINDS)} or a serial path (default: [rig].port)")
@@ -42,7 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "run.mcap and metadata.json (never overwriting an earlier run)")
     p.add_argument("--rig-id", default=None,
                    help="the rig's name in run directories and metadata (default: --telemetry RIG, else the plant)")
-    p.add_argument("--sim-plant", type=Path, default=None, metavar="DEVICE.toml",
+    p.add_argument("--sim-plant", type=config_file, default=None, metavar="DEVICE.toml",
                    help="simulated devices: the plant config the device runs (default: --config), e.g. one with "
                         "[[effects]] the host's model lacks")
     p.add_argument("--controller", default=None, metavar="NAME",

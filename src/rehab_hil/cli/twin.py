@@ -12,13 +12,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.cli import config_file
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("twin", help="run the live twin on a recorded session: model events, causes and the "
                        "patient's interaction estimate (docs/twin.md)")
     p.add_argument("run", type=Path, metavar="RUN",
                    help="a run directory of `run --record` or its run.csv (a folder of runs: the newest)")
-    p.add_argument("--config", type=Path, default=None,
+    p.add_argument("--config", type=config_file, default=None,
                    help="the model to judge it with (default: the config the run was made with, from its "
                         "metadata.json), e.g. a discrepancy report's augmented.toml")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",

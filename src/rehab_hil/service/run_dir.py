@@ -19,8 +19,8 @@ from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "RUN_FILES", "config_identity", "is_run_dir", "new_run_dir", "read_metadata", "result_metadata",
-           "session_metadata", "write_metadata"]
+__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "RUN_FILES", "config_identity", "is_run_dir", "new_run_dir",
+           "read_metadata", "result_metadata", "session_metadata", "write_metadata"]
 
 METADATA_FILE = "metadata.json"
 METADATA_SCHEMA = "rehab-hil/run-metadata/1"
