@@ -91,6 +91,8 @@ def test_a_typod_key_is_reported_as_the_typo(name, tmp_path, capsys, data_csv):
     ["discrepancy", "--config", str(FE), "--data", "{tmp}/nothing.csv", "--out", "{tmp}/rep"],
     ["replay", "--config", str(FE), "--data", "{tmp}"],
     ["report", "{tmp}/file"],
+    ["simulate", "--config", str(FE), "--scenario", "step", "--duration", "0.2", "--out", "{tmp}/file/sub/x.csv"],
+    ["replay", "--config", str(FE), "--data", "{tmp}/data.csv", "--out", "{tmp}/file/r.csv"],
     ["run", "--config", str(FE), "--device", "simm", "--duration", "0.2"],
     ["doctor", "--config", str(FE), "--device", "inproces", "--yes"],
     ["calibrate", "force", "--config", str(FE), "--device", "inprocess", "--weights-g", "200,100", "--sensor-id", "s1"],

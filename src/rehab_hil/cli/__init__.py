@@ -143,6 +143,11 @@ def _main(words: list[str]) -> int:
     except EOFError:  # input() on a closed standard input, or Ctrl-D at a prompt
         print(f"\nrehab-hil {args.command}: error: {STDIN_CLOSED}", file=sys.stderr)
         return 2
+    except OSError as e:  # a file the command reads or writes, not worded by the command itself: still one line
+        if e.filename is None:
+            raise
+        print(f"rehab-hil {args.command}: error: {e.filename}: {e.strerror}", file=sys.stderr)
+        return 2
     finally:
         progress.set_sink(None)
 
