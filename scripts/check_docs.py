@@ -7,7 +7,7 @@ other program line (a Python module, a bench script, mkdir/cp/printf, make) name
 
 ``--run`` (minutes): clones the repository (``git clone``, the committed tree) into a temporary
 folder and runs every command there in document order, shell lines included, with sessions cut to
-``--max-duration`` seconds; ``<run>`` placeholders become the newest run directory. Commands that
+``--max-duration`` seconds (12); ``<run>`` placeholders become the newest run directory. Commands that
 need a board, a lab network or a second live process are listed with the reason and the test that
 covers them. Prints one line per command and exits 1 if any failed.
 """
@@ -251,7 +251,8 @@ def _tracked(work: Path) -> set[str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", action="store_true", help="clone the repository and run every command in it")
-    ap.add_argument("--max-duration", type=float, default=3.0, help="cut sessions to this many seconds (--run)")
+    ap.add_argument("--max-duration", type=float, default=12.0,
+                    help="cut sessions to this many seconds (--run; default 12: one SMA open-close cycle)")
     ap.add_argument("--keep", action="store_true", help="keep the clone (--run)")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
@@ -266,6 +267,8 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="rehab-hil-docs-"))
     work = tmp / "clone"
     subprocess.run(["git", "clone", "--quiet", str(ROOT), str(work)], check=True)
+    if (ROOT.parent / "shared").is_dir():  # the data beside the repository (../shared/data), as beside a clone
+        (tmp / "shared").symlink_to(ROOT.parent / "shared")
     print(f"running them in a fresh clone, {work}")
     code = run_all(work, args.max_duration)
     if not args.keep:

@@ -35,7 +35,7 @@ def _paths(run: Path) -> tuple[Path, Path | None]:
 
     if not run.exists():
         raise UserError(f"{run}: not found")
-    run = resolve_data(run, "twin")
+    run = resolve_data(run, "twin", flag="RUN")
     csv = run / "run.csv" if run.is_dir() else run
     if not csv.is_file():
         raise UserError(f"{run}: no run.csv (a run directory of `rehab-hil run --record`)")
