@@ -58,6 +58,7 @@ def test_the_wheel_ships_every_config_and_profile(wheel):
     for folder in ("configs", "profiles"):
         for f in sorted((ROOT / folder).glob("*.toml")):
             assert f"rehab_hil/shipped_data/{folder}/{f.name}" in names
+    assert "rehab_hil/shipped_data/foxglove_layout.json" in names  # the layout `run --foxglove` prints
 
 
 def test_the_installed_package_finds_its_configs_outside_the_checkout(venv, tmp_path):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["CONFIGS", "PROFILES", "resolve"]
+__all__ = ["CONFIGS", "FOXGLOVE_LAYOUT", "PROFILES", "resolve"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -24,6 +24,9 @@ def _shipped(name: str) -> Path:
 
 CONFIGS = _shipped("configs")
 PROFILES = _shipped("profiles")
+FOXGLOVE_LAYOUT = (_PACKAGE / "shipped_data" / "foxglove_layout.json"
+                   if (_PACKAGE / "shipped_data" / "foxglove_layout.json").is_file()
+                   else _PACKAGE.parents[1] / "docs" / "foxglove_layout.json")  # the layout `run --foxglove` names
 _FOLDERS = {"configs": CONFIGS, "profiles": PROFILES}
 
 

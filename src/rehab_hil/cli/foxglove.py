@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rehab_hil import shipped
 from rehab_hil.cli import UserError, config_file
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
 from rehab_hil.telemetry.codec import PayloadError, decode_json
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                     raise UserError(str(e)) from None
             if args.layout_out is not None:
                 args.layout_out.write_text(layout_json([(bridge.feeds[r].prefix, r) for r in sorted(bridge.feeds)]))
-            print(f"Foxglove: open {live.url} (layout: {args.layout_out or 'docs/foxglove_layout.json'})", flush=True)
+            print(f"Foxglove: open {live.url} (layout: {args.layout_out or shipped.FOXGLOVE_LAYOUT})", flush=True)
             end = time.monotonic() + args.duration if args.duration else float("inf")
             try:
                 while time.monotonic() < end:

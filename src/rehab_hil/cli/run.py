@@ -21,6 +21,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from rehab_hil import shipped
 from rehab_hil.cli import UserError, config_file, device_arg, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError
 from rehab_hil.service import assembly
@@ -266,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
         if session.homed is not None:
             print(f"homed ({session.homed.mode}): encoder count {session.homed.count} at the home pose")
         if session.foxglove is not None:
-            print(f"Foxglove live view: {session.foxglove.live.url} (layout: docs/foxglove_layout.json)")
+            print(f"Foxglove live view: {session.foxglove.live.url} (layout: {shipped.FOXGLOVE_LAYOUT})")
         signals: list[int] = []
         result = _run_in_thread(session, args.duration, not args.no_display, console, signals)
     console.print(summary_table(result))
