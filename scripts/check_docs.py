@@ -42,7 +42,6 @@ NOT_RUN = (
     ("rehab-hil monitor", "waits for a live rig (tests/telemetry/test_lab.py and test_cli.py run it beside rigs)"),
     ("rehab-hil record --from-zenoh", "waits for a live rig (tests/telemetry/test_lab.py)"),
     ("rehab-hil foxglove", "waits for a live rig (tests/telemetry/test_lab.py)"),
-    ("rehab-hil ports", "lists USB serial ports (tests/hardware/test_discovery.py)"),
     ("make ", "make test is the suite itself; make run is the README's `run ... --duration 30 --record out/`"),
     ("bench/", "a benchmark, not a check (make bench)"),
     ("python_device", "waits on stdin for the host (tests/devices/test_conformance.py)"),
