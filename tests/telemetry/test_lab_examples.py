@@ -18,9 +18,10 @@ LAB = Path(__file__).resolve().parents[2] / "docs" / "examples" / "lab"
 
 
 def test_the_shipped_acl_is_json_and_the_object_the_docs_describe():
+    """After a change of ``command_access_control``: ``python scripts/lab_acl_example.py``."""
     doc = json.loads((LAB / "acl.json").read_text())  # plain JSON: the router refuses JSON5
     assert doc == {"access_control": command_access_control(rig_users=["rig"], operators=["alice"],
-                                                            viewers=["victor"])}
+                                                            viewers=["victor"])}, "run scripts/lab_acl_example.py"
 
 
 def test_the_router_runs_with_the_shipped_acl_and_users(tmp_path):
