@@ -32,7 +32,8 @@ def main() -> int:
     text = acl_text()
     if "--check" in sys.argv[1:]:
         same = TARGET.read_text() == text
-        print(f"{TARGET.relative_to(ROOT)}: {'up to date' if same else 'differs: run python scripts/lab_acl_example.py'}")
+        state = "up to date" if same else "differs: run python scripts/lab_acl_example.py"
+        print(f"{TARGET.relative_to(ROOT)}: {state}")
         return 0 if same else 1
     TARGET.write_text(text)
     print(f"wrote {TARGET.relative_to(ROOT)}")
