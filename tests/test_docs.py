@@ -64,6 +64,7 @@ def test_the_readmes_first_commands_run_in_a_folder_of_their_own(tmp_path):
         proc = subprocess.run(check_docs._runnable(cmd, tmp_path, 1.0), cwd=tmp_path, env=env, capture_output=True,
                               text=True, timeout=600)
         assert proc.returncode == 0 and "Traceback" not in proc.stderr, f"{cmd.where}: {proc.stderr[-2000:]}"
+    assert "rehab-hil report: out holds 1 run: " in proc.stderr  # the simulated out/run.csv is not one
     assert sorted(p.name for p in tmp_path.iterdir()) == ["configs", "out"]  # nothing beside out/
     (run,) = [d for d in (tmp_path / "out").iterdir() if d.is_dir()]
     assert (run / "report.html").is_file()
