@@ -24,6 +24,16 @@ def edit(old: str, new: str) -> str:
     return re.sub(old, new, BASE, count=1, flags=re.M)
 
 
+def test_every_error_of_a_config_is_named_on_its_one_line(tmp_path):
+    text = edit(r"^radius_m = 0.055.*$", "radius_m = -1.0")
+    text = re.sub(r"^gear_ratio = 32.5.*$", 'gear_ratio = "x"', text, count=1, flags=re.M)
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, text))
+    msg = str(e.value)
+    assert "\n" not in msg and "more errors" not in msg
+    assert "iris.radius_m: input should be greater than 0" in msg and "motor.gear_ratio: wrong type" in msg
+
+
 def test_shipped_finger_extensor_config_loads():
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "finger_extensor.toml")
     assert cfg.iris.radius_m == pytest.approx(0.055)

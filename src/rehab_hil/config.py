@@ -314,13 +314,20 @@ def validate(path: str | Path, data: dict[str, Any], schema: type[T], prefix: st
         errs = sorted(e.errors(), key=lambda err: err["type"] != "extra_forbidden")
         first = errs[0]
         key = _dotted(first["loc"])
-        more = f" (and {len(errs) - 1} more errors)" if len(errs) > 1 else ""
         hint = _typo_hint(first, errs)
-        raise ConfigError(path, prefix + key, _message(first) + hint + more) from None
+        raise ConfigError(path, prefix + key, _message(first) + hint + _also(errs[1:], prefix, hint)) from None
     rig = getattr(model, "rig", None)
     if isinstance(rig, RigSection) and (why := rig.unreachable_temperature()):
         raise ConfigError(path, "rig.limits.max_temperature_c", why)
     return model
+
+
+def _also(rest: list[dict[str, Any]], prefix: str, hint: str) -> str:
+    """Every further error on the same line, each with its key (none hidden behind a count); a
+    missing key the typo hint already names is not repeated."""
+    parts = [f"{prefix}{_dotted(err['loc'])}: {_message(err)}" for err in rest
+             if not (err["type"] == "missing" and repr(str(err["loc"][-1])) in hint)]
+    return f"; also {'; '.join(parts)}" if parts else ""
 
 
 def _typo_hint(first: dict[str, Any], errs: list[dict[str, Any]]) -> str:

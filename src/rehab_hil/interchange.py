@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rehab_hil.outputs import replacing
+
 __all__ = ["SIGNAL_NAME", "CsvError", "Recording", "may_be_empty", "read_csv", "write_csv"]
 
 SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9]*(_[a-z0-9]+)+$")
@@ -73,18 +75,19 @@ def write_csv(path: str | Path, t: np.ndarray, signals: Mapping[str, np.ndarray]
     data = np.column_stack([t, *cols]) if cols else t[:, None]
     header = ",".join(["time_s", *names])
     gaps = [i + 1 for i, (n, c) in enumerate(zip(names, cols, strict=True)) if may_be_empty(n) and np.isnan(c).any()]
-    if not gaps:
-        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.10g")
-        return path
-    fmt = ",".join(["%.10g"] * data.shape[1])
-    with path.open("w", encoding="utf-8") as fh:
-        fh.write(header + "\n")
-        for row in data:
-            line = fmt % tuple(row)
-            if np.isnan(row[gaps]).any():
-                line = ",".join("" if i in gaps and v != v else c
-                                for i, (c, v) in enumerate(zip(line.split(","), row, strict=True)))
-            fh.write(line + "\n")
+    with replacing(path) as tmp:  # a reader never sees half a file, nor does Ctrl-C leave one
+        if not gaps:
+            np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt="%.10g")
+            return path
+        fmt = ",".join(["%.10g"] * data.shape[1])
+        with Path(tmp).open("w", encoding="utf-8") as fh:
+            fh.write(header + "\n")
+            for row in data:
+                line = fmt % tuple(row)
+                if np.isnan(row[gaps]).any():
+                    line = ",".join("" if i in gaps and v != v else c
+                                    for i, (c, v) in enumerate(zip(line.split(","), row, strict=True)))
+                fh.write(line + "\n")
     return path
 
 

@@ -14,13 +14,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from rehab_hil import shipped
 from rehab_hil.hardware.inprocess import InProcessHardware
 from rehab_hil.hardware.open import inprocess_hardware
 
 __all__ = ["CONFIGS", "InProcessHardware", "config_with_changes", "free_port", "inprocess_rig", "pid_runtime",
            "push_runtime"]
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"  # the repository's plant configs
+CONFIGS = shipped.CONFIGS  # the plant configs: the repository's, or an installed wheel's own copies
 
 
 def free_port() -> int:

@@ -158,3 +158,23 @@ def test_a_config_references_its_calibration_relative_to_itself_and_the_firmware
     path.write_text(text.replace("fs-07.toml", "fs-99.toml"))
     with pytest.raises(ConfigError, match=r"rig\.toml: rig\.force_calibration: .*/calibrations/fs-99\.toml: no such"):
         load_config(path)
+
+
+def test_the_printed_reference_is_the_path_the_config_resolves(tmp_path: Path, monkeypatch) -> None:
+    """``calibrate`` run from the repository root writes calibrations/fs-07.toml; the line it prints
+    for configs/rig.toml names it from the config's folder, where force_calibration is read."""
+    from rehab_hil.calibration import CalibrationPoint
+    from rehab_hil.cli.calibrate import reference_line
+
+    monkeypatch.chdir(tmp_path)
+    cal, _ = fit_calibration([CalibrationPoint(f, 20 + 30 * f) for f in (0.0, 1.0, 2.0, 4.0, 8.0)], 20.0, "fs-07")
+    written = write_calibration(cal, Path("calibrations"))
+    (tmp_path / "configs").mkdir()
+    config = Path("configs/rig.toml")
+    line = reference_line(written, config)
+    assert line == ('reference it in configs/rig.toml with [rig] force_calibration = "../calibrations/fs-07.toml" '
+                    "(a path from its folder)")
+    ref = line.split("force_calibration = ")[1].split(" (")[0]
+    sma = (ROOT / "configs" / "sma_exoskeleton.toml").read_text()
+    config.write_text(sma.replace("[rig.limits]", f"force_calibration = {ref}\n\n[rig.limits]", 1))
+    assert load_config(config).rig.force_calibration == str(written.resolve())

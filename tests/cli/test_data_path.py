@@ -42,3 +42,24 @@ def test_a_record_without_the_rigs_angle_is_named(tmp_path, cycle_csv, capsys):
     assert main(["replay", "--config", str(FE), "--data", str(cut)]) == 0
     err = capsys.readouterr().err
     assert f"{cut}: no 'iris_angle_deg' column (a finger_extensor output the rig records)" in err
+
+
+def test_a_simulated_csv_beside_the_runs_is_not_taken_for_a_run(tmp_path, cycle_csv, capsys):
+    """After the README's ``simulate --out out/run.csv`` and ``make run``: out/ holds both."""
+    (tmp_path / "run.csv").write_bytes(cycle_csv.read_bytes())
+    run = tmp_path / "20261101T090000Z-bench1"
+    run.mkdir()
+    (run / "run.csv").write_bytes(cycle_csv.read_bytes())
+    capsys.readouterr()
+    assert main(["replay", "--config", str(FE), "--data", str(tmp_path)]) == 0
+    out, err = capsys.readouterr()
+    assert f"--data {tmp_path} holds one run: using it, {run}" in err
+    assert f"on {run / 'run.csv'}" in out
+
+
+def test_a_folder_without_runs_is_one_line_naming_the_files_in_it(tmp_path, cycle_csv, capsys):
+    (tmp_path / "run.csv").write_bytes(cycle_csv.read_bytes())
+    capsys.readouterr()
+    assert main(["replay", "--config", str(FE), "--data", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"--data {tmp_path}: no run directory here" in err and "name the file (run.csv)" in err

@@ -68,6 +68,18 @@ def test_non_auto_devices_pass_through(pty_path: str) -> None:
         assert resolve_device(d, []) == d
 
 
+@pytest.mark.parametrize(("typed", "meant"), [("simm", "sim"), ("SIM", "sim"), ("avrr", "avr"),
+                                              ("inproces", "inprocess"), ("atuo", "auto")])
+def test_a_near_miss_of_a_backend_name_is_refused_with_the_name_meant(typed, meant):
+    with pytest.raises(HardwareError, match=f"device '{typed}' is none of .* did you mean '{meant}'"):
+        resolve_device(typed, [])
+
+
+def test_a_serial_name_unlike_any_backend_passes_through():
+    for d in ("COM3", "ttyACM0", "/dev/does-not-exist"):
+        assert resolve_device(d, []) == d
+
+
 def test_a_real_rig_config_on_the_simulator_is_warned_about() -> None:
     line, warns = describe_device("sim", "configs/bench.toml", "/dev/ttyACM0", ports=[])
     assert "simulated" in line and "nothing on the bench moves" in line

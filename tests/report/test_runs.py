@@ -18,6 +18,15 @@ def test_find_runs_takes_a_run_dir_its_csv_or_every_run_in_the_record_folder(tmp
     assert find_runs(tmp_path) == [a, b]  # oldest first
 
 
+def test_a_simulated_csv_in_the_record_folder_is_not_taken_for_a_run(tmp_path, make_run):
+    """``simulate --out out/run.csv`` and ``make run`` (``--record out/``) share the README's out/."""
+    a = make_run(tmp_path, "20261101T090000Z-bench7")
+    (tmp_path / "run.csv").write_text("time_s,x_deg\n0,1\n")
+    assert find_runs(tmp_path) == [a]
+    with pytest.raises(ReportError, match=r"run\.csv: not in a run directory \(no metadata\.json beside it"):
+        find_runs(tmp_path / "run.csv")
+
+
 def test_find_runs_names_a_missing_path_and_a_folder_without_runs(tmp_path):
     with pytest.raises(ReportError, match="no such file or directory"):
         find_runs(tmp_path / "nope")

@@ -18,7 +18,7 @@ from pathlib import Path
 # 4 ms in the twin's thread with the default pool on 2 busy cores). Set before numpy is first loaded.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__all__ = ["SUBCOMMANDS", "UserError", "main", "writable_folder"]
+__all__ = ["SUBCOMMANDS", "UserError", "config_file", "device_arg", "interrupted", "main", "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
@@ -40,6 +40,30 @@ def writable_folder(path: Path, flag: str, why: str) -> None:
         raise UserError(f"{flag} {path}: cannot create: {e.strerror}") from None
     if not os.access(path, os.W_OK | os.X_OK):
         raise UserError(f"{flag} {path}: not writable")
+
+
+def config_file(text: str) -> Path:
+    """``--config`` / ``--profile`` / ``--sim-plant``: the file as typed; a ``configs/NAME`` or
+    ``profiles/NAME`` that is not where the user stands is the shipped one (an installed package run
+    from any folder), said on standard error."""
+    from rehab_hil.shipped import resolve
+
+    path = resolve(text)
+    if path != Path(text):
+        print(f"rehab-hil: {text}: not in {Path.cwd()}; using the one shipped with rehab-hil, {path}", file=sys.stderr)
+    return path
+
+
+def device_arg(text: str) -> str:
+    """``--device``: a near-miss of sim, avr, inprocess or auto (``simm``) is refused with the name
+    meant, at once, instead of being opened as a serial path after the model is built."""
+    from rehab_hil.hardware import HardwareError
+    from rehab_hil.hardware.discovery import check_device_name
+
+    try:
+        return check_device_name(text)
+    except HardwareError as e:
+        raise UserError(f"--device: {e}") from None
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
@@ -71,15 +95,44 @@ STDIN_CLOSED = ("standard input closed while waiting for an answer: answer on a 
                 "(doctor, calibrate) or --home none (run)")
 
 
+def interrupted(exc: BaseException) -> bool:
+    """Ctrl-C, also when a library wrapped it: numba's compiler turns a KeyboardInterrupt raised in
+    its callbacks into a ``SystemError`` whose cause or context is the interrupt."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command line: 0 done, 1 a session that tripped, 2 a user error (one line), 130 Ctrl-C
+    (one line, wherever it came: while importing, compiling the model or fitting)."""
     words = list(sys.argv[1:] if argv is None else argv)
+    command = next((w for w in words if not w.startswith("-")), "")
+    try:
+        return _main(words)
+    except BaseException as e:
+        if not interrupted(e):
+            raise
+        print(f"\nrehab-hil {command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(words: list[str]) -> int:
+    from rehab_hil import progress
+
+    progress.set_sink(lambda line: print(f"rehab-hil: {line}", file=sys.stderr, flush=True))  # slow steps say so
     named = {name.replace("_data", ""): name for name in SUBCOMMANDS}
     first = next((w for w in words if not w.startswith("-")), None)
     parser = build_parser(named.get(first) if first is not None else None)
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(words)
     except _user_errors() as e:  # an argument's own check (argparse type=) said what is wrong
-        command = next((a for a in (sys.argv[1:] if argv is None else argv) if a in SUBCOMMANDS), "")
+        command = next((a for a in words if a in named), "")
         print(f"rehab-hil {command}: error: {e}".replace("  ", " "), file=sys.stderr)
         return 2
     try:
@@ -90,9 +143,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except EOFError:  # input() on a closed standard input, or Ctrl-D at a prompt
         print(f"\nrehab-hil {args.command}: error: {STDIN_CLOSED}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"\nrehab-hil {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except OSError as e:  # a file the command reads or writes, not worded by the command itself: still one line
+        if e.filename is None:
+            raise
+        print(f"rehab-hil {args.command}: error: {e.filename}: {e.strerror}", file=sys.stderr)
+        return 2
+    finally:
+        progress.set_sink(None)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -10,6 +10,7 @@ linear in conductance or a low-order polynomial, chosen by residuals) is written
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -19,7 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 from rehab_hil.calibration import G0, Calibration, CalibrationPoint, fit_calibration, write_calibration
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, config_file, device_arg
 from rehab_hil.cli.doctor import collect, firmware_configure_fallback, locked_configure
 from rehab_hil.hardware import HardwareError, HardwareInterface
 
@@ -80,11 +81,19 @@ def report(cal: Calibration, rms: dict[str, float], points: list[CalibrationPoin
     return t
 
 
+def reference_line(calibration: Path, config: Path) -> str:
+    """How the config names the calibration: ``force_calibration`` is read relative to the config's
+    own folder, so the path printed is too (``../calibrations/s1.toml`` from configs/)."""
+    rel = Path(os.path.relpath(Path(calibration).resolve(), Path(config).resolve().parent)).as_posix()
+    return f"reference it in {config} with [rig] force_calibration = \"{rel}\" (a path from its folder)"
+
+
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="calibrate a sensor with known loads (force: the Flexiforce on A0)")
     p.add_argument("what", choices=("force",))
-    p.add_argument("--config", type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--device", default=None, help="sim, avr, auto or a serial path (default: [rig].port)")
+    p.add_argument("--config", type=config_file, help="plant config (configs/*.toml)")
+    p.add_argument("--device", default=None, type=device_arg,
+                   help="sim, avr, auto or a serial path (default: [rig].port)")
     p.add_argument("--sensor-id", help="the sensor's label (names calibrations/<id>.toml)")
     p.add_argument("--weights-g", type=weights_g, help="known masses in grams, rising: 50,100,200,500")
     p.add_argument("--circuit", choices=("opamp", "divider"), default="opamp", help="how the sensor reaches A0")
@@ -137,5 +146,5 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"calibration: {e}") from None
     console.print(report(cal, rms, points))
     path = write_calibration(cal, args.out_dir)
-    console.print(f"wrote {path}; reference it with [rig] force_calibration = \"{path}\"")
+    console.print(f"wrote {path}; {reference_line(path, args.config)}")
     return 0

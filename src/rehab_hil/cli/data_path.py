@@ -8,28 +8,31 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.service.run_dir import is_run_dir
+
 __all__ = ["missing_channels", "resolve_data"]
 
-RUN_FILES = ("run.csv", "run.mcap")
-
-
-def _is_run(d: Path) -> bool:
-    return d.is_dir() and any((d / f).is_file() for f in RUN_FILES)
-
-
-def resolve_data(path: Path, command: str) -> Path:
+def resolve_data(path: Path, command: str, flag: str = "--data") -> Path:
     """``path``, or the newest run directory inside it when it is a folder of runs (run directories
-    start with their UTC start time): that choice is printed to standard error."""
-    if not path.is_dir() or _is_run(path):
+    start with their UTC start time): that choice is printed to standard error. Only run directories
+    count: a ``simulate --out`` CSV beside them in the folder is not taken for a run."""
+    if not path.is_dir() or is_run_dir(path):
         return path
-    runs = sorted(d for d in path.iterdir() if _is_run(d))
-    if not runs:
+    runs = sorted(d for d in path.iterdir() if is_run_dir(d))
+    files = sorted(f.name for f in path.iterdir() if f.suffix in (".csv", ".mcap", ".mat"))
+    if not runs and not files:
         return path  # the reader names the empty folder
+    if not runs:  # a simulate --out CSV is not a run: taking it silently analysed the wrong data
+        from rehab_hil.cli import UserError
+
+        raise UserError(f"{flag} {path}: no run directory here (`rehab-hil run --record DIR` writes "
+                        f"DIR/<UTC time>-<rig id>/ with metadata.json); to use a file in it, name the file "
+                        f"({', '.join(files[:3])})")
     newest = runs[-1]
     others = f"; the other {len(runs) - 1}: " + ", ".join(d.name for d in runs[-2::-1][:5]) + \
         (" ..." if len(runs) > 6 else "") if len(runs) > 1 else ""
     what = f"holds {len(runs)} runs: using the newest" if len(runs) > 1 else "holds one run: using it"
-    print(f"rehab-hil {command}: --data {path} {what}, {newest}{others}", file=sys.stderr)
+    print(f"rehab-hil {command}: {flag} {path} {what}, {newest}{others}", file=sys.stderr)
     return newest
 
 

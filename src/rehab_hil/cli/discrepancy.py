@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rehab_hil.cli import config_file
 from rehab_hil.discrepancy.workflow import Options, Progress
 
 if TYPE_CHECKING:
@@ -33,7 +35,7 @@ class RichProgress(Progress):
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("discrepancy", help="find the effect missing from the model in measured data")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--config", required=True, type=config_file, help="plant config (configs/*.toml)")
     p.add_argument("--data", required=True, type=Path, action="append",
                    help="measured data: a run directory of `rehab-hil run --record`, its run.csv or run.mcap, "
                         "or an interchange CSV; repeat it to fit one parameter set over several records (each "
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.cli import UserError, writable_folder
     from rehab_hil.discrepancy.report import write_report
     from rehab_hil.discrepancy.workflow import find_missing_effects
+    from rehab_hil.outputs import staged_folder
     from rehab_hil.report.discrepancy import discrepancy_page
 
     if args.max_effects is not None and not 1 <= args.max_effects <= 5:
@@ -71,21 +74,30 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--holdout must be in [0.1, 0.9], got {args.holdout}")
     # check the inputs before the progress display starts, so a user error prints one line only
     cfg, recs, sources, val_recs = _load_records(args)
-    writable_folder(Path(args.out), "--out", "the report is several files")  # before the fit: nothing lost
+    out = Path(args.out)
+    made = not out.exists()
+    writable_folder(out, "--out", "the report is several files")  # before the fit: nothing lost
     console = Console(stderr=True)
     cols = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
             TextColumn("simulations"), TimeElapsedColumn())
-    with Progress(*cols, console=console, transient=False) as bar:
-        progress = RichProgress(bar)
-        sets = args.search == "sets" or (args.search == "auto" and len(recs) > 1)
-        opts = Options(holdout_fraction=args.holdout, max_effects=args.max_effects or (3 if sets else 2),
-                       search=args.search, start=args.start)
-        res = find_missing_effects(cfg, recs if len(recs) > 1 else recs[0], sources if len(recs) > 1 else sources[0],
-                                   progress, opts)
-        _validate(res, cfg, val_recs, args.validate, progress)
-        progress.start("writing report", None)
-        rep = write_report(res, Path(args.config), ", ".join(str(d) for d in args.data), Path(args.out))
-        discrepancy_page(res, rep).write(Path(args.out) / "report.html")
+    try:
+        with Progress(*cols, console=console, transient=False) as bar:
+            progress = RichProgress(bar)
+            sets = args.search == "sets" or (args.search == "auto" and len(recs) > 1)
+            opts = Options(holdout_fraction=args.holdout, max_effects=args.max_effects or (3 if sets else 2),
+                           search=args.search, start=args.start)
+            res = find_missing_effects(cfg, recs if len(recs) > 1 else recs[0],
+                                       sources if len(recs) > 1 else sources[0], progress, opts)
+            _validate(res, cfg, val_recs, args.validate, progress)
+            progress.start("writing report", None)
+            with staged_folder(out) as tmp:  # every file, or none: Ctrl-C never leaves a folder with one plot
+                rep = write_report(res, Path(args.config), ", ".join(str(d) for d in args.data), tmp)
+                discrepancy_page(res, rep).write(tmp / "report.html")
+    except BaseException:
+        if made:  # the folder made for the report goes again, unless something else was put in it
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
     _print_summary(res, args.out)
     return 0
 

@@ -28,7 +28,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, config_file, device_arg
 from rehab_hil.hardware import HardwareError, HardwareInterface
 from rehab_hil.protocol import BASE_RATE_HZ, PROTOCOL_VERSION, Configure, Fault, Sample, Status
 
@@ -362,8 +362,9 @@ def open_for_checks(device: str, config_path: Path, cfg: Any, binding: Any, inte
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("doctor", help="self-test a rig with PWM locked off: link, limits, e-stop, encoder, force")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--device", default=None, help="sim, avr, auto or a serial path (default: [rig].port)")
+    p.add_argument("--config", required=True, type=config_file, help="plant config (configs/*.toml)")
+    p.add_argument("--device", default=None, type=device_arg,
+                   help="sim, avr, auto or a serial path (default: [rig].port)")
     p.add_argument("--seconds", type=float, default=3.0, help="how long to measure the link at rest [s]")
     p.add_argument("--timeout", type=float, default=15.0, help="how long each manual step may take [s]")
     p.add_argument("--yes", action="store_true", help="non-interactive: no Enter; simulated devices play the user")

@@ -13,7 +13,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rehab_hil.cli import UserError
+from rehab_hil import shipped
+from rehab_hil.cli import UserError, config_file
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
 from rehab_hil.telemetry.codec import PayloadError, decode_json
 from rehab_hil.telemetry.foxglove import DEFAULT_HOST, DEFAULT_PORT, FoxgloveError, FoxgloveLive, RigFeed, rig_prefix
@@ -32,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--ws-port", type=int, default=DEFAULT_PORT, help=f"Foxglove server port (default {DEFAULT_PORT})")
     p.add_argument("--ws-host", default=DEFAULT_HOST, help=f"address the server binds (default {DEFAULT_HOST})")
     p.add_argument("--layout-out", type=Path, default=None, help="write a Foxglove layout for the bridged rigs")
-    p.add_argument("--config", type=Path, default=None, help="plant config (default: what each rig reports)")
+    p.add_argument("--config", type=config_file, default=None, help="plant config (default: what each rig reports)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--wait", type=float, default=10.0, help="how long to wait for the rigs to appear [s] (default 10)")
     add_network_args(p)
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                     raise UserError(str(e)) from None
             if args.layout_out is not None:
                 args.layout_out.write_text(layout_json([(bridge.feeds[r].prefix, r) for r in sorted(bridge.feeds)]))
-            print(f"Foxglove: open {live.url} (layout: {args.layout_out or 'docs/foxglove_layout.json'})", flush=True)
+            print(f"Foxglove: open {live.url} (layout: {args.layout_out or shipped.FOXGLOVE_LAYOUT})", flush=True)
             end = time.monotonic() + args.duration if args.duration else float("inf")
             try:
                 while time.monotonic() < end:

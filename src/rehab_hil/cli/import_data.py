@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rehab_hil.cli import config_file
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("import", help="convert a .mat or CSV logger file into an interchange CSV (a mapping "
@@ -13,7 +15,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--mapping", type=Path, help="TOML file with an [import] table (time or sample_time_s, "
                                                   "[import.signals.<signal>] variable, unit, scale, offset)")
-    src.add_argument("--config", type=Path, help="a plant config whose [import] table is the mapping")
+    src.add_argument("--config", type=config_file, help="a plant config whose [import] table is the mapping")
     p.add_argument("--out", required=True, type=Path, help="interchange CSV to write")
     return p
 

@@ -8,7 +8,7 @@ import argparse
 import time
 from pathlib import Path
 
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, config_file
 from rehab_hil.telemetry.cliargs import add_network_args, network_from_args
 from rehab_hil.telemetry.lab import LabError, LabRecorder, rig_matcher
 from rehab_hil.telemetry.session import TelemetryConfigError, open_session
@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--from-zenoh", required=True, metavar="RIG_PATTERN",
                    help="rig id or shell-style pattern (quote it), e.g. bench1, 'bench*', 'lab-?'")
     p.add_argument("--out", required=True, type=Path, help="root directory for the run directories")
-    p.add_argument("--config", type=Path, default=None,
+    p.add_argument("--config", type=config_file, default=None,
                    help="plant config (default: the one each rig reports in rehab/<rig>/info)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: when "
                    "every recorded rig has stopped)")

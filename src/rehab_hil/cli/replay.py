@@ -7,10 +7,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from rehab_hil.cli import config_file
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="replay a recording's inputs through a config's model; per-channel errors")
-    p.add_argument("--config", required=True, type=Path, help="plant config, e.g. a report's augmented.toml")
+    p.add_argument("--config", required=True, type=config_file, help="plant config, e.g. a report's augmented.toml")
     p.add_argument("--data", required=True, type=Path,
                    help="a run directory of `rehab-hil run --record`, its run.csv or run.mcap, or an interchange CSV")
     p.add_argument("--out", type=Path, default=None, help="write the model's outputs (interchange CSV)")

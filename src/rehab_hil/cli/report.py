@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -22,7 +23,12 @@ def run(args: argparse.Namespace) -> int:
     from rehab_hil.report.runs import ReportError, find_runs, load_run
 
     try:
-        dirs = list(dict.fromkeys(d for p in args.runs for d in find_runs(p)))
+        found = {p: find_runs(p) for p in args.runs}
+        for p, ds in found.items():  # a folder of runs: which it holds, so a stray file is seen to be left out
+            if p.is_dir() and ds != [p]:
+                print(f"rehab-hil report: {p} holds {len(ds)} run{'s' * (len(ds) > 1)}: "
+                      + ", ".join(d.name for d in ds[:6]) + (" ..." if len(ds) > 6 else ""), file=sys.stderr)
+        dirs = list(dict.fromkeys(d for ds in found.values() for d in ds))
         dirs.sort(key=lambda d: d.name)  # run directories start with their UTC start time
         runs = [load_run(d) for d in dirs]
         page = report_page(runs)

@@ -21,7 +21,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from rehab_hil.cli import UserError, writable_folder
+from rehab_hil import shipped
+from rehab_hil.cli import UserError, config_file, device_arg, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError
 from rehab_hil.service import assembly
 from rehab_hil.service.errors import SessionError
@@ -31,10 +32,10 @@ from rehab_hil.service.session import FoxgloveOptions, RigSession, TelemetryOpti
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a session on the rig (sim, avr, inprocess or a serial port) and summarise it")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
-    p.add_argument("--profile", type=Path, default=None, help="per-patient profile (profiles/*.toml): session "
+    p.add_argument("--config", required=True, type=config_file, help="plant config (configs/*.toml)")
+    p.add_argument("--profile", type=config_file, default=None, help="per-patient profile (profiles/*.toml): session "
                    "and tighter limits (rehab_hil.profiles)")
-    p.add_argument("--device", default=None,
+    p.add_argument("--device", default=None, type=device_arg,
                    help=f"{', '.join(repr(k) for k in RIG_KINDS)} or a serial path (default: [rig].port)")
     p.add_argument("--duration", type=float, default=30.0, help="session length [s]")
     p.add_argument("--record", type=Path, default=None, metavar="DIR",
@@ -42,7 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "run.mcap and metadata.json (never overwriting an earlier run)")
     p.add_argument("--rig-id", default=None,
                    help="the rig's name in run directories and metadata (default: --telemetry RIG, else the plant)")
-    p.add_argument("--sim-plant", type=Path, default=None, metavar="DEVICE.toml",
+    p.add_argument("--sim-plant", type=config_file, default=None, metavar="DEVICE.toml",
                    help="simulated devices: the plant config the device runs (default: --config), e.g. one with "
                         "[[effects]] the host's model lacks")
     p.add_argument("--controller", default=None, metavar="NAME",
@@ -245,11 +246,16 @@ def _option_error(e: SessionError) -> str:
     return f"--{e.option.replace('_', '-')}: {e.message}" if e.option else e.message
 
 
-def _run_in_thread(session: RigSession, duration_s: float, display: bool, console: Console) -> RunResult:
+def _run_in_thread(session: RigSession, duration_s: float, display: bool, console: Console,
+                   signals: list[int]) -> RunResult:
     """Run the loop on its own thread, so the main thread stays free for signals and the live display;
-    Ctrl-C and SIGTERM stop it through the safe state."""
+    Ctrl-C and SIGTERM stop it through the safe state (``signals`` collects them, for the exit code)."""
     result: list[RunResult] = []
     errors: list[BaseException] = []
+
+    def stop(n: int, frame: Any) -> None:
+        signals.append(n)
+        session.request_stop(signal.Signals(n).name)
 
     def work() -> None:
         try:
@@ -257,8 +263,7 @@ def _run_in_thread(session: RigSession, duration_s: float, display: bool, consol
         except BaseException as e:  # reported on the main thread
             errors.append(e)
 
-    previous = {s: signal.signal(s, lambda n, f: session.request_stop(signal.Signals(n).name))
-                for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         th = threading.Thread(target=work, name="loop")
         th.start()
@@ -292,9 +297,14 @@ def run(args: argparse.Namespace) -> int:
         if session.homed is not None:
             print(f"homed ({session.homed.mode}): encoder count {session.homed.count} at the home pose")
         if session.foxglove is not None:
-            print(f"Foxglove live view: {session.foxglove.live.url} (layout: docs/foxglove_layout.json)")
-        result = _run_in_thread(session, args.duration, not args.no_display, console)
+            print(f"Foxglove live view: {session.foxglove.live.url} (layout: {shipped.FOXGLOVE_LAYOUT})")
+        signals: list[int] = []
+        result = _run_in_thread(session, args.duration, not args.no_display, console, signals)
     console.print(summary_table(result))
     if (line := recorded_line(result)) is not None:
         print(line)
+    if signals:  # stopped by Ctrl-C or SIGTERM: the shell's convention, 128 + the signal
+        print(f"rehab-hil run: interrupted ({signal.Signals(signals[0]).name}); the rig was left in the safe state",
+              file=sys.stderr)
+        return 128 + signals[0]
     return 1 if result.events and result.events[0].reason != "stop_request" else 0

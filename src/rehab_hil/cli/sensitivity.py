@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, config_file
 from rehab_hil.loading import load_config
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("sensitivity", help="mass/inertia/damping/K x2 and x0.5: joint-angle MSE vs nominal")
-    p.add_argument("--config", required=True, type=Path, help="a tcp_finger config (configs/tcp_finger.toml)")
+    p.add_argument("--config", required=True, type=config_file, help="a tcp_finger config (configs/tcp_finger.toml)")
     p.add_argument("--power-w", type=float, default=None, help="pulse power [W] (default: from the config)")
     return p
 

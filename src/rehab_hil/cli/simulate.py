@@ -7,7 +7,7 @@ import inspect
 import time
 from pathlib import Path
 
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, config_file
 from rehab_hil.interchange import write_csv
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant, run_scenario
@@ -17,7 +17,7 @@ from rehab_hil.plants.sections import EffectSpec, PlantConfig
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate a plant scenario and write the interchange CSV")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml)")
+    p.add_argument("--config", required=True, type=config_file, help="plant config (configs/*.toml)")
     p.add_argument("--scenario", default=None, help="scenario name (plant-specific, e.g. step, cycle)")
     p.add_argument("--controller", default=None, metavar="NAME",
                    help="instead of a scenario: a session of this controller (rehab_hil.controllers; 'session' = "

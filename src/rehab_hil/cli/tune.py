@@ -12,13 +12,14 @@ import argparse
 import time
 from pathlib import Path
 
-from rehab_hil.cli import UserError
+from rehab_hil.cli import UserError, config_file
 from rehab_hil.loading import load_config
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("tune", help="design a controller's settings on the model and write them as a config")
-    p.add_argument("--config", required=True, type=Path, help="plant config (configs/*.toml, or an augmented.toml)")
+    p.add_argument("--config", required=True, type=config_file,
+                   help="plant config (configs/*.toml, or an augmented.toml)")
     p.add_argument("--controller", default=None, metavar="NAME",
                    help="the controller to tune (default: [rig.session] controller)")
     p.add_argument("--out", required=True, type=Path, help="the config to write (the input with the tuned table)")

@@ -12,13 +12,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.cli import config_file
+
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("twin", help="run the live twin on a recorded session: model events, causes and the "
                        "patient's interaction estimate (docs/twin.md)")
     p.add_argument("run", type=Path, metavar="RUN",
                    help="a run directory of `run --record` or its run.csv (a folder of runs: the newest)")
-    p.add_argument("--config", type=Path, default=None,
+    p.add_argument("--config", type=config_file, default=None,
                    help="the model to judge it with (default: the config the run was made with, from its "
                         "metadata.json), e.g. a discrepancy report's augmented.toml")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
@@ -33,7 +35,7 @@ def _paths(run: Path) -> tuple[Path, Path | None]:
 
     if not run.exists():
         raise UserError(f"{run}: not found")
-    run = resolve_data(run, "twin")
+    run = resolve_data(run, "twin", flag="RUN")
     csv = run / "run.csv" if run.is_dir() else run
     if not csv.is_file():
         raise UserError(f"{run}: no run.csv (a run directory of `rehab-hil run --record`)")

@@ -27,6 +27,7 @@ from rehab_hil.controllers.base import (
     get_controller,
 )
 from rehab_hil.plants.sections import PlantConfig
+from rehab_hil.progress import announce
 
 __all__ = ["PREFLIGHT_MAX_S", "Sources", "build_controller", "preflight", "preflight_duration_s", "settings_for",
            "validate_controllers"]
@@ -94,7 +95,9 @@ def build_controller(cfg: PlantConfig, name: str | None = None, reference: Refer
         raise ControllerError(f"controller {name!r} does not apply to plant {cfg.plant!r}: {why}")
     controller = spec.build(ctx, settings_for(cfg, name, source), reference or Reference.session(cfg))
     if check:
-        preflight(controller, sources or Sources(source))
+        with announce(f"pre-flight: controller {name!r} on the model over "
+                      f"{preflight_duration_s(controller.reference):.0f} s, against the rig's limits"):
+            preflight(controller, sources or Sources(source))
     return controller
 
 

@@ -37,6 +37,7 @@ from rehab_hil.controllers.pid import PID, feedback_parts
 from rehab_hil.controllers.reachable import reachable_range
 from rehab_hil.controllers.rig_learning import RigLearningSpec
 from rehab_hil.models.sensors import Gain
+from rehab_hil.progress import announce
 
 __all__ = ["ModelBased", "ModelBasedSettings"]
 
@@ -125,7 +126,8 @@ class ModelBased(ControllerSpec):
                                        "controllers": {cls.name: set(RIG_ONLY)}}
         key = fingerprint("model_based", PLAN_VERSION, ctx.cfg.model_dump(exclude=not_in_plan),
                           settings.model_dump(exclude=set(RIG_ONLY)), reference, reference.first_open_s, periods)
-        learned = cached("plans", key, lambda: _learn(make(np.zeros(n), limit_c), n, periods, settings, t_obs))
+        learned = cached("plans", key, lambda: _announced_learn(make(np.zeros(n), limit_c), n, periods, settings,
+                                                                t_obs))
         ceiling_c = limit_c
         if t_obs is not None:
             ceiling_c = min(float(learned["peak_observed_c"][0]) + settings.temperature_margin_c, limit_c)
@@ -166,6 +168,14 @@ def _rig_learning(ctx: ControlContext, settings: ModelBasedSettings, reference: 
         rest_s=HEATING_REST_S, budget_c=budget_c if t_obs else None, observer=observer, effort=ctx.effort,
         temperature=t_obs or "", constants=observer_constants(ctx, observer), plan_key=key,
         enabled=settings.rig_learning)
+
+
+def _announced_learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings,
+                     t_obs: str | None) -> dict[str, np.ndarray]:
+    """``_learn``, saying so when it takes a while (once per plan: the result is cached)."""
+    with announce(f"learning the feedforward plan on the model ({settings.learning_iterations} trials at most, "
+                  "once per config and reference, then cached)"):
+        return _learn(provisional, n, periods, settings, t_obs)
 
 
 def _learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings,

@@ -18,7 +18,7 @@ from typing import Any
 from rehab_hil.hardware.interface import HardwareError
 
 __all__ = ["BY_ID_DIR", "SIMULATED", "USB_KINDS", "PortCandidate", "announce_device", "by_id_path",
-           "candidates", "classify", "describe_device", "resolve_device"]
+           "candidates", "check_device_name", "classify", "describe_device", "resolve_device"]
 
 BY_ID_DIR = Path("/dev/serial/by-id")
 SIMULATED = ("sim", "avr", "inprocess")  # open_rig's simulated backends
@@ -89,11 +89,29 @@ def candidates(ports: Iterable[Any] | None = None, by_id_dir: Path = BY_ID_DIR) 
     return sorted(out, key=lambda c: (c.rank, c.device))
 
 
-def resolve_device(device: str, ports: Iterable[Any] | None = None, by_id_dir: Path = BY_ID_DIR) -> str:
-    """``auto`` -> the one likeliest Arduino's port (by-id link when present); anything else unchanged.
-    No Arduino-like port, or several equally likely ones, raise ``HardwareError`` saying what to do."""
-    if device != "auto":
+def check_device_name(device: str) -> str:
+    """``device`` unchanged, unless it is a near-miss of a simulated backend or ``auto`` (``simm``,
+    ``AVR``) and no such file exists: that is a typo, not a serial path, and ``HardwareError``
+    suggests the name (a serial path is opened only to fail later with "no such port")."""
+    import difflib
+
+    names = (*SIMULATED, "auto")
+    if device in names or "/" in device or "\\" in device or os.path.exists(device):
         return device
+    close = difflib.get_close_matches(device.lower(), names, n=1, cutoff=0.6)
+    if device.lower() in names or close:
+        suggestion = device.lower() if device.lower() in names else close[0]
+        raise HardwareError(f"device {device!r} is none of {', '.join(names)} and no serial path; did you mean "
+                            f"{suggestion!r}?")
+    return device
+
+
+def resolve_device(device: str, ports: Iterable[Any] | None = None, by_id_dir: Path = BY_ID_DIR) -> str:
+    """``auto`` -> the one likeliest Arduino's port (by-id link when present); a near-miss of a backend
+    name is refused (``check_device_name``); anything else unchanged. No Arduino-like port, or
+    several equally likely ones, raise ``HardwareError`` saying what to do."""
+    if device != "auto":
+        return check_device_name(device)
     found = [c for c in candidates(ports, by_id_dir) if c.likely_arduino]
     if not found:
         return _no_arduino(candidates(ports, by_id_dir) if ports is not None else None)

@@ -18,6 +18,7 @@ from pathlib import Path
 from types import ModuleType
 
 from rehab_hil.models.layout import Layout, PartLayout, Span
+from rehab_hil.progress import watch_compiles
 
 __all__ = ["cache_dir", "engine_for"]
 
@@ -169,6 +170,7 @@ def engine_for(layout: Layout) -> ModuleType:
     key = h.hexdigest()[:20]
     if key in _LOADED:
         return _LOADED[key]
+    watch_compiles()  # a compilation on a clean cache (a minute) says so instead of silence
     d = cache_dir()
     d.mkdir(parents=True, exist_ok=True)
     name = f"rehab_hil_engine_{key}"

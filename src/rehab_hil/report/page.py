@@ -19,6 +19,8 @@ from typing import Any
 
 import plotly.graph_objects as go
 
+from rehab_hil.outputs import replacing
+
 __all__ = ["Page", "plotly_js_gz_b64", "table"]
 
 _LOADER = """
@@ -159,5 +161,7 @@ class Page:
     def write(self, path: str | Path) -> Path:
         """Write the page (``OSError`` is the caller's to word)."""
         path = Path(path)
-        path.write_text(self.html(), encoding="utf-8")
+        html = self.html()
+        with replacing(path) as tmp:  # whole or not at all (Ctrl-C, a full disk)
+            tmp.write_text(html, encoding="utf-8")
         return path

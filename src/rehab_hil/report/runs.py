@@ -17,12 +17,9 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.interchange import CsvError
-from rehab_hil.service.run_dir import METADATA_FILE, read_metadata
+from rehab_hil.service.run_dir import METADATA_FILE, RUN_FILES, is_run_dir, read_metadata
 
 __all__ = ["ReportError", "RunData", "find_runs", "load_run"]
-
-RUN_FILES = ("run.csv", "run.mcap")
-
 
 class ReportError(Exception):
     """A run that cannot be reported: one line naming the file."""
@@ -69,15 +66,15 @@ class RunData:
         return 1.0 / abs(per) if isinstance(per, int | float) and per else None
 
 
-def is_run_dir(path: Path) -> bool:
-    return path.is_dir() and ((path / METADATA_FILE).is_file() or any((path / f).is_file() for f in RUN_FILES))
-
 
 def find_runs(path: str | Path) -> list[Path]:
     """The run directories ``path`` names: itself (or the directory of its run.csv / run.mcap), or
     every run directory directly inside it, oldest first (their names start with the UTC time)."""
     p = Path(path)
     if p.is_file() and p.name in RUN_FILES:
+        if not is_run_dir(p.parent):
+            raise ReportError(f"{p}: not in a run directory (no {METADATA_FILE} beside it; `rehab-hil run --record "
+                              "DIR` writes one per session; a `simulate --out` CSV has no session to report)")
         return [p.parent]
     if not p.exists():
         raise ReportError(f"{p}: no such file or directory")

@@ -19,15 +19,28 @@ from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "config_identity", "new_run_dir", "read_metadata", "reference_metadata",
-           "result_metadata", "session_metadata", "write_metadata"]
+__all__ = ["METADATA_FILE", "METADATA_SCHEMA", "RUN_FILES", "config_identity", "is_run_dir", "new_run_dir",
+           "read_metadata", "reference_metadata", "result_metadata", "session_metadata", "write_metadata"]
 
 METADATA_FILE = "metadata.json"
 METADATA_SCHEMA = "rehab-hil/run-metadata/1"
+RUN_FILES = ("run.csv", "run.mcap")
+RUN_NAME = re.compile(r"^\d{8}T\d{6}Z-")  # new_run_dir's names: the UTC start time first
 
 
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "rig"
+
+
+def is_run_dir(path: str | Path) -> bool:
+    """A run directory of ``run --record``: it holds ``metadata.json``, or (a run killed before its
+    metadata) is named like one and holds run.csv or run.mcap. The ``--record`` folder itself is
+    not, even beside a ``simulate --out out/run.csv``."""
+    p = Path(path)
+    if not p.is_dir():
+        return False
+    return (p / METADATA_FILE).is_file() or (RUN_NAME.match(p.name) is not None
+                                             and any((p / f).is_file() for f in RUN_FILES))
 
 
 def new_run_dir(root: str | Path, rig_id: str, now: dt.datetime | None = None) -> Path:

@@ -24,7 +24,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from rehab_hil import metrics
+from rehab_hil import metrics, shipped
 from rehab_hil.calibration import calibration_summary
 from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
@@ -340,7 +340,7 @@ def open_session(config: str | Path, device: str | None = None, **options: Any) 
     except TypeError as e:
         known = ", ".join(f.name for f in fields(SessionOptions))
         raise SessionError(None, f"{e}; the options are: {known}") from None
-    config = Path(config)
+    config = shipped.resolve(config)  # "configs/NAME.toml" from any folder once the package is installed
     cfg = _load(config, opts.profile)
     if opts.pacing not in PACINGS:
         raise SessionError("pacing", f"must be one of {list(PACINGS)}, got {opts.pacing!r}")

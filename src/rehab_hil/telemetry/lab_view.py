@@ -31,6 +31,7 @@ class RigRow:
     alive: bool = True
     plant: str = "-"
     latest: StateSample | None = None
+    latest_state: StateSample | None = None  # the last record with an estimate (a command record has none)
     records: int = 0
     lost_batches: int = 0
     publisher_dropped: int = 0
@@ -95,6 +96,7 @@ class LabView:
             row.records += len(batch.samples)
             row.publisher_dropped = batch.dropped_total
             row.latest = batch.samples[-1]
+            row.latest_state = next((x for x in reversed(batch.samples) if x.has_state), row.latest_state)
             row.marks.append((self._clock(), row.records))
             del row.marks[:-64]
 
@@ -152,12 +154,12 @@ def render_lab(rows: list[RigRow], now: float | None = None) -> Table:
     if not rows:
         t.add_row("(no rig)", *[""] * 10)
     for r in rows:
-        s = r.latest
+        s, st = r.latest, r.latest_state  # the angle and analog values: from the last record that has them
         state = "[green]live" if r.alive else "[red]gone"
         safety = r.safety or (s.safety if s is not None and s.safety not in ("unknown",) else ("ok" if s else "-"))
         t.add_row(r.rig, state, r.plant, _f(r.rate_hz(now), 0),
-                  _f(s.angle_deg if s and s.has_state else math.nan), _f(s.reference_deg if s else math.nan),
-                  _f(s.analog[0] if s and s.analog else math.nan, 3), _f(s.command_duty0 if s else math.nan, 3),
+                  _f(st.angle_deg if st else math.nan), _f(s.reference_deg if s else math.nan),
+                  _f(st.analog[0] if st and st.analog else math.nan, 3), _f(s.command_duty0 if s else math.nan, 3),
                   _f(s.temperature_c if s else math.nan), safety,
                   f"{r.lost_batches}b/{r.publisher_dropped}" if s else "-")
     return t
