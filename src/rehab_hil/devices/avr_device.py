@@ -205,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adc-noise-counts", type=float, default=0.0, help="ADC noise standard deviation [counts]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--edge-us", type=int, default=50, help="simulated time between two encoder edges [us]")
+    p.add_argument("--sim-patient", default=None, help="a simulated patient on the plant (profiles/sim/*.toml)")
+    p.add_argument("--sim-truth", default=None, help="write the patient's true state here (sim_truth.csv)")
     p.add_argument("--uno", action="store_true", help="the whole Uno: optiboot loaded with the sketch (harness -b) "
                    "and the UART's real receive rate into its 2-byte buffer (-u)")
     return p
@@ -214,6 +216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from rehab_hil.config import ConfigError
     from rehab_hil.loading import load_config
+    from rehab_hil.patient.device import patient_plant
     from rehab_hil.plants import get_plant
 
     harness, elf = default_paths()
@@ -224,7 +227,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if spec.device is None:
             raise ValueError(f"plant {cfg.plant!r} has no device binding")
         binding = spec.device(cfg)
-        plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
+        plant = patient_plant(cfg, binding, args.sim_patient, args.sim_truth, adc_noise_counts=args.adc_noise_counts,
+                              seed=args.seed)
         plant.tick([0, 0], 0)  # compile the kernels before the firmware starts
         plant.reset()  # the initial state, the session clock at 0
     except (ConfigError, ValueError, KeyError) as e:
@@ -246,6 +250,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         driver.close()
+        if plant.truth_sink is not None:
+            plant.truth_sink.close()  # type: ignore[attr-defined]
     return 0
 
 
