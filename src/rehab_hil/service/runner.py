@@ -407,7 +407,7 @@ class LoopService:
         ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
         assert self.meter is not None
         self.meter.add(t_s, cmd.reference_deg, state.angle_deg, self._effort_of(cmd), state.velocity_rad_s,
-                       self.supervisor.temperature_c)
+                       self.supervisor.temperature_c, self.meter.torque_of(state.analog))
         cycle = self.meter.poll()
         if cycle is not None:
             self.progress.last_cycle = cycle.as_dict()
