@@ -54,16 +54,18 @@ def session(config: Path, patient: Path, cycles: int, out: Path) -> dict[str, An
             "wall_s": time.perf_counter() - t0, "ref": ref}
 
 
-def truth_torque(truth: dict[str, np.ndarray], ref: Any, cycles: list[dict[str, Any]], direction: float) -> list[float]:
-    """The simulated patient's mean torque toward the opening over each cycle's opening window (as the
-    host's ``patient_torque_nm``) [N m]."""
+def truth_torque(truth: dict[str, np.ndarray], ref: Any, cycles: list[dict[str, Any]], direction: float,
+                 closing: bool = False) -> list[float]:
+    """The simulated patient's mean torque toward a move's target over each cycle's window of that move
+    (as the host's ``patient_torque_open_nm`` / ``patient_torque_close_nm``) [N m]."""
     from rehab_hil.therapy_measures import SUCCESS_WINDOW_S
 
     t, tau = truth["t_s"], truth["patient_axis_torque_nm"]
+    start = ref.move_s + ref.hold_open_s if closing else 0.0
     out = []
     for c in cycles:
-        sel = (t >= c["start_s"]) & (t <= c["start_s"] + ref.move_s + SUCCESS_WINDOW_S)
-        out.append(float(direction * np.mean(tau[sel])) if sel.any() else math.nan)
+        sel = (t >= c["start_s"] + start) & (t <= c["start_s"] + start + ref.move_s + SUCCESS_WINDOW_S)
+        out.append(float((-direction if closing else direction) * np.mean(tau[sel])) if sel.any() else math.nan)
     return out
 
 
@@ -94,10 +96,12 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
            "rmse_deg": [c["rmse_deg"] for c in cycles], "sparc": [c.get("sparc") for c in cycles],
            "events": run["events"], "wall_s": run["wall_s"], "target": judge(name, ratios, success)}
     ref = run["ref"]
-    est = [c.get("patient_torque_nm", math.nan) for c in cycles]
+    est = [c.get("patient_torque_open_nm", math.nan) for c in cycles]
     if np.isfinite(est).any():
         direction = 1.0 if ref.open_deg >= ref.closed_deg else -1.0
-        true = truth_torque(run["truth"], ref, cycles, direction)
+        est += [c.get("patient_torque_close_nm", math.nan) for c in cycles]
+        true = truth_torque(run["truth"], ref, cycles, direction) + truth_torque(run["truth"], ref, cycles, direction,
+                                                                                 closing=True)
         scale = max(np.nanmax(np.abs(true)), 1e-9)
         row["torque_est_nm"], row["torque_true_nm"] = est, true
         row["torque_error_share"] = float(np.nanmax(np.abs(np.subtract(est, true))) / scale)
@@ -105,7 +109,7 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
           + f" | success {success:.0%} | events {run['events'] or 'none'} | {run['wall_s']:.0f} s")
     print(f"{'':27s} {row['target']}")
     if "torque_error_share" in row:
-        print(f"{'':27s} patient torque est/true per cycle [N m]: "
+        print(f"{'':27s} patient torque est/true per cycle, opening then closing moves [N m]: "
               + " ".join(f"{e:+.3f}/{t:+.3f}" for e, t in zip(est, row["torque_true_nm"], strict=True))
               + f"; worst error {row['torque_error_share']:.1%} of the largest (<= 15 %)")
     return row

@@ -47,9 +47,11 @@ def test_a_move_late_by_more_than_the_window_or_short_of_its_target_fails():
 def test_torque_measures_need_a_torque_sensor_and_read_its_slopes():
     angle = _tracking()
     m = _measures(angle)
-    assert math.isnan(m["patient_torque_nm"]) and math.isnan(m["interaction_stiffness_nm_per_rad"])
+    assert math.isnan(m["patient_torque_open_nm"]) and math.isnan(m["interaction_stiffness_nm_per_rad"])
     torque = 0.3 - 0.2 * np.radians(angle)  # a spring of 0.2 N m/rad and a constant push toward opening
     m = _measures(angle, torque)
     assert m["interaction_stiffness_nm_per_rad"] == pytest.approx(0.2, rel=1e-6)
-    assert m["patient_torque_ci_nm"] > 0
+    assert m["patient_torque_open_ci_nm"] > 0 and m["patient_torque_close_ci_nm"] > 0
+    # pushing toward opening the whole cycle: toward the opening target, against the closing one
+    assert m["patient_torque_open_nm"] > 0 > m["patient_torque_close_nm"]
     assert math.isnan(_measures(angle, baseline=math.nan)["assistance_ratio"])

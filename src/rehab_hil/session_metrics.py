@@ -110,7 +110,8 @@ def session_summary(cycles: Sequence[CycleMetrics]) -> dict[str, float]:
            "rom_deg": mean("rom_deg"), "time_to_open_s": mean("time_to_open_s"),
            "time_to_closed_s": mean("time_to_closed_s"), "peak_temperature_c": worst("peak_temperature_c"),
            "energy_per_cycle_j": mean("energy_j")}
-    for key in ("success", "assistance_ratio", "sparc", "ldlj", "peak_velocity_deg_s", "patient_torque_nm"):
+    for key in ("success", "assistance_ratio", "sparc", "ldlj", "peak_velocity_deg_s", "patient_torque_open_nm",
+                "patient_torque_close_nm"):
         v = np.array([c.measures.get(key, math.nan) for c in cycles], float)
         if np.isfinite(v).any():  # the therapist's measures, averaged over the cycles (success: its rate)
             out[key] = float(np.nanmean(v))

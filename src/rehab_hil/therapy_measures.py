@@ -52,20 +52,25 @@ def _slope(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.polyfit(x[ok], y[ok], 1)[0])
 
 
+def _toward(torque: np.ndarray, window: np.ndarray, sign: float, key: str) -> dict[str, float]:
+    """The mean torque toward one move's target over its window, and the half-width of its 95 % interval."""
+    v = sign * torque[window]
+    v = v[np.isfinite(v)]
+    return {f"patient_torque_{key}_nm": float(np.mean(v)) if v.size else math.nan,
+            f"patient_torque_{key}_ci_nm": float(1.96 * np.std(v) / math.sqrt(v.size)) if v.size > 1 else math.nan}
+
+
 def _torque_measures(t: np.ndarray, angle_rad: np.ndarray, velocity: np.ndarray, torque: np.ndarray,
-                     opening: np.ndarray, direction: float) -> dict[str, float]:
-    """The patient's torque toward the opening move (mean, 95 % interval), the interaction stiffness
-    and the velocity-dependent resistance (from the torque sensor, on the axis)."""
-    nan = {"patient_torque_nm": math.nan, "patient_torque_ci_nm": math.nan,
-           "interaction_stiffness_nm_per_rad": math.nan, "resistance_slope_nm_s_per_rad": math.nan}
+                     windows: tuple[np.ndarray, np.ndarray], direction: float) -> dict[str, float]:
+    """The patient's torque toward each move's target (per direction: mean, 95 % interval), the
+    interaction stiffness and the velocity-dependent resistance (from the torque sensor, on the axis)."""
+    opening, closing = windows
     if not np.isfinite(torque).any():
-        return nan
-    toward = direction * torque[opening]
-    toward = toward[np.isfinite(toward)]
+        return {**{f"patient_torque_{d}{ci}_nm": math.nan for d in ("open", "close") for ci in ("", "_ci")},
+                "interaction_stiffness_nm_per_rad": math.nan, "resistance_slope_nm_s_per_rad": math.nan}
     fast = opening & (np.abs(velocity) > SPASTIC_SPEED_RAD_S)
     return {
-        "patient_torque_nm": float(np.mean(toward)) if toward.size else math.nan,
-        "patient_torque_ci_nm": float(1.96 * np.std(toward) / math.sqrt(toward.size)) if toward.size > 1 else math.nan,
+        **_toward(torque, opening, direction, "open"), **_toward(torque, closing, -direction, "close"),
         "interaction_stiffness_nm_per_rad": -_slope(angle_rad, torque),
         "resistance_slope_nm_s_per_rad": -_slope(velocity[fast], torque[fast]),
     }
@@ -83,6 +88,7 @@ def cycle_measures(t: np.ndarray, angle_deg: np.ndarray, velocity_rad_s: np.ndar
     ok_open = move_success(t, angle, open_deg, tol, 0.0, move_s)
     ok_close = move_success(t, angle, closed_deg, tol, move_s + hold, move_s)
     opening = t <= move_s + SUCCESS_WINDOW_S
+    closing = (t >= move_s + hold) & (t <= 2 * move_s + hold + SUCCESS_WINDOW_S)
     speed = np.abs(np.nan_to_num(vel[opening]))
     fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else math.nan
     smooth, fs_smooth = _resampled(speed, fs)
@@ -95,5 +101,5 @@ def cycle_measures(t: np.ndarray, angle_deg: np.ndarray, velocity_rad_s: np.ndar
         "peak_velocity_deg_s": float(np.degrees(speed.max())) if speed.size else math.nan,
         "sparc": sparc(smooth, fs_smooth) if smooth.size > 2 else math.nan,
         "ldlj": log_dimensionless_jerk(smooth, fs_smooth) if smooth.size > 2 else math.nan,
-        **_torque_measures(t, np.radians(angle), vel, torque, opening, direction),
+        **_torque_measures(t, np.radians(angle), vel, torque, (opening, closing), direction),
     }

@@ -39,7 +39,7 @@ def test_assist_as_needed_with_a_capable_patient_lowers_the_assistance_and_keeps
     assert truth["t_s"][-1] == pytest.approx(ref.first_open_s + 5 * ref.period_s + 0.5, abs=0.05)
     assert set(truth) >= {"patient_effort", "patient_voluntary_nm", "patient_axis_torque_nm", "iris_angle_rad"}
     # the host's torque sensor reads the patient's true torque (its quantisation apart)
-    est = [c["patient_torque_nm"] for c in cycles]
+    est = [c["patient_torque_open_nm"] for c in cycles]
     assert np.max(np.abs(est)) > 0.01
 
 
