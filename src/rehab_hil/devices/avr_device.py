@@ -215,8 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from rehab_hil.config import ConfigError
+    from rehab_hil.devices.patient_plant import patient_plant
     from rehab_hil.loading import load_config
-    from rehab_hil.patient.device import patient_plant
     from rehab_hil.plants import get_plant
 
     harness, elf = default_paths()

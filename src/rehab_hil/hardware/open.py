@@ -76,7 +76,7 @@ def _inprocess(stack: ExitStack, config_path: str | Path, sim_patient: str | Pat
     if sim_patient is None:
         return inprocess_hardware(binding)
     from rehab_hil.config import ConfigError
-    from rehab_hil.patient.device import patient_plant
+    from rehab_hil.devices.patient_plant import patient_plant
 
     try:
         plant = patient_plant(_config(config_path), binding, sim_patient, sim_truth)
