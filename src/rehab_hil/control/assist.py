@@ -9,9 +9,10 @@ assistance (Emken, Benitez & Reinkensmeyer 2007, with a success-rate target as F
     success, in time:       a <- a - gain x (1 - target_success)           (zero drift at the target rate)
     success, with margin:   a <- (1 - forgetting) a - gain x (1 - target_success)
 
-"With margin": reached by the end of the planned move; only then does the assistance also forget, so
-a patient who needs the help keeps it at the target success rate, while one who moves well alone
-sees it fade (forgetting faster than a slacking patient relearns to rely on it: Emken et al. 2007).
+"With margin": reached by the end of the planned move plus half the success window; only then does
+the assistance also forget, so a patient who needs the help keeps it at the target success rate,
+while one who moves well alone sees it fade (forgetting faster than a slacking patient relearns to
+rely on it: Emken et al. 2007).
 The feedback command is scaled by the assistance of the current move's direction.
 """
 
@@ -85,11 +86,11 @@ class AssistScale(Part):
         close_start = move + hold_open
         if ph <= move + window and abs(u[1] - p[1]) <= p[6]:
             xd_next[3] = 1.0
-            if ph <= move:
+            if ph <= move + 0.5 * window:
                 xd_next[5] = 1.0
         if close_start <= ph <= close_start + move + window and abs(u[1] - p[0]) <= p[6]:
             xd_next[4] = 1.0
-            if ph <= close_start + move:
+            if ph <= close_start + move + 0.5 * window:
                 xd_next[6] = 1.0
         if ph > move + window and xd[7] < k + 0.5:  # the opening move of cycle k is over
             if p[13] > 0.5:
