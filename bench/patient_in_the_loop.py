@@ -50,7 +50,8 @@ def session(config: Path, patient: Path, cycles: int, out: Path) -> dict[str, An
         run_dir = s.run_dir
     assert run_dir is not None
     meta = json.loads((run_dir / "metadata.json").read_text())
-    return {"meta": meta, "truth": read_truth(run_dir / TRUTH_FILE), "events": [e.kind for e in result.events],
+    events = [f"{e.reason} at {e.t_s:.1f} s" for e in result.events]
+    return {"meta": meta, "truth": read_truth(run_dir / TRUTH_FILE), "events": events,
             "wall_s": time.perf_counter() - t0, "ref": ref}
 
 
