@@ -73,6 +73,8 @@ def truth_torque(truth: dict[str, np.ndarray], ref: Any, cycles: list[dict[str, 
 def judge(name: str, ratios: list[float], success: float) -> str:
     """The issue's target for this patient, met or not (a line)."""
     first, last3 = ratios[0], float(np.mean(ratios[-3:]))
+    if not first > 0:  # the robot did nothing from the first cycle on: the ratio of the last three is theirs
+        first = 1.0 if last3 == 0 else math.inf
     if name == "capable":
         ok = last3 <= 0.3 * first and success >= 0.8
         return (f"last 3 / first = {last3 / first:.2f} (<= 0.30), success {success:.0%} (>= 80 %): "
