@@ -37,3 +37,10 @@ def test_a_movement_made_of_two_submovements_is_less_smooth_on_both_measures():
 def test_no_motion_has_no_smoothness(speed):
     assert math.isnan(sparc(speed, 100.0))
     assert math.isnan(log_dimensionless_jerk(speed, 100.0))
+
+
+def test_a_speed_whose_square_underflows_is_no_motion_not_an_error():
+    # a finger at rest reads speeds like 1e-200 rad/s: the measures run in the loop and must not raise
+    speed = np.full(400, 1e-200)
+    assert math.isnan(log_dimensionless_jerk(speed, 100.0))
+    assert math.isfinite(sparc(speed, 100.0))

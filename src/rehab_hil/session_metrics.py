@@ -166,8 +166,11 @@ class SessionMeter:
                               self.closed_deg, self.open_deg, complete_only=False)
         if not found:
             return None
-        measures = cycle_measures(c[0] - start, c[2], c[4], c[6], self.period_s, self.move_s, self.closed_deg,
-                                  self.open_deg, found[0].energy_j, self.baseline_energy_j)
+        try:
+            measures = cycle_measures(c[0] - start, c[2], c[4], c[6], self.period_s, self.move_s, self.closed_deg,
+                                      self.open_deg, found[0].energy_j, self.baseline_energy_j)
+        except (ArithmeticError, ValueError):  # runs in the loop: a measure that cannot be had is left out,
+            measures = {}                       # never a trip (a 1e-200 rad/s speed once underflowed in LDLJ)
         cycle = replace(found[0], index=len(self.cycles), start_s=float(start), measures=measures)
         self.cycles.append(cycle)
         return cycle

@@ -47,5 +47,7 @@ def log_dimensionless_jerk(speed: np.ndarray, fs_hz: float) -> float:
     dt = 1.0 / fs_hz
     jerk = np.diff(v, 2) / dt**2
     duration = v.size * dt
+    if peak**2 == 0.0:  # a speed so small that its square underflows: no motion to judge
+        return math.nan
     dimensionless = duration**3 / peak**2 * float(np.sum(jerk**2)) * dt
-    return -math.log(dimensionless) if dimensionless > 0 else math.nan
+    return -math.log(dimensionless) if 0 < dimensionless < math.inf else math.nan

@@ -90,7 +90,8 @@ def cycle_measures(t: np.ndarray, angle_deg: np.ndarray, velocity_rad_s: np.ndar
     opening = t <= move_s + SUCCESS_WINDOW_S
     closing = (t >= move_s + hold) & (t <= 2 * move_s + hold + SUCCESS_WINDOW_S)
     speed = np.abs(np.nan_to_num(vel[opening]))
-    fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else math.nan
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    fs = 1.0 / step if step > 0 else math.nan
     smooth, fs_smooth = _resampled(speed, fs)
     direction = 1.0 if open_deg >= closed_deg else -1.0
     ratio = energy_j / baseline_energy_j if baseline_energy_j and math.isfinite(baseline_energy_j) else math.nan
