@@ -102,3 +102,22 @@ def test_the_cue_is_the_hosts_reference_seen_a_reaction_time_late():
     t = np.arange(0.0, 2 * ref.period_s, DT)
     cue = _run(_cue(cfg, 0.2), {"session_time_s": t}, len(t), ["patient_cue_rad"])["patient_cue_rad"]
     assert np.degrees(cue) == pytest.approx(ref.values(t - 0.2), abs=1e-9)
+
+
+def test_a_patient_rides_on_a_rig_whose_plant_changes_mid_session(tmp_path):
+    # the patient's parts are appended to the plant's: a scheduled change still moves its own parameter
+    from rehab_hil.devices.patient_plant import patient_plant
+    from rehab_hil.plants import get_plant
+    from rehab_hil.testing import config_with_changes
+
+    path = config_with_changes(CONFIGS / "finger_extensor.toml", tmp_path / "sag.toml",
+                               changes=[{"key": "iris.spring_nm_per_rad", "scale": 2.0, "start_s": 0.01}])
+    cfg = load_config(path)
+    plant = patient_plant(cfg, get_plant(cfg.plant).device(cfg), CONFIGS.parent / "profiles/sim/capable.toml")
+    item = plant.schedule.items[0]
+    before = plant.stepper.params[item.param_index]
+    for _ in range(20):
+        plant.tick([0, 0], 0)
+    assert plant.stepper.params[item.param_index] == pytest.approx(2.0 * before)
+    names = plant.system.diagram.param_names
+    assert {names[i] for i in np.atleast_1d(item.param_index)} == {"spring.stiffness_nm_per_rad"}
