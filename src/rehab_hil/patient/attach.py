@@ -82,7 +82,8 @@ def patient_parts(ports: Ports, cfg: PlantConfig, patient: PatientProfile) -> li
         VoluntaryDemand("patient_voluntary", connect={"cue_rad": "patient_cue_rad", **joint,
                                                       "effort": "patient_effort"},
                         rename={"demand_nm": "patient_demand_nm"}, kp_nm_per_rad=v.stiffness_nm_per_rad,
-                        kd_nm_s_per_rad=v.damping_nm_s_per_rad),
+                        kd_nm_s_per_rad=v.damping_nm_s_per_rad, ki_nm_per_rad_s=v.integral_nm_per_rad_s,
+                        integral_limit_rad_s=v.integral_limit_rad_s),
         ThreeCompartmentFatigue(
             "patient_fatigue", connect={"demand_nm": "patient_demand_nm"},
             rename={"torque_nm": "patient_voluntary_nm", "capacity_fraction": "patient_capacity_fraction",

@@ -63,16 +63,25 @@ class SlackingEffort(Part):
 
 class VoluntaryDemand(Part):
     """The torque the patient tries to make toward the cue: a position loop of the patient's own
-    (stiffness ``kp``, damping ``kd``) scaled by the effort [N m on the axis, before capacity]."""
+    (stiffness ``kp``, damping ``kd``, and ``ki`` on the error's integral, which a person uses to
+    close a steady shortfall, held within ``integral_limit_rad_s``) scaled by the effort [N m on the
+    axis, before capacity]."""
 
     inputs = ("cue_rad", "angle_rad", "velocity_rad_s", "effort")
+    states = ("error_integral",)
     outputs = ("demand_nm",)
-    params = ("kp_nm_per_rad", "kd_nm_s_per_rad")
+    params = ("kp_nm_per_rad", "kd_nm_s_per_rad", "ki_nm_per_rad_s", "integral_limit_rad_s")
 
     @staticmethod
     @njit
     def output(t, x, xd, u, p, y):
-        y[0] = u[3] * (p[0] * (u[0] - u[1]) - p[1] * u[2])
+        y[0] = u[3] * (p[0] * (u[0] - u[1]) - p[1] * u[2] + p[2] * x[0])
+
+    @staticmethod
+    @njit
+    def derivatives(t, x, xd, u, p, dx):
+        e = u[0] - u[1]
+        dx[0] = 0.0 if (x[0] >= p[3] and e > 0.0) or (x[0] <= -p[3] and e < 0.0) else e
 
 
 @njit

@@ -30,6 +30,9 @@ class VoluntarySection(Section):
     extension_capacity_nm: float = Field(ge=0.0, le=10.0, description="largest voluntary extending torque [N m]")
     stiffness_nm_per_rad: float = Field(ge=0.0, le=100.0, description="the patient's own position loop [N m/rad]")
     damping_nm_s_per_rad: float = Field(default=0.0, ge=0.0, le=10.0, description="its damping [N m s/rad]")
+    integral_nm_per_rad_s: float = Field(default=0.0, ge=0.0, le=100.0, description="its action on the error's "
+                                         "integral: closes a steady shortfall [N m/(rad s)]")
+    integral_limit_rad_s: float = Field(default=0.2, gt=0.0, le=10.0, description="the integral held within [rad s]")
 
 
 class SlackingSection(Section):
