@@ -121,3 +121,15 @@ def test_a_patient_rides_on_a_rig_whose_plant_changes_mid_session(tmp_path):
     assert plant.stepper.params[item.param_index] == pytest.approx(2.0 * before)
     names = plant.system.diagram.param_names
     assert {names[i] for i in np.atleast_1d(item.param_index)} == {"spring.stiffness_nm_per_rad"}
+
+
+def test_the_voluntary_loop_closes_a_steady_shortfall_within_its_integral_limit():
+    from rehab_hil.patient.parts import VoluntaryDemand
+
+    part = VoluntaryDemand("voluntary", kp_nm_per_rad=1.0, kd_nm_s_per_rad=0.0, ki_nm_per_rad_s=2.0,
+                           integral_limit_rad_s=0.2)
+    res = _run(part, {"cue_rad": 1.0, "angle_rad": 0.9, "velocity_rad_s": 0.0, "effort": 1.0}, 4000, ["demand_nm"])
+    d = res["demand_nm"]
+    assert d[0] == pytest.approx(0.1)  # the proportional part at once
+    assert d[1000] == pytest.approx(0.1 + 2.0 * 0.1 * 1.0, abs=1e-3)  # the integral of 0.1 rad over 1 s
+    assert d[-1] == pytest.approx(0.1 + 2.0 * 0.2, abs=1e-3)  # held at its limit
