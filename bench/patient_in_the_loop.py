@@ -13,7 +13,7 @@ Targets: capable: assistance of the last three cycles <= 30 % of the first withi
 sets in; slacking: the assistance fades only where the controller forgets faster than the patient
 (the sweep); effort estimated within 15 % of the truth on the Finger Extensor; no safety event.
 Usage: python bench/patient_in_the_loop.py [--plants finger_extensor,...] [--patients capable,...]
-       [--cycles 10] [--sweep] [--json bench/results/patient_in_the_loop.json]
+       [--cycles 10] [--sweep] [--slack-times 1,5,20,80] [--json bench/results/patient_in_the_loop.json]
 """
 
 from __future__ import annotations
@@ -132,11 +132,11 @@ def variant(src: Path, out: Path, replace: dict[str, float], table_name: str) ->
     return path
 
 
-def sweep(cycles: int, out: Path) -> list[dict[str, Any]]:
+def sweep(cycles: int, out: Path, slack_times_s: tuple[float, ...] = (1.0, 5.0, 20.0, 80.0)) -> list[dict[str, Any]]:
     """Forgetting per move x slack time on the Finger Extensor: the last three cycles' assistance."""
     rows = []
     print("\nslacking sweep (finger_extensor): last-3 / first assistance ratio, success")
-    for slack_s in (5.0, 20.0, 80.0):
+    for slack_s in slack_times_s:
         patient = variant(ROOT / "profiles/sim/slacking.toml", out, {"slack_time_s": slack_s}, "slacking")
         for forget in (0.0, 0.1, 0.3):
             config = variant(ROOT / "configs/finger_extensor.toml", ROOT / "configs",
@@ -161,7 +161,8 @@ def main() -> None:
     ap.add_argument("--plants", default=",".join(PLANTS))
     ap.add_argument("--patients", default=",".join(PATIENTS))
     ap.add_argument("--cycles", type=int, default=10)
-    ap.add_argument("--sweep", action="store_true", help="also the slacking sweep (9 sessions)")
+    ap.add_argument("--sweep", action="store_true", help="also the slacking sweep (12 sessions)")
+    ap.add_argument("--slack-times", default="1,5,20,80", help="the sweep's slack times [s]")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     rows: list[dict[str, Any]] = []
@@ -173,7 +174,7 @@ def main() -> None:
                 rows.append(table(plant, name, run))
         result: dict[str, Any] = {"sessions": rows}
         if args.sweep:
-            result["sweep"] = sweep(args.cycles, Path(tmp))
+            result["sweep"] = sweep(args.cycles, Path(tmp), tuple(float(x) for x in args.slack_times.split(",")))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1, default=float))
