@@ -68,3 +68,12 @@ def test_the_live_meter_reports_each_cycle_once_it_ends_with_the_offline_figures
     for (t_end, c), o in zip(live, offline, strict=False):
         assert t_end == pytest.approx(REF.first_open_s + (c.index + 1) * REF.period_s, abs=0.002)
         assert c.rmse_deg == pytest.approx(o.rmse_deg, rel=1e-3) and c.energy_j == pytest.approx(o.energy_j, rel=1e-3)
+
+
+def test_a_cycle_at_rest_gets_its_figures_and_no_measure_raises():
+    # the TCP finger's capable patient left the joint still to 1e-200 rad/s: LDLJ once divided by zero in the loop
+    meter = SessionMeter(3000, 2.0, 0.5, 0.0, 0.0, 10.0, lambda e, v: np.zeros_like(e))
+    for k in range(2100):
+        meter.add(k * 0.001, 0.0, 0.0, 0.0, 1e-200, 20.0)
+    cycle = meter.poll()
+    assert cycle is not None and cycle.as_dict()["success_open"] == 0.0

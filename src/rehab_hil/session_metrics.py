@@ -11,10 +11,12 @@ command is out), the run summary, ``metadata.json`` and the offline benchmark.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
+
+from rehab_hil.therapy_measures import cycle_measures
 
 __all__ = ["REACH_SHARE", "CycleMetrics", "SessionMeter", "cycle_metrics", "session_summary"]
 
@@ -34,9 +36,12 @@ class CycleMetrics:
     time_to_closed_s: float
     peak_temperature_c: float  # the actuator temperature estimate (nan: none)
     energy_j: float  # electrical energy into the actuator
+    # what a therapist reads (``therapy_measures.cycle_measures``: success, assistance ratio, smoothness ...)
+    measures: Mapping[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, float]:
-        return asdict(self)
+        d = asdict(self)
+        return {**{k: v for k, v in d.items() if k != "measures"}, **d["measures"]}
 
 
 def _reach_time(t: np.ndarray, angle: np.ndarray, target: float, tol: float, since: float) -> float:
@@ -101,10 +106,16 @@ def session_summary(cycles: Sequence[CycleMetrics]) -> dict[str, float]:
         v = np.array([getattr(c, key) for c in cycles], float)
         return float(np.nanmax(v)) if np.isfinite(v).any() else math.nan
 
-    return {"cycles": float(len(cycles)), "rmse_deg": mean("rmse_deg"), "max_error_deg": worst("max_error_deg"),
-            "rom_deg": mean("rom_deg"), "time_to_open_s": mean("time_to_open_s"),
-            "time_to_closed_s": mean("time_to_closed_s"), "peak_temperature_c": worst("peak_temperature_c"),
-            "energy_per_cycle_j": mean("energy_j")}
+    out = {"cycles": float(len(cycles)), "rmse_deg": mean("rmse_deg"), "max_error_deg": worst("max_error_deg"),
+           "rom_deg": mean("rom_deg"), "time_to_open_s": mean("time_to_open_s"),
+           "time_to_closed_s": mean("time_to_closed_s"), "peak_temperature_c": worst("peak_temperature_c"),
+           "energy_per_cycle_j": mean("energy_j")}
+    for key in ("success", "assistance_ratio", "sparc", "ldlj", "peak_velocity_deg_s", "patient_torque_open_nm",
+                "patient_torque_close_nm"):
+        v = np.array([c.measures.get(key, math.nan) for c in cycles], float)
+        if np.isfinite(v).any():  # the therapist's measures, averaged over the cycles (success: its rate)
+            out[key] = float(np.nanmean(v))
+    return out
 
 
 class SessionMeter:
@@ -114,21 +125,31 @@ class SessionMeter:
     preallocated for the session; one cycle's figures cost a few numpy passes every cycle period."""
 
     def __init__(self, capacity: int, period_s: float, move_s: float, first_open_s: float, closed_deg: float,
-                 open_deg: float, power_w: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
+                 open_deg: float, power_w: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 baseline_energy_j: float = math.nan, interaction: tuple[str, float] | None = None) -> None:
         self.period_s, self.move_s, self.first_open_s = period_s, move_s, first_open_s
         self.closed_deg, self.open_deg, self.power_w = closed_deg, open_deg, power_w
+        self.baseline_energy_j = baseline_energy_j  # the robot's energy per cycle with a passive patient [J]
+        self.interaction = interaction  # (the torque sensor's channel, its sign on the axis), or None
         n = max(1, capacity)
-        self._cols = np.full((6, n), np.nan)  # t, reference, angle, effort, velocity, temperature
+        self._cols = np.full((7, n), np.nan)  # t, reference, angle, effort, velocity, temperature, patient torque
         self.n = 0
         self._done_upto = 0  # samples already part of a reported cycle
         self._next_end = first_open_s + period_s
         self.cycles: list[CycleMetrics] = []
 
     def add(self, t_s: float, reference_deg: float, angle_deg: float, effort: float, velocity_rad_s: float,
-            temperature_c: float) -> None:
+            temperature_c: float, torque_nm: float = math.nan) -> None:
         if self.n < self._cols.shape[1]:
-            self._cols[:, self.n] = (t_s, reference_deg, angle_deg, effort, velocity_rad_s, temperature_c)
+            self._cols[:, self.n] = (t_s, reference_deg, angle_deg, effort, velocity_rad_s, temperature_c, torque_nm)
             self.n += 1
+
+    def torque_of(self, analog: Mapping[str, float]) -> float:
+        """The patient's torque on the axis from the sample's ADC values (nan: no torque sensor)."""
+        if self.interaction is None:
+            return math.nan
+        signal, sign = self.interaction
+        return sign * analog.get(signal, math.nan)
 
     def poll(self) -> CycleMetrics | None:
         """The cycle that has just ended (a sample past its end added), else None."""
@@ -146,7 +167,12 @@ class SessionMeter:
                               self.closed_deg, self.open_deg, complete_only=False)
         if not found:
             return None
-        cycle = replace(found[0], index=len(self.cycles), start_s=float(start))
+        try:
+            measures = cycle_measures(c[0] - start, c[2], c[4], c[6], self.period_s, self.move_s, self.closed_deg,
+                                      self.open_deg, found[0].energy_j, self.baseline_energy_j)
+        except (ArithmeticError, ValueError):  # runs in the loop: a measure that cannot be had is left out,
+            measures = {}                       # never a trip (a 1e-200 rad/s speed once underflowed in LDLJ)
+        cycle = replace(found[0], index=len(self.cycles), start_s=float(start), measures=measures)
         self.cycles.append(cycle)
         return cycle
 

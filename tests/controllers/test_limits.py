@@ -30,7 +30,7 @@ EXAMPLE = CONFIGS.parent / "profiles" / "example.toml"
 
 
 def test_every_controller_on_the_sma_plans_no_run_past_the_heating_limit(sma) -> None:
-    for name in ("pid", "pulsed", "open_loop_map", "model_based"):
+    for name in ("pid", "pulsed", "open_loop_map", "model_based", "assist_as_needed"):
         ctl = build_controller(sma, name)
         res = closed_loop(ctl, preflight_duration_s(ctl.reference))
         assert longest_s(res[ctl.ctx.effort], ctl.ctx.step_s) <= heating_limit_s(ctl.ctx), name

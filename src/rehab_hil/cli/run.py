@@ -43,6 +43,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "run.mcap and metadata.json (never overwriting an earlier run)")
     p.add_argument("--rig-id", default=None,
                    help="the rig's name in run directories and metadata (default: --telemetry RIG, else the plant)")
+    p.add_argument("--sim-patient", type=Path, default=None, metavar="PATIENT.toml",
+                   help="simulated devices only: a simulated patient on the device's plant (profiles/sim/*.toml); "
+                        "the host's model does not know it; the device writes sim_truth.csv beside the recording")
     p.add_argument("--sim-plant", type=config_file, default=None, metavar="DEVICE.toml",
                    help="simulated devices: the plant config the device runs (default: --config), e.g. one with "
                         "[[effects]] the host's model lacks")
@@ -233,7 +236,8 @@ def _session(args: argparse.Namespace) -> RigSession:
         return open_session(
             args.config, args.device, controller=args.controller, reference=args.reference, profile=args.profile,
             pacing=args.pacing, lockstep=args.lockstep, home=args.home, record=args.record, rig_id=args.rig_id,
-            sim_plant=args.sim_plant, twin=args.twin, telemetry=_telemetry(args), rig_learning=args.rig_learning,
+            sim_plant=args.sim_plant, sim_patient=args.sim_patient,
+            twin=args.twin, telemetry=_telemetry(args), rig_learning=args.rig_learning,
             thermal_replan=args.thermal_replan,
             foxglove=FoxgloveOptions(args.foxglove_host, args.foxglove) if args.foxglove is not None else None,
             confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)

@@ -258,6 +258,7 @@ class Controller:
     sums: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)  # warnings for the operator (a clipped reference)
     rig_learning: Any = None  # how the plan keeps learning on the rig (controllers.rig_learning.RigLearningSpec)
+    baseline: Any = None  # the same chain at full assistance, nothing learned (the assistance ratio's denominator)
 
     def __post_init__(self) -> None:
         # an entry may be a list of parts (``limit_part``: the heating guard and the effort limit)

@@ -232,6 +232,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fifo-priority", type=int, default=5,
                    help="SCHED_FIFO priority of this driver and the harness (it inherits it) with --clock realtime "
                         "(0: none); below the host loop's 10, as the Python device (docs/loop.md, 'Scheduling')")
+    p.add_argument("--sim-patient", default=None, help="a simulated patient on the plant (profiles/sim/*.toml)")
+    p.add_argument("--sim-truth", default=None, help="write the patient's true state here (sim_truth.csv)")
     p.add_argument("--uno", action="store_true", help="the whole Uno: optiboot loaded with the sketch (harness -b) "
                    "and the UART's real receive rate into its 2-byte buffer (-u)")
     return p
@@ -240,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from rehab_hil.config import ConfigError
+    from rehab_hil.devices.patient_plant import patient_plant
     from rehab_hil.loading import load_config
     from rehab_hil.plants import get_plant
 
@@ -251,7 +254,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if spec.device is None:
             raise ValueError(f"plant {cfg.plant!r} has no device binding")
         binding = spec.device(cfg)
-        plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
+        plant = patient_plant(cfg, binding, args.sim_patient, args.sim_truth, adc_noise_counts=args.adc_noise_counts,
+                              seed=args.seed)
         plant.tick([0, 0], 0)  # compile the kernels before the firmware starts
         plant.reset()  # the initial state, the session clock at 0
     except (ConfigError, ValueError, KeyError) as e:
@@ -279,6 +283,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         driver.close()
+        if plant.truth_sink is not None:
+            plant.truth_sink.close()  # type: ignore[attr-defined]
     return 0
 
 

@@ -9,6 +9,7 @@ the session's start (``start_session``: the device's accepted CONFIGURE; until t
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -28,7 +29,9 @@ class PlantIO:
     then) and advances the plant over the tick with those duties held (zero-order hold), with the
     scheduled values of the tick's start instant (session time, in ticks of 1 / BASE_RATE_HZ)."""
 
-    def __init__(self, binding: DeviceBinding, adc_noise_counts: float = 0.0, seed: int = 0) -> None:
+    def __init__(self, binding: DeviceBinding, adc_noise_counts: float = 0.0, seed: int = 0,
+                 truth_signals: Sequence[str] = (), truth_sink: Callable[[float, np.ndarray], None] | None = None
+                 ) -> None:
         if adc_noise_counts < 0 or not math.isfinite(adc_noise_counts):
             raise ValueError(f"adc_noise_counts must be a finite number >= 0, got {adc_noise_counts!r}")
         per_tick = 1.0 / BASE_RATE_HZ / binding.step_s
@@ -53,8 +56,12 @@ class PlantIO:
         # an ADC sensor may measure a plant input (the Finger Extensor's patient torque): read it there
         self._adc_input = [self._index.get(a.source, -1) if a.source not in self.system.diagram.producers else -1
                            for a in binding.adc]
-        self.stepper = self.system.stepper([*enc, *(a.source for a, i in zip(binding.adc, self._adc_input, strict=True)
-                                                    if i < 0)])
+        read = [*enc, *(a.source for a, i in zip(binding.adc, self._adc_input, strict=True) if i < 0)]
+        # a simulated patient's true state (``patient/``): read beside the sensors, handed to ``truth_sink``
+        self._n_truth = len(truth_signals)
+        self.truth_sink = truth_sink
+        self.stepper = self.system.stepper([*read, *truth_signals])
+        self._clock = self._index.get("session_time_s", -1)  # a part that runs on the session's clock
         self._u = np.zeros(len(names))
         for name, value in binding.constant_inputs.items():
             self.set_input(name, value)
@@ -135,6 +142,8 @@ class PlantIO:
         """Readings (encoder count, adc0, adc1) at this instant, then advance one tick."""
         if self.session_ticks >= self._next_change:
             self._apply_schedule()
+        if self._clock >= 0:
+            self._u[self._clock] = self.session_ticks / BASE_RATE_HZ
         self.session_ticks += 1
         for name, d in self.binding.duty_inputs.items():
             # the input's own sign; its full-duty value may move mid-session (a sagging supply)
@@ -142,6 +151,8 @@ class PlantIO:
         y = self.stepper.step(self._u)
         for _ in range(self.steps_per_tick - 1):
             self.stepper.step(self._u)
+        if self.truth_sink is not None and self._n_truth:
+            self.truth_sink((self.session_ticks - 1) / BASE_RATE_HZ, y[-self._n_truth:])
         return self._counts(y)
 
     def _counts(self, y: np.ndarray) -> tuple[int, int, int]:

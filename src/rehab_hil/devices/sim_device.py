@@ -301,6 +301,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--drop", type=float, default=0.0, help="probability of dropping an outgoing frame")
     p.add_argument("--corrupt", type=float, default=0.0, help="probability of corrupting an outgoing frame")
     p.add_argument("--delay-ms", type=float, default=0.0, help="delay of every outgoing frame [ms]")
+    p.add_argument("--sim-patient", default=None, help="a simulated patient on the plant (profiles/sim/*.toml)")
+    p.add_argument("--sim-truth", default=None, help="write the patient's true state here (sim_truth.csv)")
     p.add_argument("--fifo-priority", type=int, default=5,
                    help="SCHED_FIFO priority in realtime mode (0: none; below the host loop's 10); an MCU is never "
                         "descheduled (a stall that still happens is measured and reported, never a fault; "
@@ -311,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from rehab_hil.config import ConfigError
+    from rehab_hil.devices.patient_plant import patient_plant
     from rehab_hil.loading import load_config
     from rehab_hil.plants import get_plant
 
@@ -320,7 +323,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if spec.device is None:
             raise ValueError(f"plant {cfg.plant!r} has no device binding")
         binding = spec.device(cfg)
-        plant = PlantIO(binding, adc_noise_counts=args.adc_noise_counts, seed=args.seed)
+        plant = patient_plant(cfg, binding, args.sim_patient, args.sim_truth, adc_noise_counts=args.adc_noise_counts,
+                              seed=args.seed)
         plant.tick([0, 0], 0)  # compile the kernels before announcing the port
         plant.reset()  # the initial state, the session clock at 0
         estop = cfg.rig.estop
@@ -344,4 +348,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         device.run(stdin_fd=sys.stdin.fileno())
     except KeyboardInterrupt:
         device.close()
+    finally:
+        if plant.truth_sink is not None:
+            plant.truth_sink.close()  # type: ignore[attr-defined]
     return 0

@@ -36,24 +36,30 @@ def inprocess_hardware(binding: Any, *, adc_noise_counts: float = 0.0, seed: int
 @contextmanager
 def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, baud: int | None = None,
              connect_timeout_s: float = 3.0, write_timeout_s: float = 0.2,
-             spawn_args: list[str] | None = None) -> Iterator[HardwareInterface]:
+             spawn_args: list[str] | None = None, sim_patient: str | Path | None = None,
+             sim_truth: str | Path | None = None) -> Iterator[HardwareInterface]:
     """Open ``device`` (see the module docstring) on the plant of ``config_path`` and connect (HELLO);
     closes the hardware and stops a spawned device process on exit. ``lockstep``: the simulated
     device runs in virtual time, one sample period per COMMAND (deterministic; "inprocess" always
     does; "avr": the harness stops simulated time once the firmware has answered the host).
-    ``baud``: a serial path's rate (default ``[rig].baud``). Failures raise ``HardwareError``."""
+    ``baud``: a serial path's rate (default ``[rig].baud``). ``sim_patient``: a simulated patient
+    (``profiles/sim/*.toml``) on a simulated device's plant, its true state written to ``sim_truth``.
+    Failures raise ``HardwareError``."""
     device = resolve_device(device)  # "auto": the one Arduino-like USB serial port (hardware/discovery.py)
     announce_device(device, config_path, _config(config_path).rig.port)  # which device, on stderr
     with ExitStack() as stack:
         hw: HardwareInterface
+        patient = ["--sim-patient", str(sim_patient)] if sim_patient is not None else []
+        if sim_patient is not None and sim_truth is not None:
+            patient += ["--sim-truth", str(sim_truth)]
         if device == "inprocess":
-            hw = inprocess_hardware(_binding(config_path))
+            hw = _inprocess(stack, config_path, sim_patient, sim_truth)
         else:
             from rehab_hil.hardware.serial_hw import SerialHardware
 
             port, proc = device, None
             if device in ("sim", "avr"):
-                proc = stack.enter_context(_spawn(device, config_path, lockstep, spawn_args))
+                proc = stack.enter_context(_spawn(device, config_path, lockstep, [*(spawn_args or []), *patient]))
                 port = proc.port
             elif lockstep:
                 raise HardwareError(f"lockstep is a mode of the simulated devices, not of {device}")
@@ -63,6 +69,24 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
         stack.callback(hw.close)
         hw.connect(timeout=connect_timeout_s)
         yield hw
+
+
+def _inprocess(stack: ExitStack, config_path: str | Path, sim_patient: str | Path | None,
+               sim_truth: str | Path | None) -> InProcessHardware:
+    """The in-process rig, with a simulated patient on its plant when one is given."""
+    binding = _binding(config_path)
+    if sim_patient is None:
+        return inprocess_hardware(binding)
+    from rehab_hil.config import ConfigError
+    from rehab_hil.devices.patient_plant import patient_plant
+
+    try:
+        plant = patient_plant(_config(config_path), binding, sim_patient, sim_truth)
+    except (ConfigError, ValueError) as e:
+        raise HardwareError(f"inprocess device: {e}") from None
+    if plant.truth_sink is not None:
+        stack.callback(plant.truth_sink.close)  # type: ignore[attr-defined]
+    return InProcessHardware(plant, binding.encoder_counts_per_rev)
 
 
 def _spawn(kind: str, config_path: str | Path, lockstep: bool, extra_args: list[str] | None) -> Any:

@@ -123,6 +123,9 @@ class Ports:
     # the signals several parts add onto (every joint's torque sum, heat flows): the only signals
     # the plant's diagram lets have more than one producer (``Diagram(..., sums=...)``)
     sums: tuple[str, ...] = ()
+    # the plant input a patient's torque on the primary axis enters by, and its sign against the axis
+    # (the Finger Extensor's ``patient_torque_nm``, opposing opening: -1); None: summed onto the axis torque
+    interaction: tuple[str, float] | None = None
 
     def of_kind(self, kind: str) -> tuple[object, ...]:
         """The ports of one kind (``PORT_KINDS``), primary first."""

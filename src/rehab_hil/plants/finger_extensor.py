@@ -265,6 +265,7 @@ def ports(cfg: FingerExtensorConfig) -> Ports:
         ),
         constants={"patient_torque_nm": 0.0},
         sums=("drive_torque_nm",),  # motor, both viscous frictions, spring, patient (and a closed stop)
+        interaction=("patient_torque_nm", -1.0),  # a simulated patient's torque enters where the sensor reads it
     )
 
 

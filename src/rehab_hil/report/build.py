@@ -15,6 +15,7 @@ from rehab_hil.report import figures
 from rehab_hil.report.names import label, unit
 from rehab_hil.report.page import Page, table
 from rehab_hil.report.runs import ReportError, RunData
+from rehab_hil.report.therapy import cycle_table, session_table
 
 __all__ = ["default_output", "force_calibration_text", "progress_rows", "report_page", "stop_text"]
 
@@ -198,6 +199,10 @@ def _run_section(page: Page, run: RunData) -> None:
         page.figure(figures.cycle_figure(run))
         page.figure(figures.cycle_trend_figure(run))
         page.raw(_cycle_table(run))
+        therapist = cycle_table(run.cycles)
+        if therapist:
+            page.heading("What a therapist reads", level=3)
+            page.raw(therapist)
         if learning_text(run.meta):
             page.text(learning_text(run.meta))
     else:
@@ -294,6 +299,10 @@ def report_page(runs: Sequence[RunData]) -> Page:
                    [[r["label"], r["start"], r["rig"], r["controller"], r["stopped"], r["ran_s"], r["cycles"],
                      r["rom_deg"], *([r["peak_force"]] if peak else []), r["rmse_deg"], r["energy_per_cycle_j"],
                      r["stiffness"]] for r in rows], left=5))
+    therapist = session_table([r.label for r in runs], [r.meta.get("session") or {} for r in runs])
+    if therapist:
+        page.heading("What a therapist reads, session by session", level=2)
+        page.raw(therapist)
     page.heading(f"Newest session: {last.label}", level=2)
     _run_section(page, last)
     return page

@@ -6,11 +6,12 @@ margin (``[rig.host]``) inside them, so it acts first and the firmware is the ba
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from rehab_hil.calibration import force_limit_counts
 from rehab_hil.config import ConfigError
 from rehab_hil.control.thermal import thermal_from_config
-from rehab_hil.controllers import ControllerError, Reference
+from rehab_hil.controllers import ControllerError, Reference, offline_session
 from rehab_hil.controllers import build_controller as build
 from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware.interface import configure_from_config
@@ -66,7 +67,30 @@ def build_meter(cfg: PlantConfig, controller: ControllerRuntime, duration_s: flo
         return None
     plant = get_plant(cfg.plant)
     return SessionMeter(round(duration_s / period_s(cfg)) + 1, ref.period_s, ref.move_s, ref.first_open_s,
-                        ref.closed_deg, ref.open_deg, lambda effort, vel: plant.actuator_power_w(cfg, effort, vel))
+                        ref.closed_deg, ref.open_deg, lambda effort, vel: plant.actuator_power_w(cfg, effort, vel),
+                        baseline_energy_j=passive_energy_j(controller), interaction=interaction_channel(cfg))
+
+
+def passive_energy_j(controller: ControllerRuntime) -> float:
+    """The robot's electrical energy per cycle with a passive patient: the controller's ``baseline``
+    (itself at full assistance) on the host's model, whose finger is passive; the second of two
+    cycles (the first starts from rest). nan for a controller without one [J]."""
+    baseline = getattr(controller.controller, "baseline", None)
+    if baseline is None:
+        return math.nan
+    _, figures = offline_session(baseline, cycles=2)
+    return figures.get("energy_per_cycle_j", math.nan)
+
+
+def interaction_channel(cfg: PlantConfig) -> tuple[str, float] | None:
+    """(the ADC channel of the torque sensor between patient and rig, its sign on the joint axis),
+    from ``Ports.interaction`` (the Finger Extensor's); None: the rig has no such sensor."""
+    ports = get_plant(cfg.plant).ports(cfg)
+    if ports.interaction is None:
+        return None
+    signal, gain = ports.interaction
+    sensed = any(m.signal == signal and m.sensor == "adc" for m in ports.measured)
+    return (signal, 1.0 / gain) if sensed and gain else None
 
 
 def build_estimator(cfg: PlantConfig, binding: DeviceBinding) -> Estimator:

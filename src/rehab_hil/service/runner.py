@@ -456,7 +456,7 @@ class LoopService:
                 n += 1
             if meter is not None:
                 meter.add(rec.time_s, cmd.reference_deg, st.angle_deg, self._effort_of(cmd), st.velocity_rad_s,
-                          rec.temperature_c)
+                          rec.temperature_c, meter.torque_of(st.analog))
         s.rows = n
         sinks = self._sinks
         if sinks:

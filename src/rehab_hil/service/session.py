@@ -26,9 +26,12 @@ from typing import Any
 
 from rehab_hil import metrics, shipped
 from rehab_hil.calibration import calibration_summary
+from rehab_hil.config import ConfigError
 from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
 from rehab_hil.loading import load_config
+from rehab_hil.patient.profile import load_patient
+from rehab_hil.patient.truth import TRUTH_FILE, SimTruth
 from rehab_hil.plants import get_plant
 from rehab_hil.profiles import apply_profile, load_profile, profile_rig_keys
 from rehab_hil.protocol import Configure
@@ -78,6 +81,7 @@ class SessionOptions:
     record: Path | None = None  # a folder: each run writes a new run directory in it
     rig_id: str | None = None  # the rig's name in run directories and metadata
     sim_plant: Path | None = None  # simulated devices: the plant config the device runs
+    sim_patient: Path | None = None  # simulated devices: a simulated patient on the plant (profiles/sim/*.toml)
     twin: bool = False  # the live twin beside the rig (also on with [twin] enabled)
     telemetry: TelemetryOptions | None = None  # publish over zenoh (loopback hub or the lab's router)
     foxglove: FoxgloveOptions | None = None  # serve the session live to Foxglove
@@ -112,6 +116,7 @@ class RigSession:
         self.replan: ThermalReplan | None = None  # the re-plan on the twin's thermal estimates, or None
         self.loop: LoopService | None = None
         self.result: RunResult | None = None
+        self.truth: SimTruth | None = None  # a simulated patient's sim_truth.csv, moved into the run directory
 
     @property
     def progress(self) -> Progress:
@@ -261,6 +266,10 @@ class RigSession:
             binding=self.binding, hello=self.hw.info, controller=self.controller_name, pacing=opts.pacing,
             sim_plant=opts.sim_plant, calibration={"force": calibration_summary(self.cfg, self.binding)},
             reference=reference_metadata(getattr(self.controller, "reference", None)))
+        if opts.sim_patient is not None:
+            self.metadata["sim_patient"] = {**config_identity(opts.sim_patient), "truth": TRUTH_FILE}
+        if self.truth is not None:
+            self.truth.run_dir = self.run_dir
         write_metadata(self.run_dir, self.metadata)
         self.recorder = Recorder(self.run_dir, self.binding, metadata=self.metadata)
         self.stack.callback(self.recorder.close)
@@ -350,8 +359,10 @@ def open_session(config: str | Path, device: str | None = None, **options: Any) 
     configure = opts.configure or assembly.firmware_configure(cfg, binding)
     stack = ExitStack()
     try:
-        hw = opts.hw if opts.hw is not None else _rig(stack, cfg, config, device, opts)
+        truth = _sim_truth(stack, config, device, opts)  # its callback first: it runs after the rig has closed
+        hw = opts.hw if opts.hw is not None else _rig(stack, cfg, config, device, opts, truth)
         session = RigSession(stack, cfg, config, device, opts, hw, controller, configure)
+        session.truth = truth
         session._open()
     except BaseException:
         stack.close()
@@ -385,14 +396,33 @@ def _sources(config: Path, profile: Path | None) -> Sources:
     return Sources(str(config), str(profile), profile_rig_keys(load_profile(profile)))
 
 
-def _rig(stack: ExitStack, cfg: Any, config: Path, device: str, opts: SessionOptions) -> HardwareInterface:
+def _rig(stack: ExitStack, cfg: Any, config: Path, device: str, opts: SessionOptions,
+         truth: SimTruth | None = None) -> HardwareInterface:
     """Open and connect the rig (its process, for a simulated one, stops with the stack)."""
     device_config = _device_config(cfg, config, device, opts.sim_plant)
     try:
         return stack.enter_context(open_rig(device, device_config, lockstep=opts.lockstep, baud=cfg.rig.baud,
-                                            write_timeout_s=cfg.rig.write_timeout_ms / 1000.0))
+                                            write_timeout_s=cfg.rig.write_timeout_ms / 1000.0,
+                                            sim_patient=opts.sim_patient, sim_truth=truth and truth.path))
     except HardwareError as e:
         raise SessionError("device", f"{device}: {e}") from None
+
+
+def _sim_truth(stack: ExitStack, config: Path, device: str, opts: SessionOptions) -> SimTruth | None:
+    """Where a simulated patient's device writes ``sim_truth.csv`` (None: no patient); refuses a
+    patient on a real board and a patient file that does not validate, in one line."""
+    if opts.sim_patient is None:
+        return None
+    if device not in RIG_KINDS or opts.hw is not None:
+        raise SessionError("sim_patient", f"for simulated devices ({', '.join(RIG_KINDS)}); device {device} is a "
+                           "real board, whose patient is a person")
+    try:
+        load_patient(opts.sim_patient)
+    except (ConfigError, OSError) as e:
+        raise SessionError("sim_patient", str(e)) from None
+    truth = SimTruth()
+    stack.callback(truth.finish)
+    return truth
 
 
 def _device_config(cfg: Any, config: Path, device: str, sim_plant: Path | None) -> Path:
