@@ -23,8 +23,11 @@ class Command:
     """``rehab-hil ARGS`` as a subprocess, its standard error collected as it comes."""
 
     def __init__(self, *args: str, env: dict[str, str] | None = None, cwd: Path | None = None) -> None:
+        # SIGINT at its default in the child, as a terminal gives it: a pytest-xdist worker ignores SIGINT, and
+        # a process started with SIGINT ignored keeps it so (Python then installs no KeyboardInterrupt handler)
         self.proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.cli", *args], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True, env={**os.environ, **(env or {})}, cwd=cwd)
+                                     stderr=subprocess.PIPE, text=True, env={**os.environ, **(env or {})}, cwd=cwd,
+                                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         self.err: list[str] = []
         self._reader = threading.Thread(target=lambda: self.err.extend(self.proc.stderr), daemon=True)
         self._reader.start()

@@ -56,7 +56,8 @@ def validate(res: Result, cfg: Any, rec: Recording, data_path: str | Path) -> Va
     spec = get_plant(cfg.plant)
     fitted: Replay = res.extras["replay"]
     replay = Replay.build(spec, cfg, rec, data_path, closed_loop=bool(fitted.loop))
-    replay.start = fitted.start  # the same start rule as the fit (--start)
+    first = fitted.replays[0] if hasattr(fitted, "replays") else fitted  # several records: a RecordSet
+    replay.start = first.start  # the same start rule as the fit (--start)
     P0 = replay.nominal_params()
     P = np.asarray(res.extras["P"], float)
     if P.shape != P0.shape:  # same plant, same config, same effects: only another replay structure differs
