@@ -10,7 +10,7 @@ from typing import Any
 
 from rehab_hil.service.run_dir import is_run_dir
 
-__all__ = ["missing_channels", "resolve_data"]
+__all__ = ["load_checked", "missing_channels", "resolve_data"]
 
 def resolve_data(path: Path, command: str, flag: str = "--data") -> Path:
     """``path``, or the newest run directory inside it when it is a folder of runs (run directories
@@ -44,3 +44,20 @@ def missing_channels(plant: Any, cfg: Any, signals: dict[str, Any]) -> list[str]
         return []
     wanted = [binding.angle_output, *(ch.signal for ch in binding.adc)]
     return [c for c in dict.fromkeys(wanted) if c in plant.outputs and c not in signals]
+
+
+def load_checked(path: Path, plant: Any, cfg: Any, command: str, without: str | None = None) -> Any:
+    """A record read through ``rig_recording.load_recording`` (the config's ``[import]`` for a lab's
+    file) and checked replayable; its notes, and with ``without`` (what happens then) each channel
+    the rig records but the file lacks, as warnings on standard error. Returns the ``LoadedRecording``."""
+    from rehab_hil.discrepancy.replay import check_recording
+    from rehab_hil.rig_recording import load_recording
+
+    loaded = load_recording(path, plant, cfg)
+    for note in loaded.notes:
+        print(f"rehab-hil {command}: warning: {note}", file=sys.stderr)
+    for c in missing_channels(plant, cfg, loaded.recording.signals) if without else ():
+        print(f"rehab-hil {command}: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
+              f"records): {without}", file=sys.stderr)
+    check_recording(plant, loaded.recording, loaded.source, cfg)
+    return loaded

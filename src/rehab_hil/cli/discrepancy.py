@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -119,33 +118,16 @@ def _validate(res: Result, cfg: Any, val_recs: list[Recording], paths: list[Path
 def _load_records(args: argparse.Namespace) -> tuple[Any, list[Recording], list[Path], list[Recording]]:
     """The config, the records (``args.data`` resolved in place), their source names and the validation
     records, each checked replayable; warnings on stderr."""
-    from rehab_hil.cli.data_path import missing_channels, resolve_data
-    from rehab_hil.discrepancy.replay import check_recording
+    from rehab_hil.cli.data_path import load_checked, resolve_data
     from rehab_hil.loading import load_config
     from rehab_hil.plants import get_plant
-    from rehab_hil.rig_recording import load_recording
 
     cfg = load_config(args.config)
     plant = get_plant(cfg.plant)
     args.data = [resolve_data(Path(d), "discrepancy") for d in args.data]
-    recs, sources = [], []
-    for d in args.data:
-        loaded = load_recording(d, plant, cfg)
-        for note in loaded.notes:
-            print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
-        for c in missing_channels(plant, cfg, loaded.recording.signals):
-            print(f"rehab-hil discrepancy: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
-                  "records): the analysis runs without it", file=sys.stderr)
-        check_recording(plant, loaded.recording, loaded.source, cfg)
-        recs.append(loaded.recording)
-        sources.append(loaded.source)
-    val_recs = []
-    for v in args.validate:
-        val_loaded = load_recording(v, plant, cfg)
-        for note in val_loaded.notes:
-            print(f"rehab-hil discrepancy: warning: {note}", file=sys.stderr)
-        check_recording(plant, val_loaded.recording, val_loaded.source, cfg)
-        val_recs.append(val_loaded.recording)
+    loaded = [load_checked(d, plant, cfg, "discrepancy", "the analysis runs without it") for d in args.data]
+    recs, sources = [x.recording for x in loaded], [x.source for x in loaded]
+    val_recs = [load_checked(v, plant, cfg, "discrepancy").recording for v in args.validate]
     return cfg, recs, sources, val_recs
 
 

@@ -4,7 +4,6 @@ its outputs match: the last step of the model loop (does ``augmented.toml`` fit 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from rehab_hil.cli import config_file
@@ -22,23 +21,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from rehab_hil.cli.data_path import missing_channels, resolve_data
+    from rehab_hil.cli.data_path import load_checked, resolve_data
     from rehab_hil.discrepancy.records import GAP_MEASURE, whole_record
-    from rehab_hil.discrepancy.replay import Replay, channel_metrics, check_recording
+    from rehab_hil.discrepancy.replay import Replay, channel_metrics
     from rehab_hil.interchange import write_csv
     from rehab_hil.loading import load_config
     from rehab_hil.plants import get_plant
-    from rehab_hil.rig_recording import load_recording
 
     cfg = load_config(args.config)
     plant = get_plant(cfg.plant)
-    loaded = load_recording(resolve_data(args.data, "replay"), plant, cfg)
-    for note in loaded.notes:
-        print(f"rehab-hil replay: warning: {note}", file=sys.stderr)
-    for c in missing_channels(plant, cfg, loaded.recording.signals):
-        print(f"rehab-hil replay: warning: {loaded.source}: no {c!r} column (a {plant.name} output the rig "
-              "records): compared without it", file=sys.stderr)
-    check_recording(plant, loaded.recording, loaded.source, cfg)
+    loaded = load_checked(resolve_data(args.data, "replay"), plant, cfg, "replay", "compared without it")
     replay = Replay.build(plant, cfg, loaded.recording, loaded.source)
     model = whole_record(replay, replay.nominal_params())
     effects = ", ".join(e.name for e in getattr(cfg, "effects", ())) or "none"
