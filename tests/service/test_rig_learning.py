@@ -124,3 +124,22 @@ def test_a_session_that_ends_in_a_safety_trip_leaves_the_store_as_it_found_it(tm
         r = s.run(30.0)
     assert r.events and r.learning["updates"] == 1 and not r.learning["kept"]
     assert not Path(r.learning["store"]).exists()  # nothing was stored before: nothing is
+
+
+def test_an_error_within_one_encoder_count_teaches_nothing_and_a_motor_table_held_throughout_keeps_its_hold() -> None:
+    """Below a count the encoder cannot tell better from worse; and a motor's table that is on all
+    period (it holds against the spring) gets no planted rest: one planted per cycle dipped the
+    Finger Extensor's closed hold (nominal rig 0.054 -> 0.10 deg RMSE with learning on)."""
+    cfg = load_config(CONFIGS / "finger_extensor.toml")
+    ctl = build_controller(cfg, check=False)
+    spec = ctl.rig_learning
+    count_deg = 360.0 / ctl.ctx.binding.encoder_counts_per_rev
+    assert spec.deadband_deg == pytest.approx(count_deg)
+    table = np.asarray(next(iter(ctl.plan.signals.values())), float)
+    learner = RigLearner(spec, table)
+    flicker = np.where(np.arange(spec.n) % 2 == 0, 0.9, -0.9) * count_deg
+    new, flickered = learner.update(table, flicker, np.clip(table, *spec.bounds))
+    _, real = learner.update(table, np.full(spec.n, 3.0 * count_deg), np.clip(table, *spec.bounds))
+    assert flickered["learn_error_rmse_deg"] > 0.0
+    assert flickered["learn_change_rms"] < 0.02 * real["learn_change_rms"]  # a real error still teaches
+    assert np.count_nonzero(new == 0.0) == np.count_nonzero(table == 0.0)  # no rest planted into the hold

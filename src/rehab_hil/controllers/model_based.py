@@ -167,7 +167,7 @@ def _rig_learning(ctx: ControlContext, settings: ModelBasedSettings, reference: 
         period_s=reference.period_s, swap_s=0.5 * reference.hold_closed_s, heating_limit_s=heating_limit_s(ctx),
         rest_s=HEATING_REST_S, budget_c=budget_c if t_obs else None, observer=observer, effort=ctx.effort,
         temperature=t_obs or "", constants=observer_constants(ctx, observer), plan_key=key,
-        enabled=settings.rig_learning)
+        enabled=settings.rig_learning, deadband_deg=360.0 / ctx.binding.encoder_counts_per_rev)
 
 
 def _announced_learn(provisional: Controller, n: int, periods: int, settings: ModelBasedSettings,
