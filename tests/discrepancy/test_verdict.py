@@ -113,3 +113,11 @@ def test_alias_wording_follows_the_scores_and_each_pair_is_said_once():
     again = [Alias(r, "viscous_friction", "coulomb_friction", 105.7, "several speeds") for r in (1, 2, 3, 4, 5)]
     text = _noisy_result(0.0, again).conclusion
     assert text.count("scores clearly better") == 1  # five rounds, one sentence
+
+
+def test_the_noise_floor_of_records_joined_end_to_end_is_their_noise_not_their_joins() -> None:
+    rng = np.random.default_rng(3)
+    ramps = [np.linspace(0.0, 400.0 * (i + 1), 20_000) + rng.normal(0.0, 0.01, 20_000) for i in range(4)]
+    joined = np.concatenate(ramps)  # each record's angle starts again at 0
+    assert noise_floor(ramps[0]) == pytest.approx(0.01, rel=0.1)
+    assert noise_floor(joined) == pytest.approx(0.01, rel=0.1)  # was 4.6e2 deg on the servo bench's records

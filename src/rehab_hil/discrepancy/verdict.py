@@ -80,10 +80,15 @@ def is_alias(bic_a: float, bic_b: float, rms_a: float, rms_b: float,
 def noise_floor(y: np.ndarray) -> float:
     """Sample-to-sample scatter of a measured channel: std of the second difference / sqrt 6 (white
     noise of std s gives 6 s^2; a smooth motion adds only its curvature, where a first difference
-    would count its speed as noise)."""
+    would count its speed as noise), outliers beyond 10 robust sigmas left out."""
     y = np.asarray(y, float)
     d = np.diff(y[np.isfinite(y)], 2)
-    return float(np.std(d) / np.sqrt(6.0)) if d.size > 1 else 0.0
+    if d.size < 2:
+        return 0.0
+    mad = float(np.median(np.abs(d - np.median(d))))
+    if mad > 0.0:  # a few jumps (where several records are joined end to end) are not noise: beyond 10 robust
+        d = d[np.abs(d - np.median(d)) <= 10.0 * 1.4826 * mad]  # sigmas they are left out (4.6e2 deg was read)
+    return float(np.std(d) / np.sqrt(6.0))
 
 
 _UNITS = {"deg": "deg", "rad": "rad", "m": "m", "mm": "mm", "n": "N", "nm": "N m", "c": "C", "a": "A", "v": "V",
