@@ -88,6 +88,19 @@ def test_a_stopped_simulated_device_trips_nothing_and_reports_its_stall(kind, sl
     assert "simulated device not scheduled" in text and "not a fault" in text and "safety events" in text
 
 
+def test_a_simulated_device_not_scheduled_when_the_session_opens_delays_it_and_trips_nothing(slow_watchdog):
+    stopped: list[float] = []
+    with open_session(slow_watchdog, "sim", controller="pid", reference="step") as s:
+        # stopped before CONFIGURE and for longer than a board's 1 s answer time (a busy machine)
+        os.kill(s.hw.device_process.pid, signal.SIGSTOP)
+        t0 = time.perf_counter()
+        threading.Timer(1.5, lambda: (os.kill(s.hw.device_process.pid, signal.SIGCONT),
+                                      stopped.append(time.perf_counter() - t0))).start()
+        result = s.run(1.0)
+    assert stopped and stopped[0] >= 1.5
+    assert not result.events and result.pwm_off_at_end is True and result.samples > 0
+
+
 class HangingController:
     """Holds its safe command and, once, does not return for ``hang_s`` (the host stops calling)."""
 

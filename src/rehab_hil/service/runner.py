@@ -58,6 +58,10 @@ CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports P
 CONFIRM_S = 0.5  # ... and at least this long (host clock) while no sample shows it
 PROGRESS_EVERY = 50  # cycles between updates of the live figures
 RECENT_GAP_S = 1.0  # a gap between two commands this recent can explain a watchdog trip (trip_cause.py)
+CONFIGURE_TIMEOUT_S = 1.0  # a board answers CONFIGURE within milliseconds; 1 s is a dead or wrong port
+# a simulated device spawned here is a process that may wait seconds for a CPU on a busy machine (two
+# busy loops, load 15: "no ACK for Configure within 1.00 s" at session open); nothing heats before it
+LOCAL_DEVICE_CONFIGURE_TIMEOUT_S = 10.0
 
 
 @dataclass
@@ -309,8 +313,7 @@ class LoopService:
         # before CONFIGURE: a full GC pass outlasts the watchdog; the other threads share the loop's GIL
         rt = realtime_setup(helper_nice=HELPER_NICE) if realtime else None
         try:
-            # virtual time: the device answers when the machine lets it, so the ACK may take as long as a sample
-            self.hw.configure(self.configure_msg, timeout=max(1.0, sample_timeout_s or 0.0) if lockstep else 1.0)
+            self.hw.configure(self.configure_msg, timeout=_configure_timeout_s(lockstep, sample_timeout_s, proc))
             self.hw.discard_pending()  # samples queued before the ACK belong to the old stream, not this session
             self._write(SAFE_COMMAND)  # arms the watchdog; in lockstep mode it produces the first sample
             pace.start()
@@ -582,6 +585,14 @@ class LoopService:
             session=self.meter.summary() if self.meter else {},
             session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
         )
+
+
+def _configure_timeout_s(lockstep: bool, sample_timeout_s: float | None, device_process: object) -> float:
+    """How long the session's CONFIGURE may wait for its ACK: a sample's allowance in virtual time, the
+    machine's scheduling allowance for a local simulated device, a board's answer time otherwise."""
+    if lockstep:
+        return max(CONFIGURE_TIMEOUT_S, sample_timeout_s or 0.0)
+    return LOCAL_DEVICE_CONFIGURE_TIMEOUT_S if device_process is not None else CONFIGURE_TIMEOUT_S
 
 
 def _unique_names(names: list[str]) -> list[str]:
