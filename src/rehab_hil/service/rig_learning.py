@@ -84,6 +84,35 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "x"
 
 
+class ReplanHandoff:
+    """A re-planned model table on its way from the re-plan's thread to the loop's next swap point:
+    the table (already fitted), what the re-plan says of it and the re-built controller's retune."""
+
+    def __init__(self) -> None:
+        self._waiting: tuple[np.ndarray, dict[str, Any], Any] | None = None
+        self._due = threading.Event()  # set while a re-plan runs: a lockstep swap waits for it
+        self._ready = threading.Event()
+
+    def expect(self) -> None:
+        """A re-plan has started."""
+        self._ready.clear()
+        self._due.set()
+
+    def put(self, fitted: tuple[np.ndarray, dict[str, Any], Any] | None) -> None:
+        """The re-plan's result (None: it failed), from any thread."""
+        if fitted is not None:
+            self._waiting = fitted
+        self._due.clear()
+        self._ready.set()
+
+    def take(self, wait_s: float = 0.0) -> tuple[np.ndarray, dict[str, Any], Any] | None:
+        """The waiting result, once; with ``wait_s`` a re-plan still running is waited for that long."""
+        if wait_s > 0.0 and self._due.is_set():
+            self._ready.wait(wait_s)
+        taken, self._waiting = self._waiting, None
+        return taken
+
+
 class RigLearning:
     """One session's learning on the rig; see the module docstring. ``table`` is the array the
     runtime reads (replaced, never written in place, at a swap)."""
@@ -115,12 +144,9 @@ class RigLearning:
         self.log: list[dict[str, float]] = []  # one entry per swap: when, trial, what the update did
         self.late = 0  # updates not ready at their swap point (real time only)
         self.forgotten = False  # the store put back as the session found it (it ended in a safety trip)
-        self._rebase: tuple[np.ndarray, dict[str, Any]] | None = None  # a re-planned model table, to take
-        self._rebase_due = threading.Event()  # set while a re-plan runs: a lockstep swap waits for it
-        self._rebase_ready = threading.Event()
+        self._replan = ReplanHandoff()
         self._drop_result = False  # the worker's update in flight was made from a table a re-plan replaced
-        self._retune_next: Any = None  # the re-plan's controller parameters, taken with its table ...
-        self._retune: Any = None  # ... and handed to the runtime (``take_retune``) once
+        self._retune: Any = None  # the re-plan's controller parameters taken with its table, for the runtime once
         self.catch_up: Any = None  # lockstep: called at each swap point, returns once the twin has caught up
         self._worker: threading.Thread | None = threading.Thread(target=self._work, name="rig-learning", daemon=True)
         self._worker.start()
@@ -163,20 +189,15 @@ class RigLearning:
 
     def expect_rebase(self) -> None:
         """A re-plan has started (a lockstep session's next swap waits for its table)."""
-        self._rebase_ready.clear()
-        self._rebase_due.set()
+        self._replan.expect()
 
     def rebase(self, table: np.ndarray | None, info: dict[str, Any], retune: Any = None) -> None:
         """A re-planned model table (from any thread), taken at the next swap point with ``retune``
         (the re-built controller's parameters and constants, for ``ControllerRuntime.retune``);
         None: the re-plan failed (``info`` says why) and the table stays."""
-        if table is not None:
-            self._rebase = (self.learner.fit(np.asarray(table, float)), info)
-            self._retune_next = retune
-        else:
+        if table is None:
             self.log.append({"t_s": float("nan"), "trial": float(self.trials), **info})
-        self._rebase_due.clear()
-        self._rebase_ready.set()
+        self._replan.put(None if table is None else (self.learner.fit(np.asarray(table, float)), info, retune))
 
     def take_retune(self) -> Any:
         """The re-planned controller's (parameters, constants) that came with the table just swapped in, once."""
@@ -188,13 +209,10 @@ class RigLearning:
         re-plan that is running)."""
         if self.lockstep and self.catch_up is not None:
             self.catch_up()  # what the twin makes of the samples so far is known at the same point every run
-        if self.lockstep and self._rebase_due.is_set():
-            self._rebase_ready.wait(LOCKSTEP_REPLAN_WAIT_S)
-        taken, self._rebase = self._rebase, None
+        taken = self._replan.take(LOCKSTEP_REPLAN_WAIT_S if self.lockstep else 0.0)
         if taken is None:
             return None
-        self._retune, self._retune_next = self._retune_next, None
-        table, info = taken
+        table, info, self._retune = taken
         self.learner.base = table.copy()  # the forgetting now pulls toward the re-planned model's table
         self.table = table
         self._last_swap_t = t_s
