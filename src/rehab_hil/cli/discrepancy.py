@@ -174,6 +174,9 @@ def _print_summary(res: Result, out: Path) -> None:
             f"  {c:24s} {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g} {channel_unit(c)}" for c in res.channels]
     for line in lines + (res.validation.lines() if res.validation is not None else []):
         print(line)
+    for g in res.gaps.get("records", []) if len(res.gaps.get("records", [])) > 1 else []:
+        if "start" in g:
+            print(f"  start of {Path(g['data']).name}: " + ("; ".join(g["start"]["summary"]) or "the config's rest"))
     if res.lacking:
         print("  the records lack: " + "; ".join(res.lacking))
     print(f"wrote {out}/report.json, report.md, report.html, *.png, augmented.toml")
