@@ -264,6 +264,7 @@ def _print_kuka(indep: dict, runs: dict) -> None:
           f"{ab['level_neg_nm']:.0f} turning - "
           f"(symmetric {ab['symmetric']['coulomb_nm']:.0f} + constant {ab['symmetric']['offset_nm']:.0f}); RMS "
           f"{ab['rms_nm']:.0f} of {ab['torque_spread_nm']:.0f} N m")
+    print(f"    over A+B+C: J {indep['a+b+c']['inertia_kg_m2']:.1f} kg m^2 (the configs' inertia)")
     for k, f in per.items():
         print(f"    record {k.upper()}: J {f['inertia_kg_m2']:.0f}, Fv {f['viscous_nm_s_per_rad']:.0f}, Coulomb + "
               f"{f['level_pos_nm']:.0f} / - {f['level_neg_nm']:.0f} N m")
@@ -334,7 +335,7 @@ def main() -> int:
         runs = emps(args.data_dir, Path(tmp))
         dc_indep = independent_dc_fit()
         dc_runs = dc_motor_generator(Path(tmp), dc_indep)
-        kuka_indep = {"a+b": independent_kuka_fit(("a", "b")),
+        kuka_indep = {"a+b": independent_kuka_fit(("a", "b")), "a+b+c": independent_kuka_fit(("a", "b", "c")),
                       **{n: independent_kuka_fit((n,)) for n in ("a", "b", "c")}}
         kuka_runs = kuka(Path(tmp))
     ff = flexiforce(args.data_dir)
