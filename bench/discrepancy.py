@@ -374,8 +374,8 @@ FAMILIES: dict[str, Callable[[int], list[dict]]] = {
 }
 
 
-def run_case(cfg, case: dict, duration_s: float) -> dict:
-    """Generate the record, run the workflow, score it."""
+def run_case(cfg, case: dict, duration_s: float, search: str = "auto") -> dict:
+    """Generate the record, run the workflow (``search`` as ``Options.search``), score it."""
     t0 = time.perf_counter()
     if "config" in case:  # a real session's recording
         import tempfile
@@ -391,7 +391,7 @@ def run_case(cfg, case: dict, duration_s: float) -> dict:
         rec = fe_record(case["effects"], case["errors"], case["seed"], duration_s)
     gen_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = find_missing_effects(cfg, rec, "independent.csv", options=Options())
+    res = find_missing_effects(cfg, rec, "independent.csv", options=Options(search=search))
     row = {**case, "rate_hz": round(1.0 / float(np.median(np.diff(rec.t)))), "generate_s": gen_s,
            "wall_s": time.perf_counter() - t0, "named": res.named, "mode": res.mode,
            "parameters": {f.effect: f.params["error_fraction"] for f in res.parameters},
@@ -508,6 +508,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=14)
     ap.add_argument("--no-timing", action="store_true")
     ap.add_argument("--timing-only", action="store_true")
+    ap.add_argument("--search", choices=("auto", "sets", "rounds"), default="auto",
+                    help="how effects are chosen (Options.search; auto: the workflow's default for one record)")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "discrepancy.json",
+                    help="results file (default bench/results/discrepancy.json)")
     args = ap.parse_args()
     console = Console()
     cfg = load_config(CONFIG)
@@ -522,7 +526,7 @@ def main() -> None:
     cases = [c for fam in args.families.split(",") for c in FAMILIES[fam](args.seed)]
     rows = []
     for i, case in enumerate(cases, 1):
-        row = run_case(cfg, case, args.duration)
+        row = run_case(cfg, case, args.duration, args.search)
         rows.append(row)
         hidden = ", ".join([*case["effects"], *case["errors"]]) or "(clean)"
         oracle = "" if row.get("oracle_cut") is None else f", truth cuts {100 * row['oracle_cut']:.0f} %"
@@ -542,15 +546,15 @@ def main() -> None:
                       "-" if s["max_param_rel_error"] is None else f"{100 * s['max_param_rel_error']:.1f} %",
                       f"{s['median_wall_s']:.1f} s", vis)
     console.print(table)
-    out = ROOT / "bench" / "results" / "discrepancy.json"
+    out = args.out.resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
                     "load_avg": os.getloadavg()},
         "timing_60s": timing, "summary": summary, "cases": rows,
-        "settings": {"duration_s": args.duration, "seed": args.seed},
+        "settings": {"duration_s": args.duration, "seed": args.seed, "search": args.search},
     }, indent=2, default=float) + "\n")
-    console.print(f"wrote {out.relative_to(ROOT)}")
+    console.print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,12 @@ DC motor and generator (Lacerda Junior et al. 2017, ``tests/data/dc_motor_genera
 workflow from the linear least-squares model (``configs/dc_motor_generator.toml``) and from the driven
 part of an independent switched fit, beside independent least-squares fits of the same rows (linear
 first order; driven and coasting phases with Coulomb deceleration and a dead time).
+KUKA KR300 axis 1 (Weigand et al. 2021, ``tests/data/kuka_kr300_axis1``, MIT; both directions): the
+workflow over records A and B, validated on C, from the model without Coulomb friction
+(``configs/kuka_kr300_axis1_nominal.toml``) and from the reference holding the published friction
+(``configs/kuka_kr300_axis1.toml``), beside independent least-squares fits of the link torque
+(inertia, viscous friction, a Coulomb level per direction; per record and over A and B) and the
+friction the records' feedforward used.
 Writes bench/results/real_data.json. Usage: python bench/real_data.py [--data-dir ../shared/data]
 """
 
@@ -39,7 +45,7 @@ def _cli(args: list[str], cache: str) -> tuple[int, str, float, float]:
     env = {**os.environ, "REHAB_HIL_CACHE_DIR": cache}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    p = subprocess.run([str(ROOT / ".venv" / "bin" / "rehab-hil"), *args], capture_output=True, text=True, env=env,
+    p = subprocess.run([sys.executable, "-m", "rehab_hil.cli", *args], capture_output=True, text=True, env=env,
                        cwd=ROOT)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -190,6 +196,95 @@ def _print_dc(indep: dict, runs: dict) -> None:
         print(f"    {r['conclusion']}")
 
 
+KUKA_DATA = ROOT / "tests" / "data" / "kuka_kr300_axis1"
+KUKA_GEAR = 256.8571  # u(1), the records' para struct: motor torque x u = link torque
+KUKA_PUBLISHED = {"coulomb_nm": 285.36 + 70.135, "offset_nm": 54.024, "viscous_nm_s_per_rad": 2050.35}  # para struct
+KUKA_MOVING_RAD_S = 0.01  # the fits use samples turning faster than this (the tanh of the published law is saturated)
+
+
+def kuka_rows(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Link torque [N m], velocity and acceleration (Savitzky-Golay derivatives of the position) of a record."""
+    from scipy.signal import savgol_filter
+
+    d = np.genfromtxt(KUKA_DATA / f"record_{name}.csv", delimiter=",", names=True)
+    q, dt = np.radians(d["act_pos_mot_deg_1"]), float(np.median(np.diff(d["time_cont"])))
+    return (d["act_torque_abs_nm_1"] * KUKA_GEAR, savgol_filter(q, 11, 3, deriv=1, delta=dt),
+            savgol_filter(q, 11, 3, deriv=2, delta=dt))
+
+
+def independent_kuka_fit(names: tuple[str, ...]) -> dict:
+    """Least squares of tau = J q'' + Fv q' + Fc+ [q' > 0] - Fc- [q' < 0] over the records ``names``
+    (one parameter set), outside the workflow; also the symmetric form with a constant (Fc sgn q' + c)."""
+    rows = [kuka_rows(n) for n in names]
+    tau = np.concatenate([r[0] for r in rows])
+    v, a = np.concatenate([r[1] for r in rows]), np.concatenate([r[2] for r in rows])
+    m = np.abs(v) > KUKA_MOVING_RAD_S
+    X = np.column_stack([a, v, (v > 0), -1.0 * (v < 0)]).astype(float)[m]
+    th, *_ = np.linalg.lstsq(X, tau[m], rcond=None)
+    Xs = np.column_stack([a, v, np.sign(v), np.ones_like(v)])[m]
+    ts, *_ = np.linalg.lstsq(Xs, tau[m], rcond=None)
+    return {"inertia_kg_m2": float(th[0]), "viscous_nm_s_per_rad": float(th[1]), "level_pos_nm": float(th[2]),
+            "level_neg_nm": float(th[3]), "rms_nm": float(np.sqrt(np.mean((tau[m] - X @ th) ** 2))),
+            "symmetric": {"coulomb_nm": float(ts[2]), "offset_nm": float(ts[3]),
+                          "rms_nm": float(np.sqrt(np.mean((tau[m] - Xs @ ts) ** 2)))},
+            "torque_spread_nm": float(np.std(tau[m])), "share_turning_pos": float(np.mean(v > KUKA_MOVING_RAD_S)),
+            "share_turning_neg": float(np.mean(v < -KUKA_MOVING_RAD_S))}
+
+
+def kuka(out: Path) -> dict:
+    """The workflow from the CLI over records A and B, validated on C, from both configs."""
+    res = {}
+    data = [str(KUKA_DATA / f"record_{n}.csv") for n in ("a", "b")]
+    with tempfile.TemporaryDirectory() as cache:
+        for name in ("nominal", "reference"):
+            cfg = f"configs/kuka_kr300_axis1{'_nominal' if name == 'nominal' else ''}.toml"
+            rep_dir = out / f"kuka_{name}"
+            rc, printed, wall, cpu = _cli(["discrepancy", "--config", cfg, "--data", data[0], "--data", data[1],
+                                           "--validate", str(KUKA_DATA / "record_c.csv"), "--out", str(rep_dir)],
+                                          cache)
+            if rc != 0:
+                raise SystemExit(f"kuka {name}: exit {rc}\n{printed}")
+            rep = json.loads((rep_dir / "report.json").read_text())
+            joint = rep.get("joint_identification") or {}
+            res[name] = {"wall_s": wall, "cpu_s": cpu, "conclusion": rep["conclusion"],
+                         "named": [c["effect"] for c in rep["chosen"]],
+                         "params": {c["effect"]: c["params"] for c in rep["chosen"]},
+                         "joint": {p["name"]: p["value"] for p in joint.get("parameters", [])},
+                         "corrected": joint.get("corrected", {}), "gaps": rep["gaps"],
+                         "candidates": [(c["effect"], c["params"], c["delta_bic"]) for rd in rep["rounds"]
+                                        for c in rd["candidates"]]}
+    return res
+
+
+def _print_kuka(indep: dict, runs: dict) -> None:
+    ab, per = indep["a+b"], {k: v for k, v in indep.items() if len(k) == 1}
+    print("KUKA KR300 axis 1 (Weigand et al. 2021), records A and B (estimation), C (validation), 10 s at 250 Hz:")
+    print(f"  independent least squares over A+B: J {ab['inertia_kg_m2']:.0f} kg m^2, "
+          f"Fv {ab['viscous_nm_s_per_rad']:.0f} N m s/rad, Coulomb {ab['level_pos_nm']:.0f} N m turning +, "
+          f"{ab['level_neg_nm']:.0f} turning - "
+          f"(symmetric {ab['symmetric']['coulomb_nm']:.0f} + constant {ab['symmetric']['offset_nm']:.0f}); RMS "
+          f"{ab['rms_nm']:.0f} of {ab['torque_spread_nm']:.0f} N m")
+    print(f"    over A+B+C: J {indep['a+b+c']['inertia_kg_m2']:.1f} kg m^2 (the configs' inertia)")
+    for k, f in per.items():
+        print(f"    record {k.upper()}: J {f['inertia_kg_m2']:.0f}, Fv {f['viscous_nm_s_per_rad']:.0f}, Coulomb + "
+              f"{f['level_pos_nm']:.0f} / - {f['level_neg_nm']:.0f} N m")
+    pub = KUKA_PUBLISHED
+    print(f"  published (the records' feedforward): Coulomb {pub['coulomb_nm']:.1f} N m + constant "
+          f"{pub['offset_nm']:.1f} ({pub['coulomb_nm'] + pub['offset_nm']:.1f} turning +, "
+          f"{pub['coulomb_nm'] - pub['offset_nm']:.1f} -), "
+          f"Fv {pub['viscous_nm_s_per_rad']:.0f}")
+    sym = ab["symmetric"]["coulomb_nm"]
+    for name, r in runs.items():
+        print(f"  from the {name} model: named {r['named'] or 'nothing'}; wall {r['wall_s']:.1f} s")
+        for eff, params in r["params"].items():
+            for k, v in params.items():
+                print(f"    {eff}.{k} = {v:.4g} ({100 * (v / sym - 1):+.0f} % against the independent symmetric "
+                      f"{sym:.0f} N m)")
+        for k, v in r["joint"].items():
+            print(f"    joint identification: {k} = {v:.4g}")
+        print(f"    {r['conclusion']}")
+
+
 def flexiforce(data: Path) -> dict:
     from rehab_hil.analysis.flexiforce import fit_static, read_points, staircase
 
@@ -208,18 +303,7 @@ def flexiforce(data: Path) -> dict:
                               "gain_spread_pct": f.gain_spread_pct} for s, f in stairs.items()}}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data-dir", type=Path, default=ROOT.parent / "shared" / "data")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "real_data.json")
-    args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        runs = emps(args.data_dir, Path(tmp))
-        dc_indep = independent_dc_fit()
-        dc_runs = dc_motor_generator(Path(tmp), dc_indep)
-    ff = flexiforce(args.data_dir)
-    fit = _fitted(runs["nominal"])
-    nominal = {"load.mass_kg": 95.1089, "load.viscous_n_s_per_m": 203.5034, "coulomb_n": 0.0, "offset_n": 0.0}
+def _print_emps(runs: dict, fit: dict, nominal: dict) -> None:
     print("EMPS, rehab-hil discrepancy --config configs/emps_nominal.toml --data DATA_EMPS.mat --validate "
           "DATA_EMPS_PULSES.mat")
     print(f"  conclusion: {runs['nominal']['conclusion']}")
@@ -240,7 +324,26 @@ def main() -> int:
               f"named: {r['named'] or 'nothing'}")
     print(f"  reference config: {runs['reference']['conclusion']}")
     print(f"  load average during the runs: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs (other work shares them)")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data-dir", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "real_data.json")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = emps(args.data_dir, Path(tmp))
+        dc_indep = independent_dc_fit()
+        dc_runs = dc_motor_generator(Path(tmp), dc_indep)
+        kuka_indep = {"a+b": independent_kuka_fit(("a", "b")), "a+b+c": independent_kuka_fit(("a", "b", "c")),
+                      **{n: independent_kuka_fit((n,)) for n in ("a", "b", "c")}}
+        kuka_runs = kuka(Path(tmp))
+    ff = flexiforce(args.data_dir)
+    fit = _fitted(runs["nominal"])
+    nominal = {"load.mass_kg": 95.1089, "load.viscous_n_s_per_m": 203.5034, "coulomb_n": 0.0, "offset_n": 0.0}
+    _print_emps(runs, fit, nominal)
     _print_dc(dc_indep, dc_runs)
+    _print_kuka(kuka_indep, kuka_runs)
     print("FlexiForce A201 (Dickmann et al. 2021), static calibration [N]:")
     print(f"  {'sensor':8s} {'chosen':10s} {'RMS linear':>11s} {'RMS quad':>9s} {'published':>10s}")
     for s, f in ff["static"].items():
@@ -253,6 +356,7 @@ def main() -> int:
               f"({f['hysteresis_pct_fs']:.2f} % of 9.82 N), gain spread {f['gain_spread_pct']:.1f} %")
     result = {"emps": {"runs": runs, "fitted": fit, "reference": REFERENCE, "nominal": nominal},
               "flexiforce": ff, "dc_motor_generator": {"independent": dc_indep, "workflow": dc_runs},
+              "kuka_kr300_axis1": {"independent": kuka_indep, "workflow": kuka_runs, "published": KUKA_PUBLISHED},
               "python": sys.version.split()[0], "cpus": os.cpu_count(),
               "load_average": os.getloadavg()}
     args.out.parent.mkdir(parents=True, exist_ok=True)

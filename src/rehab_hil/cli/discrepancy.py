@@ -47,7 +47,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "at a time (one record: the default); docs/discrepancy.md")
     p.add_argument("--holdout", type=float, default=0.4, help="final share of the record held out (default 0.4)")
     p.add_argument("--start", choices=("auto", "rest", "estimate"), default="auto",
-                   help="the record's start state: rest (the config's rest, measured states from the first "
+                   help="each record's start state (with several records, judged per record): rest (the config's "
+                        "rest, measured states from the first "
                         "sample), estimate (unmeasured states fitted on the first 1.5 s), or auto (default: as "
                         "estimate, but a record whose channels do not move in the first 50 ms keeps its start "
                         "velocities at 0 when the fitted ones would show)")
@@ -174,6 +175,9 @@ def _print_summary(res: Result, out: Path) -> None:
             f"  {c:24s} {before[c]['rmse']:.4g} -> {after[c]['rmse']:.4g} {channel_unit(c)}" for c in res.channels]
     for line in lines + (res.validation.lines() if res.validation is not None else []):
         print(line)
+    for g in res.gaps.get("records", []) if len(res.gaps.get("records", [])) > 1 else []:
+        if "start" in g:
+            print(f"  start of {Path(g['data']).name}: " + ("; ".join(g["start"]["summary"]) or "the config's rest"))
     if res.lacking:
         print("  the records lack: " + "; ".join(res.lacking))
     print(f"wrote {out}/report.json, report.md, report.html, *.png, augmented.toml")

@@ -283,6 +283,10 @@ def _gaps_md(gaps: dict[str, Any] | None) -> list[str]:
     for g in gaps["records"]:
         for ch, m in g["nominal"].items():
             L.append(f"| {g['data']} | {ch} | {m['rmse']:.4g} | {g['augmented'][ch]['rmse']:.4g} |")
+    starts = [(g["data"], g["start"]["summary"]) for g in gaps["records"] if "start" in g]
+    if starts:
+        L += ["", "Start state per record:", ""] + [f"- {d}: {'; '.join(s) or 'the config rest state'}"
+                                                    for d, s in starts]
     return L
 
 

@@ -1,6 +1,7 @@
 """The discrepancy workflow on several records at once, effects chosen as a set (issue 38).
 
-1. Each record is bound to the plant (``Replay``) and gets its own start state and replay mode
+1. Each record is bound to the plant (``Replay``) and gets its own start state (``Options.start``
+   per record: at rest, estimated, or at rest when its data show it) and replay mode
    from the data under the nominal model; its first ``1 - holdout_fraction`` fits, the rest is held
    out. The records together are a ``records.RecordSet``: one parameter vector for all.
 2. The candidate terms (library effects that attach, declared parameters) are searched as sets
@@ -67,8 +68,8 @@ def find_in_records(cfg: Any, recs: Sequence[Recording], paths: Sequence[str | P
         joint = identify_jointly(records, P0, chosen_terms, fits, records.n_train, progress.advance)
     progress.start("the gap per record", None)
     gaps = {"measure": GAP_MEASURE, "records": [
-        {"data": name, "nominal": g0, "augmented": g1}
-        for name, g0, g1 in zip(records.names, records.gaps(P0), records.gaps(P), strict=True)]}
+        {"data": name, "nominal": g0, "augmented": g1, "start": _start(s)}
+        for name, g0, g1, s in zip(records.names, records.gaps(P0), records.gaps(P), starts, strict=True)]}
     for r, s in zip(records.replays, starts, strict=True):  # the fit's start states stay the result's
         r.x0, r.xd0 = s.x0, s.xd0
     records.drop_cache()
@@ -92,6 +93,7 @@ def _bind(spec: Any, cfg: Any, recs: Sequence[Recording], paths: Sequence[str | 
     replays, n_trains = [], []
     for rec, path in zip(recs, paths, strict=True):
         replay = Replay.build(spec, cfg, rec, path, closed_loop=options.closed_loop)
+        replay.start = options.start  # each record's own: at rest, estimated, or found from its data
         N = replay.t.size
         n_train = max(2, min(round((1.0 - options.holdout_fraction) * N),
                              int(np.searchsorted(replay.t, options.fit_max_s))))
@@ -103,6 +105,11 @@ def _bind(spec: Any, cfg: Any, recs: Sequence[Recording], paths: Sequence[str | 
         n_trains.append(n_train)
         progress.advance()
     return RecordSet(replays, n_trains, [str(p) for p in paths])
+
+
+def _start(init: Any) -> dict[str, Any]:
+    """A record's start state in the report: at rest ("option", "data") or estimated, and how."""
+    return {"at_rest": init.at_rest, "estimated": init.estimated, "summary": init.describe()}
 
 
 def _round(search: SetSearch, records: RecordSet) -> Round:
