@@ -4,6 +4,7 @@ recorded controller (configs/emps*.toml, [recorded_controller])."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,18 @@ def test_the_nominal_axis_is_missing_coulomb_friction_and_an_offset(nominal) -> 
     fits = {f.effect: f.params["level_nm"] for f in res.chosen}
     assert fits["coulomb_friction"] == pytest.approx(FC_N, rel=0.10)
     assert fits["constant_load"] < 0.0  # the offset's sign; its size needs the whole record (bench/real_data.py)
+
+
+@NOMINAL
+def test_the_friction_is_said_per_direction_within_30_percent_of_the_benchmarks_levels(nominal) -> None:
+    """Coulomb friction with an offset is friction that differs with the direction of motion (issue 38
+    item 3): the conclusion gives its level each way, beside the reference's Fc + offset and Fc - offset."""
+    _, res = nominal
+    said = re.search(r"([-\d.]+) N against moving \+, ([-\d.]+) N against moving -", res.conclusion)
+    assert said, res.conclusion
+    assert float(said[1]) == pytest.approx(FC_N + OFFSET_N, rel=0.30)
+    assert float(said[2]) == pytest.approx(FC_N - OFFSET_N, rel=0.30)
+    assert float(said[1]) < float(said[2])  # the benchmark's asymmetry, the right way round
 
 
 @NOMINAL

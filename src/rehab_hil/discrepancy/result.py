@@ -16,7 +16,7 @@ from rehab_hil.discrepancy.selection import Score
 from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.discrepancy.verdict import ALIAS_DELTA_BIC, ALIAS_RMS_SHARE, channel_unit, residual_stats
 
-__all__ = ["Alias", "Candidate", "Result", "Round", "effect_phrase", "parameter_sentence"]
+__all__ = ["Alias", "Candidate", "Result", "Round", "direction_sentence", "effect_phrase", "parameter_sentence"]
 
 Z95 = 1.96
 
@@ -87,6 +87,18 @@ def effect_phrase(fit: Fit, unit: str = "N m") -> str:
     return fit.effect
 
 
+def direction_sentence(chosen: list[Fit], unit: str = "N m") -> str | None:
+    """Coulomb friction named beside a constant load is a friction that differs with the direction
+    (EMPS eq 1: Fc sgn(q') + offset): its level against each direction of motion, or None."""
+    fits = {f.effect: f.params for f in chosen if f.kind == "effect"}
+    if "coulomb_friction" not in fits or "constant_load" not in fits:
+        return None
+    fc, load = fits["coulomb_friction"]["level_nm"], fits["constant_load"]["level_nm"]  # load: -level on the axis
+    return (f"together a friction that depends on the direction: {fc + load:.3g} {unit} against moving +, "
+            f"{fc - load:.3g} {unit} against moving - (Coulomb {fc:.3g} {unit} and a constant load of "
+            f"{load:.3g} {unit})")
+
+
 def parameter_sentence(fit: Fit, inseparable: bool = False) -> str:
     """'parameter X is off by N % (95 % CI a .. b %)'; no interval for a parameter the record cannot
     separate from another (``identify``): its own interval would be a wrong story told with confidence."""
@@ -146,6 +158,7 @@ class Result:
             unit = "N" if "position" in self.kinds.values() else "N m"
             phrases = [effect_phrase(f, unit) for f in self.chosen if f.kind == "effect"]
             parts.append(f"missing effect found: {', '.join(phrases)}")
+            parts += [d] if (d := direction_sentence(self.chosen, unit)) else []
         mixed = {m for g in (self.joint.inseparable if self.joint is not None else []) for m in g}
         on_bound = {b.split(" ended on")[0] for b in self.bounds}
         parts += [parameter_sentence(f, f.effect in mixed) for f in self.parameters if f.effect not in on_bound]
