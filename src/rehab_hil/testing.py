@@ -18,10 +18,30 @@ from rehab_hil import shipped
 from rehab_hil.hardware.inprocess import InProcessHardware
 from rehab_hil.hardware.open import inprocess_hardware
 
-__all__ = ["CONFIGS", "InProcessHardware", "config_with_changes", "free_port", "inprocess_rig", "pid_runtime",
-           "push_runtime"]
+__all__ = [
+    "CONFIGS",
+    "InProcessHardware",
+    "config_with_changes",
+    "free_port",
+    "inprocess_rig",
+    "pid_runtime",
+    "push_runtime",
+    "servo_axis_config",
+]
 
 CONFIGS = shipped.CONFIGS  # the plant configs: the repository's, or an installed wheel's own copies
+
+
+def servo_axis_config(path: Path, load: str = "", drive: str = 'command = "torque"\nsaturation_nm = 0.3',
+                      extra: str = "") -> Path:
+    """Write a small rotary servo axis commanded open loop (``motor_axis``: 2e-4 kg m^2, 4e-4 N m s/rad,
+    1 kHz) to ``path``: ``load`` adds keys to its ``[load]`` table, ``drive`` is its ``[drive]`` table,
+    ``extra`` follows (an ``[import]`` mapping); the rig table is EMPS's (a lab's records bind no rig)."""
+    emps = (CONFIGS / "emps.toml").read_text()
+    path.write_text('plant = "motor_axis"\n[simulation]\nstep_s = 0.001\nsubsteps = 1\n[load]\nkind = "rotary"\n'
+                    f"inertia_kg_m2 = 2.0e-4\nviscous_nm_s_per_rad = 4.0e-4\n{load}\n[drive]\n{drive}\n{extra}\n"
+                    + emps[emps.index("[rig]"):])
+    return path
 
 
 def free_port() -> int:

@@ -15,22 +15,10 @@ from rehab_hil.cli import main
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant, run_scenario
 from rehab_hil.plants.experiments import Scenario
+from rehab_hil.testing import servo_axis_config
 
 ROOT = Path(__file__).resolve().parents[2]
-SERVO = """plant = "motor_axis"
-[simulation]
-step_s = 0.001
-substeps = 1
-[load]
-kind = "rotary"
-inertia_kg_m2 = 2.0e-4
-viscous_nm_s_per_rad = 4.0e-4
-stick_velocity = 0.01
-stick_damping = 0.05
-[drive]
-command = "torque"
-saturation_nm = 0.3
-[import]
+IMPORT = """[import]
 time = "{time}"
 [import.signals.drive_torque_nm]
 variable = "{tau}"
@@ -47,10 +35,9 @@ MAT_NAMES = {"time": "data(:,1)", "tau": "data(:,2)", "theta": "data(:,4)", "ome
 
 
 def _config(tmp_path: Path, names: dict[str, str], extra: str = "") -> Path:
-    rig = (ROOT / "configs" / "emps.toml").read_text()
     f = tmp_path / f"servo_{len(list(tmp_path.glob('servo_*')))}.toml"
-    f.write_text(SERVO.format(**names) + extra + "\n" + rig[rig.index("[rig]"):])
-    return f
+    return servo_axis_config(f, load="stick_velocity = 0.01\nstick_damping = 0.05",
+                             extra=IMPORT.format(**names) + extra)
 
 
 def _record(tmp_path: Path, seconds: float = 8.0) -> np.ndarray:

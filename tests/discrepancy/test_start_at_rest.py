@@ -15,30 +15,15 @@ from rehab_hil.interchange import Recording
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant, run_scenario
 from rehab_hil.plants.experiments import Scenario
+from rehab_hil.testing import servo_axis_config
 
 ROOT = Path(__file__).resolve().parents[2]
-SERVO = """plant = "motor_axis"
-[simulation]
-step_s = 0.001
-substeps = 1
-[load]
-kind = "rotary"
-inertia_kg_m2 = 2.0e-4
-viscous_nm_s_per_rad = 4.0e-4
-coulomb_nm = 0.02
-stick_velocity = 0.01
-stick_damping = 0.05
-[drive]
-command = "torque"
-saturation_nm = 0.3
-"""
 
 
 @pytest.fixture(scope="module")
 def servo(tmp_path_factory):
-    rig = (ROOT / "configs" / "emps.toml").read_text()
-    f = tmp_path_factory.mktemp("servo") / "servo.toml"
-    f.write_text(SERVO + rig[rig.index("[rig]"):])
+    f = servo_axis_config(tmp_path_factory.mktemp("servo") / "servo.toml",
+                          load="coulomb_nm = 0.02\nstick_velocity = 0.01\nstick_damping = 0.05")
     return get_plant("motor_axis"), load_config(f)
 
 

@@ -13,6 +13,7 @@ from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant, run_scenario
 from rehab_hil.plants.experiments import Scenario
 from rehab_hil.plants.motor_axis import MotorAxisConfig, axis_values
+from rehab_hil.testing import servo_axis_config
 
 ROOT = Path(__file__).resolve().parents[2]
 EMPS = ROOT / "configs" / "emps.toml"
@@ -100,25 +101,10 @@ def test_the_recorded_controller_holds_a_step_within_the_offset_over_the_loop_st
     assert abs(res["drive_input_v"]).max() == pytest.approx(10.0)  # the step saturates the drive at first
 
 
-SERVO = """plant = "motor_axis"
-[simulation]
-step_s = 0.001
-substeps = 1
-[load]
-kind = "rotary"
-inertia_kg_m2 = 2.0e-4
-viscous_nm_s_per_rad = 4.0e-4
-coulomb_nm = 0.02
-[drive]
-{drive}
-"""
 
 
 def _servo(tmp_path: Path, drive: str) -> MotorAxisConfig:
-    f = tmp_path / "servo.toml"
-    rig = EMPS.read_text()[EMPS.read_text().index("[rig]"):]  # a lab's axis: the rig table only stays valid
-    f.write_text(SERVO.format(drive=drive) + rig)
-    return load_config(f)  # type: ignore[return-value]
+    return load_config(servo_axis_config(tmp_path / "servo.toml", load="coulomb_nm = 0.02", drive=drive))  # type: ignore[return-value]
 
 
 def _steady_speed(cfg: MotorAxisConfig, signal: str, value: float) -> tuple[float, np.ndarray]:
