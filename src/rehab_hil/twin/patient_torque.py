@@ -1,0 +1,246 @@
+"""The patient's torque on the joint, estimated online from the host's model and the rig's own
+sensors: an unknown input found by least squares over each re-anchored segment.
+
+The twin's model knows no patient. Whatever torque the patient puts on the joint shows as the
+model's prediction error over a segment that starts from the measured state (the twin's anchoring,
+``twin/model.py``). Per whole segment (``segment_s`` of samples, none lost) the patient's torque is
+taken as constant: an unknown load on the plant's primary axis (the library's ``constant_load``
+effect, which the twin's model carries disabled, switched on at the estimate). The model runs over
+the segment at the running estimate, and again with the load nudged and with its start velocity
+nudged (the joint's speed is not measured: a wrong start speed and a torque move the angle
+differently, t against t squared); the measured channels in their own counts (the encoder, a force
+sensor the model predicts: the SMA rig's Flexiforce, the TCP's tendon force) give the torque and
+the speed's correction by linear least squares (Gauss-Newton, the step repeated while it is large).
+The model then carries on as if it had run on them. A torque sensor between the patient and the rig
+(the Finger Extensor's) is not used: its input is held at zero, so this is the model's figure
+beside the sensor's.
+
+Per move (a window of a cycle, ``therapy_measures.move_windows``): the mean of the estimates of the
+segments whose middle lies in it, toward the move's target, and the 95 % half-interval of that
+mean from their scatter (Student's t), as the sensor's figure is computed from its samples.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.plants.registry import get_plant
+from rehab_hil.therapy_measures import move_windows
+from rehab_hil.twin.model import TwinModel
+
+__all__ = ["LOAD_PARAM", "TORQUE_RUNS", "PatientTorqueEstimator", "TorqueSegment", "move_torques",
+           "patient_torque_estimator"]
+
+LOAD_PARAM = "candidate_constant_load.level_nm"  # the twin model's disabled constant load on the primary axis
+SUBSAMPLE = 5  # every this many samples of a segment enter the fit (neighbours are correlated)
+NUDGE_NM = 1e-3  # finite-difference step of the torque [N m] (the model is about linear in it)
+NUDGE_RAD_S = 1e-2  # ... and of the start velocity [rad/s]
+MAX_ITER = 3  # Gauss-Newton steps per segment at most ...
+ITER_TOL_NM = 1e-4  # ... while the torque moves more than this [N m]
+TORQUE_RUNS = 4  # model runs of a segment, typically: the prediction, two nudges, the run at the estimate
+
+
+@dataclass(frozen=True)
+class TorqueSegment:
+    """One segment's estimate: its time span on the session clock [s], the patient's torque on the axis
+    [N m] and its standard error [N m]."""
+
+    t0_s: float
+    t1_s: float
+    torque_nm: float
+    sd_nm: float
+
+
+class PatientTorqueEstimator:
+    """The patient's torque per whole segment, from a ``TwinModel`` of its own (``update`` per block of
+    samples as ``TwinModel.advance`` takes them; ``window`` per move)."""
+
+    def __init__(self, model: TwinModel, load_index: int, velocity_state: int | None, held_inputs: Sequence[int],
+                 axis_torque: str, source: str) -> None:
+        """``load_index``: the load's parameter; ``velocity_state``: the axis speed's state (None: not fitted);
+        ``held_inputs``: input columns held at zero (a torque sensor's reading); ``axis_torque``: the signal
+        the axis's torques are summed on (static friction excepted); ``source``: what it uses."""
+        self.model, self.source = model, source
+        self._load, self._vel, self._held = load_index, velocity_state, list(held_inputs)
+        self._sum_slots = model.system.out_slots([axis_torque])
+        self._sum_ws = model.system.workspace()
+        self.torque_nm = 0.0
+        self.segments: list[TorqueSegment] = []
+        u0 = model.inputs_of(0, 0, 0, {})
+        self._pinned = np.any(model.anchor_gain != 0.0, axis=0)  # channels whose states the anchoring sets
+        self._out_jac = model.output_jacobian(model.x, model.xd, u0)
+        self._set(model.P, 0.0)
+
+    def _set(self, P: np.ndarray, torque_nm: float) -> None:
+        P[self._load] = -torque_nm  # the load's output is -level on the axis
+
+    def update(self, index: np.ndarray, U: np.ndarray, measured: np.ndarray) -> None:
+        """One block of samples (sample indices, model inputs, measured channels in sensor units): each
+        whole segment in it gives an estimate; the model carries on through the rest."""
+        m = self.model
+        U = U.copy()
+        U[:, self._held] = 0.0
+        whole = (index.size == m.segment_samples and int(index[-1] - index[0]) == index.size - 1 and m.at_anchor)
+        if not m.anchored or not whole:  # the inputs over a gap are unknown: nothing sure to learn here
+            m.advance(index, U, measured)
+            return
+        x0, xd0 = m.x.copy(), m.xd.copy()
+        steps, at = m.plan(index, U)
+        y = m.advance(index, U, measured).predicted
+        x_end = m.x - m.anchor_gain @ m.last_correction  # the segment's end before its anchoring
+        keep = np.arange(0, at.size, SUBSAMPLE)
+        z = measured[keep] / m.resolution
+        fit = self._fit((x0, xd0, steps, at[keep]), z, y[keep] / m.resolution, x_end)
+        if fit is None:
+            return
+        step, sd, dx = fit
+        if not math.isfinite(sd):  # held by static friction all through: the torque that leaves it nothing to hold
+            step[0] = self._balance(x0, xd0, steps)
+        if np.any(self._pinned):  # anchoring sets the states a channel is: they do not depend on the fit
+            dx -= m.anchor_gain[:, self._pinned] @ (self._out_jac[self._pinned] @ dx)
+        m.x += dx @ step
+        self.torque_nm += float(step[0])
+        self._set(m.P, self.torque_nm)
+        t = m.period_s
+        self.segments.append(TorqueSegment(float(index[0] * t), float((index[-1] + 1) * t), self.torque_nm, sd))
+
+    def _balance(self, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray) -> float:
+        """The change of the estimate that makes the mean of the axis's torque sum over the segment zero
+        (the middle of the static friction's band, where a held joint says no more than that)."""
+        s = self.model.system
+        _, Y = s.engine.simulate(x0.copy(), xd0.copy(), steps, self.model.P, s.dt, s.substeps, self._sum_slots,
+                                 *self._sum_ws)
+        return -float(np.mean(Y[:, 0]))
+
+    def _run(self, segment: tuple[np.ndarray, ...], delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The segment's samples (counts) and end state with the torque and start speed moved by ``delta``."""
+        x0, xd0, steps, at = segment
+        m = self.model
+        P = m.P.copy()
+        self._set(P, self.torque_nm + delta[0])
+        x = x0.copy()
+        if self._vel is not None:
+            x[self._vel] += delta[1]
+        return m.run(steps, x, xd0.copy(), P)[at] / m.resolution, x
+
+    def _fit(self, segment: tuple[np.ndarray, ...], z: np.ndarray, y: np.ndarray, x_end: np.ndarray
+             ) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """Gauss-Newton on (torque, start speed) over one segment from the running estimate: the step,
+        the torque's standard error and d end state / d step; None when the segment says nothing."""
+        n = 1 if self._vel is None else 2
+        h = np.array([NUDGE_NM, NUDGE_RAD_S][:n])
+        delta = np.zeros(n)
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(y))):
+            return None
+        for _ in range(MAX_ITER):
+            phi = np.empty((y.size, n))
+            dx = np.empty((x_end.size, n))
+            for j in range(n):
+                d = delta.copy()
+                d[j] += h[j]
+                yj, xj = self._run(segment, d)
+                phi[:, j] = (yj - y).ravel() / h[j]
+                dx[:, j] = (xj - x_end) / h[j]
+            if not np.any(phi[:, 0]):  # the prediction does not move with the torque: held by static friction
+                return np.zeros(n), math.nan, dx
+            e = (z - y).ravel()
+            R = phi.T @ phi
+            if not np.all(np.isfinite(R)) or np.linalg.cond(R) > 1e12:
+                return None
+            step = np.linalg.solve(R, phi.T @ e)
+            delta += step
+            y, x_end = self._run(segment, delta)
+            if abs(step[0]) < ITER_TOL_NM:
+                break
+        r = (z - y).ravel()
+        dof = max(r.size - n, 1)
+        sd = math.sqrt(float(np.linalg.inv(R)[0, 0]) * float(r @ r) / dof)
+        return delta, sd, dx
+
+    def window(self, start_s: float, end_s: float, sign: float) -> tuple[float, float]:
+        """The mean torque toward a move's target (``sign``: +1 toward larger angles) over the segments
+        whose middle lies in [start_s, end_s], and the half-width of its 95 % interval [N m]; nan when
+        fewer than three segments lie there. The interval is the mean's over segments whose errors are
+        independent, their spread taken from second differences (which a torque changing smoothly
+        from one segment to the next leaves out, unlike the plain spread of the window's values)."""
+        v = np.array([s.torque_nm for s in self.segments if start_s <= 0.5 * (s.t0_s + s.t1_s) <= end_s])
+        if v.size < 3:
+            return math.nan, math.nan
+        v = sign * v
+        sd = math.sqrt(float(np.mean(np.diff(v, 2) ** 2)) / 6.0)  # var(e[k+1] - 2 e[k] + e[k-1]) = 6 var(e)
+        return float(v.mean()), float(stats.t.ppf(0.975, v.size - 2) * sd / math.sqrt(v.size))
+
+    def summary(self) -> dict[str, Any]:
+        """What metadata.json says about the estimate (the twin's ``patient_torque``)."""
+        tau = np.array([s.torque_nm for s in self.segments])
+        return {"source": self.source, "segment_s": self.model.segment_samples * self.model.period_s,
+                "segments": len(self.segments),
+                "mean_nm": float(tau.mean()) if tau.size else None}
+
+
+def move_torques(estimator: PatientTorqueEstimator, cycles: Sequence[Mapping[str, Any]], period_s: float,
+                 move_s: float, direction: float) -> list[dict[str, Any]]:
+    """Each cycle's figures (``session_cycles``) with the model's estimate of the patient's torque toward
+    each move's target and its 95 % half-interval (``patient_torque_open_model_nm``, ``..._ci_nm``, and
+    closing), what it uses (``patient_torque_model_source``) and where the sensor's figure comes from
+    (``patient_torque_source``: "torque sensor", when the rig has one); ``direction`` +1 when opening
+    raises the axis angle."""
+    out = []
+    for c in cycles:
+        row: dict[str, Any] = dict(c)
+        start = float(c["start_s"])
+        for (a, b), key, sign in zip(move_windows(period_s, move_s), ("open", "close"), (direction, -direction),
+                                     strict=True):
+            mean, ci = estimator.window(start + a, start + b, sign)
+            row[f"patient_torque_{key}_model_nm"], row[f"patient_torque_{key}_model_ci_nm"] = mean, ci
+        row["patient_torque_model_source"] = estimator.source
+        if math.isfinite(c.get("patient_torque_open_nm", math.nan)):
+            row["patient_torque_source"] = "torque sensor"
+        out.append(row)
+    return out
+
+
+def _velocity_state(model: TwinModel, velocity_signal: str) -> int | None:
+    """The state the axis's velocity signal reads (the one it moves with most, one model step from the
+    rest state), or None when the signal moves with none."""
+    s = model.system
+    x0 = s.x0.copy()
+    u = {n: v for n, v in zip(s.input_names, model.inputs_of(0, 0, 0, {}), strict=True)}
+    gain = np.zeros(x0.size)
+    for i in range(x0.size):
+        x = x0.copy()
+        x[i] += NUDGE_RAD_S
+        y = s.simulate(1, u, [velocity_signal], model.P, x, s.xd0.copy())[velocity_signal][0]
+        y0 = s.simulate(1, u, [velocity_signal], model.P, x0.copy(), s.xd0.copy())[velocity_signal][0]
+        gain[i] = abs(y - y0) / NUDGE_RAD_S
+    return int(np.argmax(gain)) if gain.max() > 0.5 else None
+
+
+def patient_torque_estimator(cfg: Any, binding: DeviceBinding, period_s: float, segment_s: float,
+                             channels: Sequence[str] | None = None) -> PatientTorqueEstimator | None:
+    """The estimate on this plant's primary axis (None: the twin's model has no load to put there)."""
+    model = TwinModel(cfg, binding, period_s, segment_s, channels or None, smooth=True)
+    names = list(model.system.diagram.param_names)
+    if LOAD_PARAM not in names:
+        return None
+    ports = get_plant(cfg.plant).ports(cfg)
+    held = []
+    if ports.interaction is not None and ports.interaction[0] in model.system.input_names:
+        held = [list(model.system.input_names).index(ports.interaction[0])]
+    axis = ports.axes[0]
+    vel = _velocity_state(model, axis.velocity)
+    return PatientTorqueEstimator(model, names.index(LOAD_PARAM), vel, held, axis.torque, source_text(model, binding))
+
+
+def source_text(model: TwinModel, binding: DeviceBinding) -> str:
+    """What the estimate uses: "model + encoder", "model + encoder + contact_force_n" ..."""
+    kinds: Mapping[str, str] = {a.signal: a.signal for a in binding.adc}
+    parts = ["encoder" if c == binding.angle_output else kinds.get(c, c) for c in model.channels]
+    return " + ".join(["model", *parts])
