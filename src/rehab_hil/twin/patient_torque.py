@@ -44,18 +44,27 @@ NUDGE_NM = 1e-3  # finite-difference step of the torque [N m] (the model is abou
 NUDGE_RAD_S = 1e-2  # ... and of the start velocity [rad/s]
 MAX_ITER = 3  # Gauss-Newton steps per segment at most ...
 ITER_TOL_NM = 1e-4  # ... while the torque moves more than this [N m]
-TORQUE_RUNS = 4  # model runs of a segment, typically: the prediction, two nudges, the run at the estimate
+WALK_NM_PER_S = 0.5  # how fast the patient's torque may change (a random walk's step per second) [N m/s]: the
+#                     capable patient's on the Finger Extensor changes by 0.3 N m within about a second
+UNSEEN_FACTOR = 5.0  # a segment whose counts set its torque this many times worse than its window's median
+#                     segment's says too little (a joint stopping: 8-9x on the Finger Extensor; the SMA's moves <3x)
+HELD_SHARE = 0.1  # a torque nudge one way moving the prediction less than this share of the other way: held
+TORQUE_RUNS = 6  # model runs of a segment, typically: the prediction, two nudges, the run at the estimate and
+#                  a nudge each way there
 
 
 @dataclass(frozen=True)
 class TorqueSegment:
     """One segment's estimate: its time span on the session clock [s], the patient's torque on the axis
-    [N m] and its standard error [N m]."""
+    [N m], its standard error [N m] (for a joint held by static friction, ``held``, the half-width of the
+    band the torque lies in instead; nan: not known)."""
 
     t0_s: float
     t1_s: float
     torque_nm: float
     sd_nm: float
+    floor_nm: float = math.nan  # the part of the standard error the sensors' counts set [N m]
+    held: bool = False
 
 
 class PatientTorqueEstimator:
@@ -100,16 +109,23 @@ class PatientTorqueEstimator:
         fit = self._fit((x0, xd0, steps, at[keep]), z, y[keep] / m.resolution, x_end)
         if fit is None:
             return
-        step, sd, dx = fit
-        if not math.isfinite(sd):  # held by static friction all through: the torque that leaves it nothing to hold
+        step, (sd, floor), dx = fit
+        held = not math.isfinite(sd)
+        if held:  # held by static friction: the torque that leaves it nothing to hold, the band's middle
+            edge = float(step[0])  # the least squares' edge of the band (0: none found)
             step[0] = self._balance(x0, xd0, steps)
+            sd = abs(edge - float(step[0])) if edge else math.nan
+        else:  # a random walk's Kalman gain: a segment that says little (sd >> the walk) moves the estimate little
+            walk = WALK_NM_PER_S * m.segment_samples * m.period_s
+            step *= walk**2 / (walk**2 + sd**2)
         if np.any(self._pinned):  # anchoring sets the states a channel is: they do not depend on the fit
             dx -= m.anchor_gain[:, self._pinned] @ (self._out_jac[self._pinned] @ dx)
         m.x += dx @ step
         self.torque_nm += float(step[0])
         self._set(m.P, self.torque_nm)
         t = m.period_s
-        self.segments.append(TorqueSegment(float(index[0] * t), float((index[-1] + 1) * t), self.torque_nm, sd))
+        self.segments.append(TorqueSegment(float(index[0] * t), float((index[-1] + 1) * t), self.torque_nm, sd,
+                                           floor, held))
 
     def _balance(self, x0: np.ndarray, xd0: np.ndarray, steps: np.ndarray) -> float:
         """The change of the estimate that makes the mean of the axis's torque sum over the segment zero
@@ -131,9 +147,10 @@ class PatientTorqueEstimator:
         return m.run(steps, x, xd0.copy(), P)[at] / m.resolution, x
 
     def _fit(self, segment: tuple[np.ndarray, ...], z: np.ndarray, y: np.ndarray, x_end: np.ndarray
-             ) -> tuple[np.ndarray, float, np.ndarray] | None:
+             ) -> tuple[np.ndarray, tuple[float, float], np.ndarray] | None:
         """Gauss-Newton on (torque, start speed) over one segment from the running estimate: the step,
-        the torque's standard error and d end state / d step; None when the segment says nothing."""
+        the torque's standard error and the part of it the sensors' counts set (nan, nan: held by static
+        friction), d end state / d step; None when the segment says nothing."""
         n = 1 if self._vel is None else 2
         h = np.array([NUDGE_NM, NUDGE_RAD_S][:n])
         delta = np.zeros(n)
@@ -149,7 +166,7 @@ class PatientTorqueEstimator:
                 phi[:, j] = (yj - y).ravel() / h[j]
                 dx[:, j] = (xj - x_end) / h[j]
             if not np.any(phi[:, 0]):  # the prediction does not move with the torque: held by static friction
-                return np.zeros(n), math.nan, dx
+                return np.zeros(n), (math.nan, math.nan), dx
             e = (z - y).ravel()
             R = phi.T @ phi
             if not np.all(np.isfinite(R)) or np.linalg.cond(R) > 1e12:
@@ -159,23 +176,55 @@ class PatientTorqueEstimator:
             y, x_end = self._run(segment, delta)
             if abs(step[0]) < ITER_TOL_NM:
                 break
+        if self._held_at(segment, delta, y):
+            return delta, (math.nan, math.nan), dx
         r = (z - y).ravel()
         dof = max(r.size - n, 1)
         sd = math.sqrt(float(np.linalg.inv(R)[0, 0]) * float(r @ r) / dof)
-        return delta, sd, dx
+        # a reading is known to within its count: a torque that moves no sample by a count's standard deviation
+        # (1/sqrt 12) is not seen, however well the counts fit (a joint pressed against a stiff stop)
+        floor = 1.0 / (math.sqrt(12.0) * float(np.max(np.abs(phi[:, 0]))))
+        return delta, (max(sd, floor), floor), dx
+
+    def _held_at(self, segment: tuple[np.ndarray, ...], delta: np.ndarray, y: np.ndarray) -> bool:
+        """The model at ``delta`` stands at the edge of a static friction band: a torque one way moves
+        its prediction, the other way hardly at all (``HELD_SHARE``). Any torque inside the band fits the
+        segment as well; the least squares found only its edge."""
+        moves = []
+        for sign in (1.0, -1.0):
+            d = delta.copy()
+            d[0] += sign * NUDGE_NM
+            moves.append(float(np.max(np.abs(self._run(segment, d)[0] - y))))
+        return min(moves) <= HELD_SHARE * max(moves)
 
     def window(self, start_s: float, end_s: float, sign: float) -> tuple[float, float]:
         """The mean torque toward a move's target (``sign``: +1 toward larger angles) over the segments
         whose middle lies in [start_s, end_s], and the half-width of its 95 % interval [N m]; nan when
-        fewer than three segments lie there. The interval is the mean's over segments whose errors are
-        independent, their spread taken from second differences (which a torque changing smoothly
-        from one segment to the next leaves out, unlike the plain spread of the window's values)."""
-        v = np.array([s.torque_nm for s in self.segments if start_s <= 0.5 * (s.t0_s + s.t1_s) <= end_s])
-        if v.size < 3:
+        fewer than three of them say enough (``_seen``: the others take the value their neighbours in
+        time give). The interval is the mean's over segments with independent errors, their spread the
+        larger of their standard errors and the spread of second differences (which a torque changing
+        smoothly from one segment to the next leaves out, unlike the plain spread), plus what no mean
+        takes out: the static friction band of the held segments and the range the unseen may hold."""
+        segs = [s for s in self.segments if start_s <= 0.5 * (s.t0_s + s.t1_s) <= end_s]
+        v = sign * np.array([s.torque_nm for s in segs])
+        sd = np.array([s.sd_nm for s in segs])
+        held = np.array([s.held for s in segs], dtype=bool)
+        seen = _seen(segs, v)
+        if seen.sum() < 3:
             return math.nan, math.nan
-        v = sign * v
-        sd = math.sqrt(float(np.mean(np.diff(v, 2) ** 2)) / 6.0)  # var(e[k+1] - 2 e[k] + e[k-1]) = 6 var(e)
-        return float(v.mean()), float(stats.t.ppf(0.975, v.size - 2) * sd / math.sqrt(v.size))
+        mid = np.array([0.5 * (s.t0_s + s.t1_s) for s in segs])
+        # a segment the sensors say too little about may hold any torque the move showed: its share of the range
+        unseen = float(np.sum(~seen)) / v.size * 0.5 * float(np.ptp(v[seen]))
+        v = np.interp(mid, mid[seen], v[seen])
+        fitted = seen & ~held
+        spread = max(math.sqrt(float(np.mean(np.diff(v, 2) ** 2)) / 6.0),  # var(e[k+1] - 2 e[k] + e[k-1]) = 6 var(e)
+                     math.sqrt(float(np.mean(sd[fitted] ** 2))) if fitted.any() else 0.0)
+        # a held segment's torque lies anywhere in its band, the same way from one segment to the next: at most
+        # the bands' half-widths (unknown: the window's widest known) over the window's share of held segments
+        bands = sd[held]
+        widest = float(np.max(bands[np.isfinite(bands)])) if np.isfinite(bands).any() else 0.0
+        band = float(np.sum(np.where(np.isfinite(bands), bands, widest))) / v.size
+        return float(v.mean()), float(stats.t.ppf(0.975, v.size - 2) * spread / math.sqrt(v.size)) + band + unseen
 
     def summary(self) -> dict[str, Any]:
         """What metadata.json says about the estimate (the twin's ``patient_torque``)."""
@@ -183,6 +232,20 @@ class PatientTorqueEstimator:
         return {"source": self.source, "segment_s": self.model.segment_samples * self.model.period_s,
                 "segments": len(self.segments),
                 "mean_nm": float(tau.mean()) if tau.size else None}
+
+
+def _seen(segs: Sequence[TorqueSegment], v: np.ndarray) -> np.ndarray:
+    """Which of a window's segments say enough: a held one (its balance), and a fitted one whose counts set
+    its torque within ``UNSEEN_FACTOR`` of the window's median segment's, with a fit no worse than half
+    the range the move showed (not: a joint stopping, pressed against a stop)."""
+    held = np.array([s.held for s in segs], dtype=bool)
+    sd = np.array([s.sd_nm for s in segs])
+    floor = np.array([s.floor_nm for s in segs])
+    seen = held.copy()
+    fitted = ~held
+    if fitted.sum() >= 3:
+        seen |= fitted & (floor <= UNSEEN_FACTOR * np.median(floor[fitted])) & (sd <= 0.5 * np.ptp(v[fitted]))
+    return seen
 
 
 def move_torques(estimator: PatientTorqueEstimator, cycles: Sequence[Mapping[str, Any]], period_s: float,
