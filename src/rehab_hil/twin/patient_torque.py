@@ -48,6 +48,8 @@ WALK_NM_PER_S = 0.5  # how fast the patient's torque may change (a random walk's
 #                     capable patient's on the Finger Extensor changes by 0.3 N m within about a second
 UNSEEN_FACTOR = 5.0  # a segment whose counts set its torque this many times worse than its window's median
 #                     segment's says too little (a joint stopping: 8-9x on the Finger Extensor; the SMA's moves <3x)
+UNSTICK_COUNTS = 1.5  # a model held where the rig's reading moved more than this many counts from it: not held
+UNSTICK_STEPS = 9  # ... the torque tried beyond the band grows to NUDGE_NM x 3^9 = 20 N m at most
 HELD_SHARE = 0.1  # a torque nudge one way moving the prediction less than this share of the other way: held
 TORQUE_RUNS = 6  # model runs of a segment, typically: the prediction, two nudges, the run at the estimate and
 #                  a nudge each way there
@@ -166,7 +168,14 @@ class PatientTorqueEstimator:
                 phi[:, j] = (yj - y).ravel() / h[j]
                 dx[:, j] = (xj - x_end) / h[j]
             if not np.any(phi[:, 0]):  # the prediction does not move with the torque: held by static friction
-                return np.zeros(n), (math.nan, math.nan), dx
+                if float(np.max(np.abs(z - y))) <= UNSTICK_COUNTS:  # ... and so was the rig, as far as it can tell
+                    return np.zeros(n), (math.nan, math.nan), dx
+                start = self._unstick(segment, z, y)  # the rig moved: a torque beyond the band
+                if start is None:
+                    return None
+                delta[0] = start
+                y, x_end = self._run(segment, delta)
+                continue
             e = (z - y).ravel()
             R = phi.T @ phi
             if not np.all(np.isfinite(R)) or np.linalg.cond(R) > 1e12:
@@ -185,6 +194,21 @@ class PatientTorqueEstimator:
         # (1/sqrt 12) is not seen, however well the counts fit (a joint pressed against a stiff stop)
         floor = 1.0 / (math.sqrt(12.0) * float(np.max(np.abs(phi[:, 0]))))
         return delta, (max(sd, floor), floor), dx
+
+    def _unstick(self, segment: tuple[np.ndarray, ...], z: np.ndarray, y: np.ndarray) -> float | None:
+        """The change of the torque, either way, growing from the nudge by threefold steps, that first lets the
+        model's joint move (its prediction by half a count), the better fitting way; None: none does."""
+        for k in range(1, UNSTICK_STEPS + 1):
+            tried = []
+            for sign in (1.0, -1.0):
+                d = np.zeros(1 if self._vel is None else 2)
+                d[0] = sign * NUDGE_NM * 3.0**k
+                yk = self._run(segment, d)[0]
+                if float(np.max(np.abs(yk - y))) > 0.5:
+                    tried.append((float(np.sum((z - yk) ** 2)), d[0]))
+            if tried:
+                return min(tried)[1]
+        return None
 
     def _held_at(self, segment: tuple[np.ndarray, ...], delta: np.ndarray, y: np.ndarray) -> bool:
         """The model at ``delta`` stands at the edge of a static friction band: a torque one way moves
