@@ -260,15 +260,16 @@ class PatientTorqueEstimator:
 
 def _seen(segs: Sequence[TorqueSegment], v: np.ndarray) -> np.ndarray:
     """Which of a window's segments say enough: a held one (its balance), and a fitted one whose counts set
-    its torque within ``UNSEEN_FACTOR`` of the window's median segment's, with a fit no worse than half
-    the range the move showed (not: a joint stopping, pressed against a stop)."""
+    its torque within ``UNSEEN_FACTOR`` of the window's median segment's, with a standard error within half
+    the range the move showed or that factor of the median's (not: a joint stopping, pressed against a stop)."""
     held = np.array([s.held for s in segs], dtype=bool)
     sd = np.array([s.sd_nm for s in segs])
     floor = np.array([s.floor_nm for s in segs])
     seen = held.copy()
     fitted = ~held
     if fitted.sum() >= 3:
-        seen |= fitted & (floor <= UNSEEN_FACTOR * np.median(floor[fitted])) & (sd <= 0.5 * np.ptp(v[fitted]))
+        worse = max(0.5 * float(np.ptp(v[fitted])), UNSEEN_FACTOR * float(np.median(sd[fitted])))
+        seen |= fitted & (floor <= UNSEEN_FACTOR * np.median(floor[fitted])) & (sd <= worse)
     return seen
 
 
