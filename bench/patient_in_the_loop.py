@@ -157,7 +157,7 @@ def model_torque_text(m: dict[str, Any]) -> str:
                   else "")
         parts.append(f"{key}: est {d['mean_est_nm']:+.4f} vs true {d['mean_true_nm']:+.4f} N m "
                      f"({d['mean_error_share']:.1%}), worst cycle {d['worst_error_share']:.1%} of the largest, "
-                     f"+-{d['mean_ci_nm']:.4f} N m, truth inside {d['covered']:.0%}{sensor}")
+                     f"+-{d['mean_ci_nm']:.2g} N m, truth inside {d['covered']:.0%}{sensor}")
     return f"patient torque ({m['source']}): " + " | ".join(parts)
 
 
