@@ -10,14 +10,14 @@ the segment at the running estimate, and again with the load nudged and with its
 nudged (the joint's speed is not measured: a wrong start speed and a torque move the angle
 differently, t against t squared); the measured channels in their own counts (the encoder, a force
 sensor the model predicts: the SMA rig's Flexiforce, the TCP's tendon force) give the torque and
-the speed's correction by linear least squares (Gauss-Newton, the step repeated while it is large).
-The model then carries on as if it had run on them. A torque sensor between the patient and the rig
-(the Finger Extensor's) is not used: its input is held at zero, so this is the model's figure
-beside the sensor's.
+the speed's correction by least squares (Gauss-Newton, the step repeated while it is large), taken
+with a random walk's gain. The model then carries on as if it had run on them. A torque sensor
+between the patient and the rig (the Finger Extensor's) is not used: its input is held at zero, so
+this is the model's figure beside the sensor's. Where the model's joint is held by static friction
+any torque inside the band fits: the estimate is the torque that balances the others on the axis.
 
 Per move (a window of a cycle, ``therapy_measures.move_windows``): the mean of the estimates of the
-segments whose middle lies in it, toward the move's target, and the 95 % half-interval of that
-mean from their scatter (Student's t), as the sensor's figure is computed from its samples.
+segments whose middle lies in it, toward the move's target, and its 95 % half-interval (``window``).
 """
 
 from __future__ import annotations
@@ -328,7 +328,6 @@ def patient_torque_estimator(cfg: Any, binding: DeviceBinding, period_s: float, 
 
 
 def source_text(model: TwinModel, binding: DeviceBinding) -> str:
-    """What the estimate uses: "model + encoder", "model + encoder + contact_force_n" ..."""
-    kinds: Mapping[str, str] = {a.signal: a.signal for a in binding.adc}
-    parts = ["encoder" if c == binding.angle_output else kinds.get(c, c) for c in model.channels]
-    return " + ".join(["model", *parts])
+    """What the estimate uses: "model + encoder", "model + encoder + contact_force_n" ... (an ADC channel
+    by its signal's name)."""
+    return " + ".join(["model", *("encoder" if c == binding.angle_output else c for c in model.channels)])
