@@ -5,8 +5,9 @@ Every session is built by ``open_session`` on the in-process device (lockstep, d
 ``--controller assist_as_needed`` and ``--sim-patient profiles/sim/<name>.toml``; the figures come
 from ``metadata.json`` ``session_cycles`` and the device's ``sim_truth.csv``. Printed per plant and
 patient: the assistance ratio per cycle, the success rate, the patient's torque estimated on the
-host (the Finger Extensor's torque sensor) against the simulated truth, any safety event. Then the
-slacking sweep: the controller's forgetting against the patient's slack time.
+host (the Finger Extensor's torque sensor) and by the twin's model-based estimate (``twin/patient_torque.py``:
+the model and the encoder, the SMA's Flexiforce, the TCP's tendon force) against the simulated truth, any
+safety event. Then the slacking sweep: the controller's forgetting against the patient's slack time.
 
 Targets: capable: assistance of the last three cycles <= 30 % of the first within 10 cycles, success
 >= 80 %; weak: success >= 80 %, assistance stays high; fatiguing: assistance rises again as fatigue
@@ -45,7 +46,7 @@ def session(config: Path, patient: Path, cycles: int, out: Path) -> dict[str, An
     duration = ref.first_open_s + cycles * ref.period_s + 0.5
     t0 = time.perf_counter()
     with open_session(config, "inprocess", controller="assist_as_needed", sim_patient=patient, record=out,
-                      learning_store=out / "store") as s:
+                      learning_store=out / "store", twin=True) as s:
         result = s.run(duration)
         run_dir = s.run_dir
     assert run_dir is not None
@@ -108,6 +109,7 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
         scale = max(np.nanmax(np.abs(true)), 1e-9)
         row["torque_est_nm"], row["torque_true_nm"] = est, true
         row["torque_error_share"] = float(np.nanmax(np.abs(np.subtract(est, true))) / scale)
+    row.update(model_torque(run, cycles))
     print(f"{plant:16s} {name:10s} assistance " + " ".join(f"{r:.2f}" for r in ratios)
           + f" | success {success:.0%} | events {run['events'] or 'none'} | {run['wall_s']:.0f} s")
     print(f"{'':27s} {row['target']}")
@@ -115,7 +117,48 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
         print(f"{'':27s} patient torque est/true per cycle, opening then closing moves [N m]: "
               + " ".join(f"{e:+.3f}/{t:+.3f}" for e, t in zip(est, row["torque_true_nm"], strict=True))
               + f"; worst error {row['torque_error_share']:.1%} of the largest (<= 15 %)")
+    if "model_torque" in row:
+        print(f"{'':27s} {model_torque_text(row['model_torque'])}")
     return row
+
+
+def model_torque(run: dict[str, Any], cycles: list[dict[str, Any]]) -> dict[str, Any]:
+    """The twin's model-based estimate of the patient's torque per direction against the truth (and the
+    torque sensor's figure where the rig has one): per cycle, the session's means, the worst error as a share
+    of the direction's largest true value, the interval's mean half-width and how often it holds the truth."""
+    if not cycles or "patient_torque_open_model_nm" not in cycles[0]:
+        return {}
+    ref = run["ref"]
+    direction = 1.0 if ref.open_deg >= ref.closed_deg else -1.0
+    out: dict[str, Any] = {"source": cycles[0].get("patient_torque_model_source")}
+    for key, closing in (("open", False), ("close", True)):
+        est = np.array([c.get(f"patient_torque_{key}_model_nm", math.nan) for c in cycles], float)
+        ci = np.array([c.get(f"patient_torque_{key}_model_ci_nm", math.nan) for c in cycles], float)
+        sensor = np.array([c.get(f"patient_torque_{key}_nm", math.nan) for c in cycles], float)
+        true = np.array(truth_torque(run["truth"], ref, cycles, direction, closing=closing), float)
+        scale = max(float(np.nanmax(np.abs(true))), 1e-9)
+        mean_est, mean_true = float(np.nanmean(est)), float(np.nanmean(true))
+        out[key] = {"est_nm": est.tolist(), "ci_nm": ci.tolist(), "true_nm": true.tolist(),
+                    "sensor_nm": sensor.tolist(), "mean_est_nm": mean_est, "mean_true_nm": mean_true,
+                    "mean_error_share": abs(mean_est - mean_true) / max(abs(mean_true), 1e-9),
+                    "worst_error_share": float(np.nanmax(np.abs(est - true)) / scale),
+                    "mean_ci_nm": float(np.nanmean(ci)), "covered": float(np.nanmean(np.abs(est - true) <= ci)),
+                    "sensor_worst_error_share": float(np.nanmax(np.abs(sensor - true)) / scale)
+                    if np.isfinite(sensor).any() else math.nan}
+    return {"model_torque": out}
+
+
+def model_torque_text(m: dict[str, Any]) -> str:
+    """The model-based estimate in a line per direction."""
+    parts = []
+    for key in ("open", "close"):
+        d = m[key]
+        sensor = (f"; sensor worst {d['sensor_worst_error_share']:.1%}" if math.isfinite(d["sensor_worst_error_share"])
+                  else "")
+        parts.append(f"{key}: est {d['mean_est_nm']:+.4f} vs true {d['mean_true_nm']:+.4f} N m "
+                     f"({d['mean_error_share']:.1%}), worst cycle {d['worst_error_share']:.1%} of the largest, "
+                     f"+-{d['mean_ci_nm']:.2g} N m, truth inside {d['covered']:.0%}{sensor}")
+    return f"patient torque ({m['source']}): " + " | ".join(parts)
 
 
 def variant(src: Path, out: Path, replace: dict[str, float], table_name: str) -> Path:

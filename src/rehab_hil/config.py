@@ -247,6 +247,8 @@ class TwinSection(Section):
                                              "estimate's own model [s] (default: segment_s); a slow plant's "
                                              "monitor may look over longer segments than its estimate needs")
     forgetting_s: float = Field(2.0, gt=0.0, description="memory of the online estimate (RLS forgetting) [s]")
+    patient_torque: bool = Field(True, description="estimate the patient's torque on the joint from the model and "
+                                 "the rig's angle and force sensors, per move (twin/patient_torque.py)")
     thermal: list[str] | None = Field(None, description="thermal quantities estimated online, as config keys "
                                       "(sma.ambient_c, sma.h1_w_per_m2_c, drive.supply_voltage_v; the TCP's "
                                       "muscle.max_power_w ...); default: every one the plant's model has "

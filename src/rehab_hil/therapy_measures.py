@@ -19,7 +19,7 @@ import numpy as np
 
 from rehab_hil.smoothness import log_dimensionless_jerk, sparc
 
-__all__ = ["SPASTIC_SPEED_RAD_S", "SUCCESS_WINDOW_S", "cycle_measures", "move_success"]
+__all__ = ["SPASTIC_SPEED_RAD_S", "SUCCESS_WINDOW_S", "cycle_measures", "move_success", "move_windows"]
 
 SUCCESS_WINDOW_S = 1.0  # a move may take this long past its planned end to reach its target [s]
 SPASTIC_SPEED_RAD_S = 0.5  # the velocity-dependent resistance is fitted on samples faster than this [rad/s]
@@ -76,6 +76,13 @@ def _torque_measures(t: np.ndarray, angle_rad: np.ndarray, velocity: np.ndarray,
     }
 
 
+def move_windows(period_s: float, move_s: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The opening and the closing move's windows from the cycle's start [s]: each move and the
+    ``SUCCESS_WINDOW_S`` it may take past its planned end (the torque measures are means over them)."""
+    hold = 0.5 * (period_s - 2.0 * move_s)
+    return (0.0, move_s + SUCCESS_WINDOW_S), (move_s + hold, 2 * move_s + hold + SUCCESS_WINDOW_S)
+
+
 def cycle_measures(t: np.ndarray, angle_deg: np.ndarray, velocity_rad_s: np.ndarray, torque_nm: np.ndarray,
                    period_s: float, move_s: float, closed_deg: float, open_deg: float, energy_j: float,
                    baseline_energy_j: float) -> dict[str, float]:
@@ -87,8 +94,9 @@ def cycle_measures(t: np.ndarray, angle_deg: np.ndarray, velocity_rad_s: np.ndar
     hold = 0.5 * (period_s - 2.0 * move_s)
     ok_open = move_success(t, angle, open_deg, tol, 0.0, move_s)
     ok_close = move_success(t, angle, closed_deg, tol, move_s + hold, move_s)
-    opening = t <= move_s + SUCCESS_WINDOW_S
-    closing = (t >= move_s + hold) & (t <= 2 * move_s + hold + SUCCESS_WINDOW_S)
+    (_, open_end), (close_start, close_end) = move_windows(period_s, move_s)
+    opening = t <= open_end
+    closing = (t >= close_start) & (t <= close_end)
     speed = np.abs(np.nan_to_num(vel[opening]))
     step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     fs = 1.0 / step if step > 0 else math.nan

@@ -67,8 +67,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="with --twin and the learning on the rig: re-plan the feedforward on the twin's estimate of "
                         "the room, draft and supply when one leaves its interval (default: on; docs/twin.md)")
     p.add_argument("--twin", action="store_true",
-                   help="run the plant model beside the rig: predictions, residuals, model-mismatch events and the "
-                        "patient's interaction estimate (docs/twin.md; [twin] in the config)")
+                   help="run the plant model beside the rig: predictions, residuals, model-mismatch events, the "
+                        "patient's interaction estimate and the patient's torque per move (docs/twin.md; [twin] in "
+                        "the config)")
     p.add_argument("--no-display", action="store_true", help="no live display (logs and CI)")
     p.add_argument("--telemetry", metavar="RIG", default=None,
                    help="publish telemetry over zenoh as rig RIG on loopback (docs/telemetry.md)")
@@ -120,6 +121,10 @@ def summary_table(r: RunResult) -> Table:
         t.add_row("per cycle: time to open / closed", f"{s['time_to_open_s']:.3g} / {s['time_to_closed_s']:.3g} s")
         t.add_row("peak est. temperature / energy per cycle",
                   f"{s['peak_temperature_c']:.4g} C / {s['energy_per_cycle_j']:.4g} J")
+        if "patient_torque_open_model_nm" in s:  # the twin's estimate of the patient's torque per move
+            src = r.session_cycles[0].get("patient_torque_model_source", "model")
+            t.add_row(f"per cycle: patient torque ({src})", f"opening {s['patient_torque_open_model_nm']:+.3g}, "
+                      f"closing {s.get('patient_torque_close_model_nm', float('nan')):+.3g} N m toward the target")
         if r.learning:
             rl, cyc = r.learning, r.session_cycles
             t.add_row("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "

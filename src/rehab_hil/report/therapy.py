@@ -18,13 +18,17 @@ SRD_SHARE = 0.30
 
 _CYCLE = (("success", "success [share]"), ("assistance_ratio", "assistance ratio"),
           ("active_rom_deg", "active ROM [deg]"), ("peak_velocity_deg_s", "peak velocity [deg/s]"),
-          ("sparc", "SPARC"), ("ldlj", "LDLJ"), ("patient_torque_open_nm", "patient torque, opening [N m]"),
-          ("patient_torque_close_nm", "patient torque, closing [N m]"),
+          ("sparc", "SPARC"), ("ldlj", "LDLJ"),
+          ("patient_torque_open_nm", "patient torque, opening, torque sensor [N m]"),
+          ("patient_torque_close_nm", "patient torque, closing, torque sensor [N m]"),
+          ("patient_torque_open_model_nm", "patient torque, opening, {source} [N m]"),
+          ("patient_torque_close_model_nm", "patient torque, closing, {source} [N m]"),
           ("interaction_stiffness_nm_per_rad", "interaction stiffness [N m/rad]"),
           ("resistance_slope_nm_s_per_rad", "velocity-dependent resistance [N m s/rad]"))
 _SESSION = (("success", "success rate"), ("assistance_ratio", "assistance ratio"), ("rom_deg", "ROM [deg]"),
             ("peak_velocity_deg_s", "peak velocity [deg/s]"), ("sparc", "SPARC"),
-            ("patient_torque_open_nm", "patient torque, opening [N m]"))
+            ("patient_torque_open_nm", "patient torque, opening [N m]"),
+            ("patient_torque_open_model_nm", "patient torque, opening, model [N m]"))
 
 
 def cycle_table(cycles: Sequence[Mapping[str, Any]]) -> str | None:
@@ -32,7 +36,15 @@ def cycle_table(cycles: Sequence[Mapping[str, Any]]) -> str | None:
     if not cycles or "success" not in cycles[0]:
         return None
     keys = [(k, h) for k, h in _CYCLE if any(_finite(c.get(k)) for c in cycles)]
-    return table(["cycle", *(h for _, h in keys)], [[int(c["index"]), *(c.get(k) for k, _ in keys)] for c in cycles])
+    source = next((c["patient_torque_model_source"] for c in cycles if c.get("patient_torque_model_source")), "model")
+    return table(["cycle", *(h.format(source=source) for _, h in keys)],
+                 [[int(c["index"]), *(_cell(c, k) for k, _ in keys)] for c in cycles])
+
+
+def _cell(cycle: Mapping[str, Any], key: str) -> Any:
+    """A measure's value, with its 95 % half-interval where it has one (the patient's torque: "0.21 ± 0.01")."""
+    v, ci = cycle.get(key), cycle.get(key.removesuffix("_nm") + "_ci_nm")
+    return f"{v:.3g} ± {ci:.2g}" if _finite(v) and _finite(ci) else v
 
 
 def _finite(v: Any) -> bool:

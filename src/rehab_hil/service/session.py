@@ -17,6 +17,7 @@ does not match, a homing that fails) raise ``SessionError`` with one line.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, fields
@@ -290,6 +291,7 @@ class RigSession:
     def _finish(self, result: RunResult) -> None:
         """The twin's summary and the recording's end: every queued row counted, metadata completed."""
         twin_meta = self.twin.close() if self.twin is not None else {}
+        self._model_torques(result)
         if twin_meta:
             result.twin = twin_meta
             if self.twin.twin.csv_path is not None:
@@ -303,6 +305,23 @@ class RigSession:
                 result.files.append(str(self.run_dir / METADATA_FILE))
             except OSError as e:
                 _recorder_error(result, f"the recording's end not written: {type(e).__name__}: {e}")
+
+
+    def _model_torques(self, result: RunResult) -> None:
+        """The twin's estimate of the patient's torque per move (``twin/patient_torque.py``) into each
+        cycle's figures and, averaged, the session's."""
+        est = self.twin.twin.patient_torque if self.twin is not None else None
+        ref = getattr(self.controller, "reference", None)
+        if est is None or ref is None or ref.kind != "session" or not result.session_cycles:
+            return
+        from rehab_hil.twin.patient_torque import move_torques  # the twin's modules load with the twin only
+
+        direction = 1.0 if ref.open_deg >= ref.closed_deg else -1.0
+        result.session_cycles = move_torques(est, result.session_cycles, ref.period_s, ref.move_s, direction)
+        for key in ("patient_torque_open_model_nm", "patient_torque_close_model_nm"):
+            v = [c[key] for c in result.session_cycles if math.isfinite(c[key])]
+            if v:
+                result.session[key] = sum(v) / len(v)
 
 
 def per_cycle_learning(cycles: list[dict[str, float]], log: list[dict[str, Any]],

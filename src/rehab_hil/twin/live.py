@@ -36,6 +36,7 @@ from rehab_hil.service.sinks import Overflow, ThreadedSink
 from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
 from rehab_hil.twin.model import TwinModel, TwinSetupError, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
+from rehab_hil.twin.patient_torque import TORQUE_RUNS, patient_torque_estimator
 from rehab_hil.twin.thermal import ThermalEstimator, ThermalEvent, thermal_quantities
 
 __all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener", "patient_column"]
@@ -79,13 +80,18 @@ class Twin:
                                                names, self.settings.forgetting_s) if names else None)
         self.estimate_history: list[tuple[float, list[Estimate]]] = []  # (segment end, estimates)
         self.thermal = thermal_estimator(cfg, binding, period_s, self.settings, cycle_s)
-        runs = 1 + (2 + len(names) if self.estimator is not None else 0)
+        # the patient's torque on the joint (twin/patient_torque.py): its own smooth model, the estimate's segments
+        self.patient_torque = (patient_torque_estimator(cfg, binding, period_s, est_segment_s,
+                                                        self.settings.channels or None)
+                               if self.settings.patient_torque else None)
+        runs = 1 + (2 + len(names) if self.estimator is not None else 0) + (
+            TORQUE_RUNS if self.patient_torque is not None else 0)
         self.rtf = check_rate(self.model, runs, self.settings.min_realtime_factor) if check_speed else math.nan
         n_in = len(self.model.system.input_names)
-        # a block is the shorter of the two models' segments: the estimate's RLS takes one segment of
-        # its own model at a time, and the monitor sums a longer segment over several blocks
-        cap = min(self.model.segment_samples,
-                  self.estimator.model.segment_samples if self.estimator is not None else self.model.segment_samples)
+        # a block is the shortest of the models' segments: the estimates take one segment of their own
+        # model at a time, and the monitor sums a longer segment over several blocks
+        cap = min([self.model.segment_samples, *(e.model.segment_samples for e in (self.estimator, self.patient_torque)
+                                                 if e is not None)])
         self._index = np.zeros(cap, dtype=np.int64)
         self._U = np.zeros((cap, n_in))
         self._Y = np.zeros((cap, len(self.channels)))
@@ -149,6 +155,8 @@ class Twin:
         if self.estimator is not None:
             self.estimator.update(index, U, Y)
             self.estimate_history.append((float(index[-1] * self.period_s), self.estimator.estimates()))
+        if self.patient_torque is not None:
+            self.patient_torque.update(index, U, Y)
         thermal_events = self.thermal.update(index, U, Y) if self.thermal is not None else []
         r = block.residual
         events: list[MismatchEvent] = []
@@ -313,7 +321,8 @@ class Twin:
                 # None: the session ended before the normal level was learned (settle_s + learn_s)
                 "normal_residual": {ch.name: ch.first_mu * ch.resolution if math.isfinite(ch.first_mu) else None
                                     for ch in self.monitor.channels},
-                "thermal": self.thermal.summary() if self.thermal is not None else None}
+                "thermal": self.thermal.summary() if self.thermal is not None else None,
+                "patient_torque": self.patient_torque.summary() if self.patient_torque is not None else None}
 
 
 class LiveTwin(ThreadedSink):
