@@ -306,7 +306,6 @@ class RigSession:
             except OSError as e:
                 _recorder_error(result, f"the recording's end not written: {type(e).__name__}: {e}")
 
-
     def _model_torques(self, result: RunResult) -> None:
         """The twin's estimate of the patient's torque per move (``twin/patient_torque.py``) into each
         cycle's figures and, averaged, the session's."""
