@@ -23,7 +23,9 @@ from rehab_hil.controllers.pid import feedback_parts
 from rehab_hil.session_metrics import REACH_SHARE
 from rehab_hil.therapy_measures import SUCCESS_WINDOW_S
 
-__all__ = ["AssistAsNeeded", "AssistAsNeededSettings"]
+__all__ = ["ASSIST_PART", "AssistAsNeeded", "AssistAsNeededSettings", "learned_directions"]
+
+ASSIST_PART = "assistance"  # the scale's part name: its states assist_open, assist_close
 
 
 class AssistAsNeededSettings(Section):
@@ -69,7 +71,7 @@ class AssistAsNeeded(ControllerSpec):
         # the direction the actuator pulls: a signed one both; an unsigned one raises the angle (the bend)
         pulls_open, pulls_close = True, ctx.signed
         scale = AssistScale(
-            "assistance", connect={"command": command, "measurement": ctx.angle, "dt_s": DT},
+            ASSIST_PART, connect={"command": command, "measurement": ctx.angle, "dt_s": DT},
             rename={"demand": demand}, xd0=[0.0, a0, a0 if pulls_close else 1.0, 0, 0, 0, 0, 0, 0],
             closed=ref.closed_deg, opened=ref.open_deg, move_s=ref.move_s, hold_open_s=ref.hold_open_s,
             hold_closed_s=ref.hold_closed_s, first_open_s=ref.first_open_s,
@@ -80,3 +82,13 @@ class AssistAsNeeded(ControllerSpec):
             learn_close=1.0 if learn and pulls_close and ref.kind == "session" else 0.0)
         parts = [ref.part(ctx.reference), *feedback_parts(ctx, s, command, ctx.effort_bounds), scale, *tail]
         return Controller(cls.name, ctx, ref, parts, constants=constants, sums=(demand,))
+
+
+def learned_directions(controller: Controller) -> dict[str, str]:
+    """{"open" / "close": the qualified state holding that direction's assistance} for each direction
+    a built controller learns across cycles ({} for any other controller, or a step reference)."""
+    for part in controller.parts:
+        if isinstance(part, AssistScale) and part.name == ASSIST_PART:
+            p = dict(zip(part.params, part.param_values, strict=True))
+            return {d: f"{ASSIST_PART}.assist_{d}" for d in ("open", "close") if p[f"learn_{d}"] > 0.5}
+    return {}
