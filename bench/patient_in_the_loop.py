@@ -45,7 +45,7 @@ def session(config: Path, patient: Path, cycles: int, out: Path) -> dict[str, An
     duration = ref.first_open_s + cycles * ref.period_s + 0.5
     t0 = time.perf_counter()
     with open_session(config, "inprocess", controller="assist_as_needed", sim_patient=patient, record=out,
-                      learning_store=out / "store") as s:
+                      learning_store=out / "store", assistance_store=out / "assistance", fresh_assistance=True) as s:
         result = s.run(duration)
         run_dir = s.run_dir
     assert run_dir is not None
