@@ -8,9 +8,9 @@ target in time, down where they succeeded, and forgotten where they succeeded wi
 the feedback only, never beyond the chain's own limits (``controllers/limits.py``: the heating guard,
 the temperature ceiling, the effort clamp). Where the actuator pulls one way only (an SMA wire, a TCP
 muscle: unsigned effort) the other direction's move is the spring's and the finger's, and only the
-pulling direction's assistance is learned. ``baseline`` is the same chain at full assistance with
-nothing learned: its energy on the host's model (a passive finger) is the assistance ratio's
-denominator (``therapy_measures``).
+pulling direction's assistance is learned; it scales each pull of the actuator, whatever the move.
+``baseline`` is the same chain at full assistance with nothing learned: its energy on the host's
+model (a passive finger) is the assistance ratio's denominator (``therapy_measures``).
 """
 
 from __future__ import annotations
@@ -79,7 +79,8 @@ class AssistAsNeeded(ControllerSpec):
             gain=s.gain_per_move, forgetting=s.forgetting_per_move, target_success=s.target_success,
             min_assistance=s.min_assistance, max_assistance=1.0,
             learn_open=1.0 if learn and pulls_open and ref.kind == "session" else 0.0,
-            learn_close=1.0 if learn and pulls_close and ref.kind == "session" else 0.0)
+            learn_close=1.0 if learn and pulls_close and ref.kind == "session" else 0.0,
+            one_way=0.0 if pulls_close else 1.0)
         parts = [ref.part(ctx.reference), *feedback_parts(ctx, s, command, ctx.effort_bounds), scale, *tail]
         return Controller(cls.name, ctx, ref, parts, constants=constants, sums=(demand,))
 
