@@ -46,13 +46,19 @@ TRUTH_SIGNALS = ("patient_cue_rad", "patient_effort", "patient_demand_nm", "pati
                  PATIENT_TORQUE)
 
 
-def flexion_frame(ports: Ports, cfg: PlantConfig) -> tuple[float, float]:
-    """(sign, offset [rad]): the finger's flexion = sign x axis angle + offset. An MCP axis is the
-    flexion itself; on a hand rig's other axis (the Finger Extensor's iris) opening extends the
-    finger, straight at the session's open angle (an assumption: seed 002 gives no linkage)."""
+def flexion_frame(ports: Ports, cfg: PlantConfig, rest_flexion_rad: float = 0.0) -> tuple[float, float]:
+    """(sign, offset [rad]): the finger's flexion = sign x axis angle + offset.
+
+    An MCP axis (the SMA exoskeleton, the TCP finger) measures the bend from where the device was
+    fitted and homed: the patient's relaxed posture (``rest_flexion_rad``), as seed 000 measures its
+    bending angle from the finger at rest and ``rehab-hil run --home current`` zeroes the encoder at
+    the pose the finger is in; the plant's own passive finger (seed 000's Hill muscle and dorsal wire,
+    seed 001's springs) rests there too. On a hand rig's other axis (the Finger Extensor's iris)
+    opening extends the finger, straight at the session's open angle (an assumption: seed 002 gives
+    no linkage)."""
     axis = ports.axes[0]
     if axis.finger:
-        return 1.0, 0.0
+        return 1.0, rest_flexion_rad
     return -1.0, math.radians(cfg.rig.session.open_deg) if cfg.rig.session is not None else 0.0
 
 
@@ -71,7 +77,8 @@ def patient_parts(ports: Ports, cfg: PlantConfig, patient: PatientProfile) -> li
     if not ports.axes or cfg.rig.session is None:
         raise ValueError(f"plant {cfg.plant!r}: a simulated patient needs a joint axis and a [rig.session]")
     axis = ports.axes[0]
-    sign, offset = flexion_frame(ports, cfg)
+    ps = patient.passive
+    sign, offset = flexion_frame(ports, cfg, ps.rest_flexion_rad if ps is not None else 0.0)
     flex_nm, ext_nm = patient.capacity_nm()
     pos_nm, neg_nm = (flex_nm, ext_nm) if sign > 0 else (ext_nm, flex_nm)  # capacity raising / lowering the angle
     v, sl = patient.voluntary, patient.slacking
@@ -143,7 +150,7 @@ def stable_substeps(binding: DeviceBinding, cfg: PlantConfig, patient: PatientPr
     ports = get_plant(cfg.plant).ports(cfg)
     axis = ports.axes[0]
     v, ps = patient.voluntary, patient.passive
-    _, offset = flexion_frame(ports, cfg)
+    _, offset = flexion_frame(ports, cfg, ps.rest_flexion_rad if ps is not None else 0.0)
     k, b = v.stiffness_nm_per_rad, v.damping_nm_s_per_rad
     if ps is not None:
         d = offset - ps.rest_flexion_rad  # the flexion at the axis's zero against the rest
