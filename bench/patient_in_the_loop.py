@@ -9,8 +9,8 @@ host (the Finger Extensor's torque sensor) against the simulated truth, any safe
 slacking sweep: the controller's forgetting against the patient's slack time.
 
 Targets: capable: assistance of the last three cycles <= 30 % of the first within 10 cycles, success
->= 80 %; weak: success >= 80 %, assistance stays high (success judged on the moves the rig drives:
-a rig that pulls one way cannot return a finger, docs/patient.md); fatiguing: assistance rises again
+>= 80 %; weak: success >= 80 %, assistance stays high (the success of the moves the rig drives beside:
+on a rig that pulls one way, the bend only); fatiguing: assistance rises again
 as fatigue sets in (the cycles after the lowest by 0.1 on average, the passive patient's work being 1);
 slacking: the assistance fades only where the controller forgets faster than the patient
 (the sweep); effort estimated within 15 % of the truth on the Finger Extensor; no safety event.
@@ -74,8 +74,8 @@ def truth_torque(truth: dict[str, np.ndarray], ref: Any, cycles: list[dict[str, 
 
 
 def judge(name: str, ratios: list[float], success: float) -> str:
-    """The issue's target for this patient, met or not (a line). ``success``: of the moves the rig
-    drives (``success_assisted``: on a rig that pulls one way, its opening move only)."""
+    """The issue's target for this patient, met or not (a line); ``success`` of both moves (the moves
+    the rig drives, ``success_assisted``, are printed beside it)."""
     first, last3 = ratios[0], float(np.mean(ratios[-3:]))
     if not first > 0:  # the robot did nothing from the first cycle on: the ratio of the last three is theirs
         first = 1.0 if last3 == 0 else math.inf
@@ -104,7 +104,7 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
     row = {"plant": plant, "patient": name, "assistance_ratio": ratios, "success": success,
            "success_assisted": driven,
            "rmse_deg": [c["rmse_deg"] for c in cycles], "sparc": [c.get("sparc") for c in cycles],
-           "events": run["events"], "wall_s": run["wall_s"], "target": judge(name, ratios, driven)}
+           "events": run["events"], "wall_s": run["wall_s"], "target": judge(name, ratios, success)}
     ref = run["ref"]
     est = [c.get("patient_torque_open_nm", math.nan) for c in cycles]
     if np.isfinite(est).any():
