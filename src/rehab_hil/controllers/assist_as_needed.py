@@ -20,8 +20,7 @@ from rehab_hil.control.assist import AssistScale
 from rehab_hil.controllers.base import DT, ControlContext, Controller, ControllerSpec, Reference
 from rehab_hil.controllers.limits import guarded
 from rehab_hil.controllers.pid import feedback_parts
-from rehab_hil.session_metrics import REACH_SHARE
-from rehab_hil.therapy_measures import SUCCESS_WINDOW_S
+from rehab_hil.therapy_measures import SUCCESS_WINDOW_S, success_tolerance_deg
 
 __all__ = ["ASSIST_PART", "AssistAsNeeded", "AssistAsNeededSettings", "learned_directions"]
 
@@ -75,7 +74,8 @@ class AssistAsNeeded(ControllerSpec):
             rename={"demand": demand}, xd0=[0.0, a0, a0 if pulls_close else 1.0, 0, 0, 0, 0, 0, 0],
             closed=ref.closed_deg, opened=ref.open_deg, move_s=ref.move_s, hold_open_s=ref.hold_open_s,
             hold_closed_s=ref.hold_closed_s, first_open_s=ref.first_open_s,
-            tolerance=REACH_SHARE * abs(ref.open_deg - ref.closed_deg), window_s=SUCCESS_WINDOW_S,
+            tolerance=success_tolerance_deg(ref.closed_deg, ref.open_deg, ctx.binding.encoder_count_deg),
+            window_s=SUCCESS_WINDOW_S,
             gain=s.gain_per_move, forgetting=s.forgetting_per_move, target_success=s.target_success,
             min_assistance=s.min_assistance, max_assistance=1.0,
             learn_open=1.0 if learn and pulls_open and ref.kind == "session" else 0.0,
