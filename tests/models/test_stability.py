@@ -57,8 +57,9 @@ def test_the_substeps_keep_lambda_h_within_the_rk4_limit():
 
 
 def test_a_capable_patient_on_the_tcp_finger_takes_the_substeps_that_hold_it_at_the_cue():
-    """With one RK4 step per ms the patient's loop on the finger's grams rested 7.4 deg from the 0 deg
-    cue the patient pushed toward; with the substeps chosen it holds the cue."""
+    """With one RK4 step per ms the patient's loop on the finger's grams rests off the 0 deg cue the
+    patient pushes toward (0.6 deg, a third of the task; 7.4 deg with a flexed rest at the zero);
+    with the substeps chosen it holds the cue."""
     from rehab_hil.loading import load_config
     from rehab_hil.patient.attach import with_patient
     from rehab_hil.patient.profile import load_patient
@@ -77,4 +78,4 @@ def test_a_capable_patient_on_the_tcp_finger_takes_the_substeps_that_hold_it_at_
         given = {**b.constant_inputs, "session_time_s": np.arange(n) * b.step_s}
         res = diagram.compile(b.step_s, sub).simulate(n, given, outputs=["theta_mcp_rad"])
         angles[sub] = math.degrees(res["theta_mcp_rad"][-1])
-    assert abs(angles[1]) > 5.0 and abs(angles[b.substeps]) < 0.05
+    assert abs(angles[1]) > 0.3 and abs(angles[b.substeps]) < 0.05
