@@ -10,8 +10,10 @@ the model and the encoder, the SMA's Flexiforce, the TCP's tendon force) against
 safety event. Then the slacking sweep: the controller's forgetting against the patient's slack time.
 
 Targets: capable: assistance of the last three cycles <= 30 % of the first within 10 cycles, success
->= 80 %; weak: success >= 80 %, assistance stays high; fatiguing: assistance rises again as fatigue
-sets in; slacking: the assistance fades only where the controller forgets faster than the patient
+>= 80 %; weak: success >= 80 %, assistance stays high (the success of the moves the rig drives beside:
+on a rig that pulls one way, the bend only); fatiguing: assistance rises again
+as fatigue sets in (the cycles after the lowest by 0.1 on average, the passive patient's work being 1);
+slacking: the assistance fades only where the controller forgets faster than the patient
 (the sweep); effort estimated within 15 % of the truth on the Finger Extensor; no safety event.
 Usage: python bench/patient_in_the_loop.py [--plants finger_extensor,...] [--patients capable,...]
        [--cycles 10] [--sweep] [--slack-times 1,5,20,80] [--json bench/results/patient_in_the_loop.json]
@@ -33,6 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 PATIENTS = ("capable", "weak", "fatiguing", "slacking", "spastic")
 PLANTS = ("finger_extensor", "sma_exoskeleton", "tcp_finger")
+RISE = 0.1  # the fatiguing patient's assistance "rises again": by a tenth of the passive patient's robot work
 
 
 def session(config: Path, patient: Path, cycles: int, out: Path) -> dict[str, Any]:
@@ -46,7 +49,8 @@ def session(config: Path, patient: Path, cycles: int, out: Path) -> dict[str, An
     duration = ref.first_open_s + cycles * ref.period_s + 0.5
     t0 = time.perf_counter()
     with open_session(config, "inprocess", controller="assist_as_needed", sim_patient=patient, record=out,
-                      learning_store=out / "store", twin=True) as s:
+                      learning_store=out / "store", twin=True, assistance_store=out / "assistance",
+                      fresh_assistance=True) as s:
         result = s.run(duration)
         run_dir = s.run_dir
     assert run_dir is not None
@@ -72,7 +76,8 @@ def truth_torque(truth: dict[str, np.ndarray], ref: Any, cycles: list[dict[str, 
 
 
 def judge(name: str, ratios: list[float], success: float) -> str:
-    """The issue's target for this patient, met or not (a line)."""
+    """The issue's target for this patient, met or not (a line); ``success`` of both moves (the moves
+    the rig drives, ``success_assisted``, are printed beside it)."""
     first, last3 = ratios[0], float(np.mean(ratios[-3:]))
     if not first > 0:  # the robot did nothing from the first cycle on: the ratio of the last three is theirs
         first = 1.0 if last3 == 0 else math.inf
@@ -84,11 +89,12 @@ def judge(name: str, ratios: list[float], success: float) -> str:
         ok = success >= 0.8 and last3 >= 0.5 * first
         return f"success {success:.0%} (>= 80 %), last 3 / first = {last3 / first:.2f} (stays high): " \
                f"{'MET' if ok else 'not met'}"
-    if name == "fatiguing":
-        k = int(np.argmin(ratios))
-        rise = max(ratios[k:]) - ratios[k] if k < len(ratios) - 1 else 0.0
-        ok = rise > 0.1 * first
-        return f"lowest {ratios[k]:.2f} at cycle {k + 1}, rises {rise:.2f} after it: {'MET' if ok else 'not met'}"
+    if name == "fatiguing":  # the ratio's unit is the robot's work with a passive patient: a rise of 0.1 is
+        k = int(np.argmin(ratios))  # 10 % of it, held on average over the cycles after the lowest (the
+        rise = float(np.mean(ratios[k + 1:])) - ratios[k] if k < len(ratios) - 1 else 0.0  # first cycle's
+        ok = rise > RISE  # ratio, up to 3 while the patient's loop and the robot's fight, is no scale)
+        return (f"lowest {ratios[k]:.2f} at cycle {k + 1}, the cycles after it {rise:+.2f} on average "
+                f"(> {RISE}): {'MET' if ok else 'not met'}")
     return f"success {success:.0%}, last 3 / first = {last3 / first:.2f}"
 
 
@@ -96,7 +102,9 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
     cycles = run["meta"]["session_cycles"]
     ratios = [c.get("assistance_ratio", math.nan) for c in cycles]
     success = float(np.nanmean([c.get("success", math.nan) for c in cycles]))
+    driven = float(np.nanmean([c.get("success_assisted", math.nan) for c in cycles]))
     row = {"plant": plant, "patient": name, "assistance_ratio": ratios, "success": success,
+           "success_assisted": driven,
            "rmse_deg": [c["rmse_deg"] for c in cycles], "sparc": [c.get("sparc") for c in cycles],
            "events": run["events"], "wall_s": run["wall_s"], "target": judge(name, ratios, success)}
     ref = run["ref"]
@@ -111,7 +119,8 @@ def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
         row["torque_error_share"] = float(np.nanmax(np.abs(np.subtract(est, true))) / scale)
     row.update(model_torque(run, cycles))
     print(f"{plant:16s} {name:10s} assistance " + " ".join(f"{r:.2f}" for r in ratios)
-          + f" | success {success:.0%} | events {run['events'] or 'none'} | {run['wall_s']:.0f} s")
+          + f" | success {success:.0%} (moves the rig drives {driven:.0%}) | events {run['events'] or 'none'} "
+          f"| {run['wall_s']:.0f} s")
     print(f"{'':27s} {row['target']}")
     if "torque_error_share" in row:
         print(f"{'':27s} patient torque est/true per cycle, opening then closing moves [N m]: "

@@ -45,6 +45,8 @@ def configs_dir() -> Path:
 
 @pytest.fixture(autouse=True)
 def _own_learning_store(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Each test's sessions keep their tables learned on the rig in a folder of its own
-    (``REHAB_HIL_LEARNING_DIR``): no test starts from what another, or a user's sessions, learned."""
+    """Each test's sessions keep their tables learned on the rig and their assistance in folders of
+    their own (``REHAB_HIL_LEARNING_DIR``, ``REHAB_HIL_ASSISTANCE_DIR``): no test starts from what
+    another, or a user's sessions, learned."""
     monkeypatch.setenv("REHAB_HIL_LEARNING_DIR", str(tmp_path_factory.mktemp("rig_learning")))
+    monkeypatch.setenv("REHAB_HIL_ASSISTANCE_DIR", str(tmp_path_factory.mktemp("assistance")))

@@ -77,3 +77,21 @@ def test_a_cycle_at_rest_gets_its_figures_and_no_measure_raises():
         meter.add(k * 0.001, 0.0, 0.0, 0.0, 1e-200, 20.0)
     cycle = meter.poll()
     assert cycle is not None and cycle.as_dict()["success_open"] == 0.0
+
+
+def test_a_rig_that_pulls_one_way_counts_its_success_in_the_move_it_drives() -> None:
+    """A follower that bends to the open target but never comes back below 10 deg (a flexed finger an
+    SMA wire, which only flexes, cannot return): half its moves succeed, all of those the rig drives."""
+    t, r, y, p = record(0.0)
+    y = np.maximum(y, 10.0)
+    both = SessionMeter(len(t), REF.period_s, REF.move_s, REF.first_open_s, 0.0, 40.0, lambda e, v: e)
+    one_way = SessionMeter(len(t), REF.period_s, REF.move_s, REF.first_open_s, 0.0, 40.0, lambda e, v: e,
+                           assisted=("open",))
+    for meter in (both, one_way):
+        for k in range(len(t)):
+            meter.add(t[k], r[k], y[k], p[k], 0.0, math.nan)
+            meter.poll()
+    assert [c.measures["success"] for c in one_way.cycles] == [0.5, 0.5]
+    assert [c.measures["success_assisted"] for c in one_way.cycles] == [1.0, 1.0]
+    assert [c.measures["success_assisted"] for c in both.cycles] == [0.5, 0.5]
+    assert one_way.summary()["success_assisted"] == 1.0

@@ -55,3 +55,17 @@ def test_torque_measures_need_a_torque_sensor_and_read_its_slopes():
     # pushing toward opening the whole cycle: toward the opening target, against the closing one
     assert m["patient_torque_open_nm"] > 0 > m["patient_torque_close_nm"]
     assert math.isnan(_measures(angle, baseline=math.nan)["assistance_ratio"])
+
+
+def test_a_move_read_one_encoder_count_short_of_the_tolerance_succeeds_and_two_counts_fail():
+    """The TCP finger's 2 deg task has a 0.1 deg tolerance under its 0.18 deg count: a finger 0.07 deg
+    short read a whole count short and failed. A count is part of the tolerance."""
+    count = 0.18
+    tol = 0.05 * (OPEN - CLOSED)
+    short = np.where(T < 2 * MOVE, np.minimum(_tracking(), OPEN - tol - count + 0.01), _tracking())
+    vel = np.radians(np.gradient(short, T))
+    none = np.full_like(T, np.nan)
+    assert cycle_measures(T, short, vel, none, PERIOD, MOVE, CLOSED, OPEN, 1.0, 2.0)["success_open"] == 0.0
+    assert cycle_measures(T, short, vel, none, PERIOD, MOVE, CLOSED, OPEN, 1.0, 2.0, count)["success_open"] == 1.0
+    shorter = np.minimum(short, OPEN - tol - 2 * count)
+    assert cycle_measures(T, shorter, vel, none, PERIOD, MOVE, CLOSED, OPEN, 1.0, 2.0, count)["success_open"] == 0.0

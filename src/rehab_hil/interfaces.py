@@ -119,6 +119,11 @@ class DeviceBinding:
     # the plant at the session's start and ``PlantIO`` moves the values (models/schedule.py)
     schedule: Schedule | None = None
 
+    @property
+    def encoder_count_deg(self) -> float:
+        """One encoder count [deg] (0: no encoder)."""
+        return 360.0 / self.encoder_counts_per_rev if self.encoder_signal and self.encoder_counts_per_rev else 0.0
+
     def __post_init__(self) -> None:
         if not self.encoder_source and self.encoder_signal:
             self.encoder_source = self.encoder_signal

@@ -110,8 +110,8 @@ def session_summary(cycles: Sequence[CycleMetrics]) -> dict[str, float]:
            "rom_deg": mean("rom_deg"), "time_to_open_s": mean("time_to_open_s"),
            "time_to_closed_s": mean("time_to_closed_s"), "peak_temperature_c": worst("peak_temperature_c"),
            "energy_per_cycle_j": mean("energy_j")}
-    for key in ("success", "assistance_ratio", "sparc", "ldlj", "peak_velocity_deg_s", "patient_torque_open_nm",
-                "patient_torque_close_nm"):
+    for key in ("success", "success_assisted", "assistance_ratio", "sparc", "ldlj", "peak_velocity_deg_s",
+                "patient_torque_open_nm", "patient_torque_close_nm"):
         v = np.array([c.measures.get(key, math.nan) for c in cycles], float)
         if np.isfinite(v).any():  # the therapist's measures, averaged over the cycles (success: its rate)
             out[key] = float(np.nanmean(v))
@@ -126,8 +126,13 @@ class SessionMeter:
 
     def __init__(self, capacity: int, period_s: float, move_s: float, first_open_s: float, closed_deg: float,
                  open_deg: float, power_w: Callable[[np.ndarray, np.ndarray], np.ndarray],
-                 baseline_energy_j: float = math.nan, interaction: tuple[str, float] | None = None) -> None:
+                 baseline_energy_j: float = math.nan, interaction: tuple[str, float] | None = None,
+                 assisted: tuple[str, ...] = ("open", "close"), count_deg: float = 0.0) -> None:
         self.period_s, self.move_s, self.first_open_s = period_s, move_s, first_open_s
+        # the moves the rig can drive: an actuator that pulls one way (an SMA wire, a TCP muscle) drives
+        # the opening move only; the other is the spring's and the patient's (``success_assisted``)
+        self.assisted = assisted
+        self.count_deg = count_deg  # the encoder's count: a move's success tolerance includes it [deg]
         self.closed_deg, self.open_deg, self.power_w = closed_deg, open_deg, power_w
         self.baseline_energy_j = baseline_energy_j  # the robot's energy per cycle with a passive patient [J]
         self.interaction = interaction  # (the torque sensor's channel, its sign on the axis), or None
@@ -169,7 +174,8 @@ class SessionMeter:
             return None
         try:
             measures = cycle_measures(c[0] - start, c[2], c[4], c[6], self.period_s, self.move_s, self.closed_deg,
-                                      self.open_deg, found[0].energy_j, self.baseline_energy_j)
+                                      self.open_deg, found[0].energy_j, self.baseline_energy_j, self.count_deg)
+            measures["success_assisted"] = float(np.nanmean([measures[f"success_{d}"] for d in self.assisted]))
         except (ArithmeticError, ValueError):  # runs in the loop: a measure that cannot be had is left out,
             measures = {}                       # never a trip (a 1e-200 rad/s speed once underflowed in LDLJ)
         cycle = replace(found[0], index=len(self.cycles), start_s=float(start), measures=measures)

@@ -3,8 +3,9 @@ motion, peak velocity, smoothness (SPARC, log dimensionless jerk), the patient's
 interval, a spasticity indicator and the interaction stiffness.
 
 A cycle (``session_metrics``) starts with its opening move. A move **succeeds** when the angle is
-within ``REACH_SHARE`` of the span from its target by ``move_s + SUCCESS_WINDOW_S`` after the move
-starts (the FINGER robot's targets hit: Rowe et al. 2017). The **assistance ratio** is the robot's
+within ``REACH_SHARE`` of the span from its target, widened by one encoder count (``count_deg``: a
+reading lies up to a count from the angle), by ``move_s + SUCCESS_WINDOW_S`` after the move starts
+(the FINGER robot's targets hit: Rowe et al. 2017). The **assistance ratio** is the robot's
 electrical energy in the cycle over what the same controller, at full assistance, spends on the
 host's model, whose finger is passive. Smoothness is computed on the opening move's speed profile.
 The torque measures need a torque sensor between the patient and the rig (the Finger Extensor's):
@@ -19,7 +20,8 @@ import numpy as np
 
 from rehab_hil.smoothness import log_dimensionless_jerk, sparc
 
-__all__ = ["SPASTIC_SPEED_RAD_S", "SUCCESS_WINDOW_S", "cycle_measures", "move_success", "move_windows"]
+__all__ = ["SPASTIC_SPEED_RAD_S", "SUCCESS_WINDOW_S", "cycle_measures", "move_success", "move_windows",
+           "success_tolerance_deg"]
 
 SUCCESS_WINDOW_S = 1.0  # a move may take this long past its planned end to reach its target [s]
 SPASTIC_SPEED_RAD_S = 0.5  # the velocity-dependent resistance is fitted on samples faster than this [rad/s]
@@ -83,14 +85,20 @@ def move_windows(period_s: float, move_s: float) -> tuple[tuple[float, float], t
     return (0.0, move_s + SUCCESS_WINDOW_S), (move_s + hold, 2 * move_s + hold + SUCCESS_WINDOW_S)
 
 
+def success_tolerance_deg(closed_deg: float, open_deg: float, count_deg: float = 0.0) -> float:
+    """How near its target a move must come: 5 % of the span and one encoder count (the TCP finger's
+    2 deg task: 0.1 deg, below its 0.18 deg count, so a finger 0.07 deg short read a count short and failed)."""
+    return REACH_SHARE * abs(open_deg - closed_deg) + count_deg
+
+
 def cycle_measures(t: np.ndarray, angle_deg: np.ndarray, velocity_rad_s: np.ndarray, torque_nm: np.ndarray,
                    period_s: float, move_s: float, closed_deg: float, open_deg: float, energy_j: float,
-                   baseline_energy_j: float) -> dict[str, float]:
+                   baseline_energy_j: float, count_deg: float = 0.0) -> dict[str, float]:
     """The therapist's measures of one cycle; ``t`` from the cycle's start [s], ``torque_nm`` the
     patient's torque on the axis (nan: no sensor), ``baseline_energy_j`` the robot's energy per cycle
-    with a passive patient (nan: unknown)."""
+    with a passive patient (nan: unknown), ``count_deg`` the encoder's count."""
     t, angle, vel, torque = (np.asarray(a, float) for a in (t, angle_deg, velocity_rad_s, torque_nm))
-    tol = REACH_SHARE * abs(open_deg - closed_deg)
+    tol = success_tolerance_deg(closed_deg, open_deg, count_deg)
     hold = 0.5 * (period_s - 2.0 * move_s)
     ok_open = move_success(t, angle, open_deg, tol, 0.0, move_s)
     ok_close = move_success(t, angle, closed_deg, tol, move_s + hold, move_s)

@@ -18,7 +18,7 @@ PERIOD = 2 * MOVE + 2 * HOLD
 def _scale(**over):
     p = dict(closed=CLOSED, opened=OPEN, move_s=MOVE, hold_open_s=HOLD, hold_closed_s=HOLD, first_open_s=HOLD,
              tolerance=5.0, window_s=1.0, gain=0.4, forgetting=0.1, target_success=0.8, min_assistance=0.0,
-             max_assistance=1.0, learn_open=1.0, learn_close=1.0)
+             max_assistance=1.0, learn_open=1.0, learn_close=1.0, one_way=0.0)
     p.update(over)
     return AssistScale("assist", xd0=[0.0, 1.0, 1.0, 0, 0, 0, 0, 0, 0], **p)
 
@@ -79,3 +79,13 @@ def test_a_patient_who_needs_help_is_held_near_the_target_success_rate():
             step.step(u)
     rate = float(np.mean(successes[20:]))
     assert rate == pytest.approx(0.8, abs=0.1)
+
+
+def test_an_actuator_that_pulls_one_way_scales_every_pull_by_its_one_assistance():
+    n = int((HOLD + 4 * PERIOD) / DT)
+    t = np.arange(n) * DT
+    closing = (t > HOLD + 2 * PERIOD + MOVE + HOLD) & (t < HOLD + 3 * PERIOD)  # the third closing move and hold
+    two = _run(_scale(learn_close=0.0), _ref(t), n)
+    one = _run(_scale(learn_close=0.0, one_way=1.0), _ref(t), n)
+    assert np.all(two["demand"][closing] == 1.0)  # a direction of its own, never learned
+    assert np.allclose(one["demand"][closing], one["assist_open"][closing]) and one["demand"][closing].max() < 0.7

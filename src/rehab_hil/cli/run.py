@@ -63,6 +63,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: [controllers.model_based] rig_learning; docs/controllers.md). The table is kept "
                         "per rig id and profile under ~/.cache/rehab-hil/rig_learning; delete its file (the summary "
                         "names it) to start again from the model")
+    p.add_argument("--assistance-store", type=Path, default=None, metavar="DIR",
+                   help="assist_as_needed: keep each patient's learned assistance per rig and config in DIR, "
+                        "loaded at the start and saved at the end (default: REHAB_HIL_ASSISTANCE_DIR, else "
+                        "~/.local/share/rehab-hil/assistance; docs/patient.md)")
+    p.add_argument("--fresh-assistance", action="store_true",
+                   help="assist_as_needed: start from the config's initial assistance, not the patient's stored one "
+                        "(the end is still saved)")
     p.add_argument("--thermal-replan", action=argparse.BooleanOptionalAction, default=True,
                    help="with --twin and the learning on the rig: re-plan the feedforward on the twin's estimate of "
                         "the room, draft and supply when one leaves its interval (default: on; docs/twin.md)")
@@ -100,6 +107,15 @@ def _progress_table(p: Progress) -> Table:
     return t
 
 
+def assistance_line(a: dict[str, Any]) -> str:
+    """Where assist-as-needed started and what it saved for the patient's next session."""
+    how = "fresh" if a["fresh"] else "resumed" if a["resumed"] else "from the config" + (
+        " (the store was not usable)" if a["problem"] else "")
+    moves = ", ".join(f"{d} {a['start'][d]:.2f} -> {a['end'][d]:.2f}" for d in a["end"])
+    saved = a["error"] or f"saved (session {a['sessions']}): {a['store']}"
+    return f"{moves}; {how}; {saved}"
+
+
 def summary_table(r: RunResult) -> Table:
     """The final summary: tracking, loop timing, link and safety."""
     t = Table(title=f"rehab-hil run: {r.stop_reason}", show_header=False)
@@ -130,6 +146,8 @@ def summary_table(r: RunResult) -> Table:
             t.add_row("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "
                       f"deg; {rl['updates']} updates ({rl['trials']} in all, "
                       f"{'resumed' if rl['resumed'] else 'from the model'}); {rl['store']}")
+    if r.assistance:
+        t.add_row("assistance kept", assistance_line(r.assistance))
     tm = r.timing
     label = "lateness" if r.pacing == "host" else "reaction (sample in -> command out)"
     t.add_row(f"{label} p50/p99/p99.9/max",
@@ -243,7 +261,8 @@ def _session(args: argparse.Namespace) -> RigSession:
             pacing=args.pacing, lockstep=args.lockstep, home=args.home, record=args.record, rig_id=args.rig_id,
             sim_plant=args.sim_plant, sim_patient=args.sim_patient,
             twin=args.twin, telemetry=_telemetry(args), rig_learning=args.rig_learning,
-            thermal_replan=args.thermal_replan,
+            thermal_replan=args.thermal_replan, assistance_store=args.assistance_store,
+            fresh_assistance=args.fresh_assistance,
             foxglove=FoxgloveOptions(args.foxglove_host, args.foxglove) if args.foxglove is not None else None,
             confirm=(lambda text: input(f"{text} ")) if sys.stdin.isatty() else None)
     except SessionError as e:

@@ -13,7 +13,10 @@ assistance (Emken, Benitez & Reinkensmeyer 2007, with a success-rate target as F
 the assistance also forget, so a patient who needs the help keeps it at the target success rate,
 while one who moves well alone sees it fade (forgetting faster than a slacking patient relearns to
 rely on it: Emken et al. 2007).
-The feedback command is scaled by the assistance of the current move's direction.
+The feedback command is scaled by the assistance of the current move's direction. An actuator that
+pulls one way (``one_way``: an SMA wire, a TCP muscle) has one assistance, the opening move's (the
+direction it pulls): it scales each of its pulls, in the closing move and the closed hold too (a
+finger one encoder count past the closed target drew the full pull there, cycle after cycle).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ __all__ = ["ASSIST_PARAMS", "ASSIST_STATES", "AssistScale"]
 
 ASSIST_PARAMS = ("closed", "opened", "move_s", "hold_open_s", "hold_closed_s", "first_open_s", "tolerance",
                  "window_s", "gain", "forgetting", "target_success", "min_assistance", "max_assistance",
-                 "learn_open", "learn_close")
+                 "learn_open", "learn_close", "one_way")
 ASSIST_STATES = ("t_s", "assist_open", "assist_close", "reached_open", "reached_close", "early_open", "early_close",
                  "done_open", "done_close")
 
@@ -69,7 +72,7 @@ class AssistScale(Part):
     @njit
     def output(t, x, xd, u, p, y):
         _, _, opening = _phase(xd[0], p)
-        y[0] = (xd[1] if opening else xd[2]) * u[0]
+        y[0] = (xd[1] if opening or p[15] > 0.5 else xd[2]) * u[0]
         y[1] = xd[1]
         y[2] = xd[2]
 

@@ -8,9 +8,9 @@ target in time, down where they succeeded, and forgotten where they succeeded wi
 the feedback only, never beyond the chain's own limits (``controllers/limits.py``: the heating guard,
 the temperature ceiling, the effort clamp). Where the actuator pulls one way only (an SMA wire, a TCP
 muscle: unsigned effort) the other direction's move is the spring's and the finger's, and only the
-pulling direction's assistance is learned. ``baseline`` is the same chain at full assistance with
-nothing learned: its energy on the host's model (a passive finger) is the assistance ratio's
-denominator (``therapy_measures``).
+pulling direction's assistance is learned; it scales each pull of the actuator, whatever the move.
+``baseline`` is the same chain at full assistance with nothing learned: its energy on the host's
+model (a passive finger) is the assistance ratio's denominator (``therapy_measures``).
 """
 
 from __future__ import annotations
@@ -20,10 +20,11 @@ from rehab_hil.control.assist import AssistScale
 from rehab_hil.controllers.base import DT, ControlContext, Controller, ControllerSpec, Reference
 from rehab_hil.controllers.limits import guarded
 from rehab_hil.controllers.pid import feedback_parts
-from rehab_hil.session_metrics import REACH_SHARE
-from rehab_hil.therapy_measures import SUCCESS_WINDOW_S
+from rehab_hil.therapy_measures import SUCCESS_WINDOW_S, success_tolerance_deg
 
-__all__ = ["AssistAsNeeded", "AssistAsNeededSettings"]
+__all__ = ["ASSIST_PART", "AssistAsNeeded", "AssistAsNeededSettings", "learned_directions"]
+
+ASSIST_PART = "assistance"  # the scale's part name: its states assist_open, assist_close
 
 
 class AssistAsNeededSettings(Section):
@@ -69,14 +70,26 @@ class AssistAsNeeded(ControllerSpec):
         # the direction the actuator pulls: a signed one both; an unsigned one raises the angle (the bend)
         pulls_open, pulls_close = True, ctx.signed
         scale = AssistScale(
-            "assistance", connect={"command": command, "measurement": ctx.angle, "dt_s": DT},
+            ASSIST_PART, connect={"command": command, "measurement": ctx.angle, "dt_s": DT},
             rename={"demand": demand}, xd0=[0.0, a0, a0 if pulls_close else 1.0, 0, 0, 0, 0, 0, 0],
             closed=ref.closed_deg, opened=ref.open_deg, move_s=ref.move_s, hold_open_s=ref.hold_open_s,
             hold_closed_s=ref.hold_closed_s, first_open_s=ref.first_open_s,
-            tolerance=REACH_SHARE * abs(ref.open_deg - ref.closed_deg), window_s=SUCCESS_WINDOW_S,
+            tolerance=success_tolerance_deg(ref.closed_deg, ref.open_deg, ctx.binding.encoder_count_deg),
+            window_s=SUCCESS_WINDOW_S,
             gain=s.gain_per_move, forgetting=s.forgetting_per_move, target_success=s.target_success,
             min_assistance=s.min_assistance, max_assistance=1.0,
             learn_open=1.0 if learn and pulls_open and ref.kind == "session" else 0.0,
-            learn_close=1.0 if learn and pulls_close and ref.kind == "session" else 0.0)
+            learn_close=1.0 if learn and pulls_close and ref.kind == "session" else 0.0,
+            one_way=0.0 if pulls_close else 1.0)
         parts = [ref.part(ctx.reference), *feedback_parts(ctx, s, command, ctx.effort_bounds), scale, *tail]
         return Controller(cls.name, ctx, ref, parts, constants=constants, sums=(demand,))
+
+
+def learned_directions(controller: Controller) -> dict[str, str]:
+    """{"open" / "close": the qualified state holding that direction's assistance} for each direction
+    a built controller learns across cycles ({} for any other controller, or a step reference)."""
+    for part in controller.parts:
+        if isinstance(part, AssistScale) and part.name == ASSIST_PART:
+            p = dict(zip(part.params, part.param_values, strict=True))
+            return {d: f"{ASSIST_PART}.assist_{d}" for d in ("open", "close") if p[f"learn_{d}"] > 0.5}
+    return {}

@@ -15,10 +15,14 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.models.mechanics import TorsionSpring, ViscousFriction
 from rehab_hil.models.ports import Ports
 from rehab_hil.models.sensors import Gain
-from rehab_hil.models.system import Part
+from rehab_hil.models.stability import fastest_mode, substeps_for
+from rehab_hil.models.system import Diagram, Part
 from rehab_hil.patient.parts import (
     PassiveFinger,
     SlackingEffort,
@@ -31,7 +35,8 @@ from rehab_hil.patient.profile import PatientProfile
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.plants.sections import PlantConfig
 
-__all__ = ["PATIENT_TORQUE", "SESSION_TIME", "TRUTH_SIGNALS", "flexion_frame", "patient_parts", "with_patient"]
+__all__ = ["PATIENT_TORQUE", "SESSION_TIME", "TRUTH_SIGNALS", "flexion_frame", "patient_parts", "stable_substeps",
+           "with_patient"]
 
 SESSION_TIME = "session_time_s"  # the device's session clock [s], an input PlantIO sets every tick
 PATIENT_TORQUE = "patient_axis_torque_nm"  # everything the patient puts on the axis [N m]
@@ -41,13 +46,19 @@ TRUTH_SIGNALS = ("patient_cue_rad", "patient_effort", "patient_demand_nm", "pati
                  PATIENT_TORQUE)
 
 
-def flexion_frame(ports: Ports, cfg: PlantConfig) -> tuple[float, float]:
-    """(sign, offset [rad]): the finger's flexion = sign x axis angle + offset. An MCP axis is the
-    flexion itself; on a hand rig's other axis (the Finger Extensor's iris) opening extends the
-    finger, straight at the session's open angle (an assumption: seed 002 gives no linkage)."""
+def flexion_frame(ports: Ports, cfg: PlantConfig, rest_flexion_rad: float = 0.0) -> tuple[float, float]:
+    """(sign, offset [rad]): the finger's flexion = sign x axis angle + offset.
+
+    An MCP axis (the SMA exoskeleton, the TCP finger) measures the bend from where the device was
+    fitted and homed: the patient's relaxed posture (``rest_flexion_rad``), as seed 000 measures its
+    bending angle from the finger at rest and ``rehab-hil run --home current`` zeroes the encoder at
+    the pose the finger is in; the plant's own passive finger (seed 000's Hill muscle and dorsal wire,
+    seed 001's springs) rests there too. On a hand rig's other axis (the Finger Extensor's iris)
+    opening extends the finger, straight at the session's open angle (an assumption: seed 002 gives
+    no linkage)."""
     axis = ports.axes[0]
     if axis.finger:
-        return 1.0, 0.0
+        return 1.0, rest_flexion_rad
     return -1.0, math.radians(cfg.rig.session.open_deg) if cfg.rig.session is not None else 0.0
 
 
@@ -66,7 +77,8 @@ def patient_parts(ports: Ports, cfg: PlantConfig, patient: PatientProfile) -> li
     if not ports.axes or cfg.rig.session is None:
         raise ValueError(f"plant {cfg.plant!r}: a simulated patient needs a joint axis and a [rig.session]")
     axis = ports.axes[0]
-    sign, offset = flexion_frame(ports, cfg)
+    ps = patient.passive
+    sign, offset = flexion_frame(ports, cfg, ps.rest_flexion_rad if ps is not None else 0.0)
     flex_nm, ext_nm = patient.capacity_nm()
     pos_nm, neg_nm = (flex_nm, ext_nm) if sign > 0 else (ext_nm, flex_nm)  # capacity raising / lowering the angle
     v, sl = patient.voluntary, patient.slacking
@@ -123,5 +135,36 @@ def with_patient(binding: DeviceBinding, cfg: PlantConfig, patient: PatientProfi
     parts = patient_parts(ports, cfg, patient)
     produced = {s for p in parts for s in p.signal_names}
     constants = {k: v for k, v in binding.constant_inputs.items() if k not in produced}
-    return dataclasses.replace(binding, parts=[*binding.parts, *parts],
-                               constant_inputs={**constants, SESSION_TIME: 0.0}, sums=(*binding.sums, PATIENT_TORQUE))
+    return dataclasses.replace(binding, parts=[*binding.parts, *parts], constant_inputs={
+        **constants, SESSION_TIME: 0.0}, sums=(*binding.sums, PATIENT_TORQUE),
+        substeps=stable_substeps(binding, cfg, patient))
+
+
+def stable_substeps(binding: DeviceBinding, cfg: PlantConfig, patient: PatientProfile) -> int:
+    """The RK4 substeps the plant needs with the patient on it: while the patient's own loop acts
+    directly (its recruitment ahead of its demand) its damping and stiffness load the axis, and on
+    a light one (the TCP robotic finger's grams: a mode of ~8e3 1/s, |lambda h| 8 at 1 kHz) RK4 at
+    the plant's own step rests in a spurious state. The plant with that load as a linear
+    spring-damper on the axis (the patient's loop plus the passive finger's slope at the start),
+    its fastest mode at rest (``models/stability.py``); the plant's own substeps at least."""
+    ports = get_plant(cfg.plant).ports(cfg)
+    axis = ports.axes[0]
+    v, ps = patient.voluntary, patient.passive
+    _, offset = flexion_frame(ports, cfg, ps.rest_flexion_rad if ps is not None else 0.0)
+    k, b = v.stiffness_nm_per_rad, v.damping_nm_s_per_rad
+    if ps is not None:
+        d = offset - ps.rest_flexion_rad  # the flexion at the axis's zero against the rest
+        k += ps.extension_scale_nm * ps.extension_shape_per_rad * math.exp(-ps.extension_shape_per_rad * d) \
+            + ps.flexion_scale_nm * ps.flexion_shape_per_rad * math.exp(ps.flexion_shape_per_rad * d)
+        b += ps.damping_nm_s_per_rad
+    into, gain = ports.interaction if ports.interaction is not None else (axis.torque, 1.0)
+    load = [TorsionSpring("load_spring", connect={"angle_rad": axis.angle}, rename={"torque_nm": "load_nm"},
+                          stiffness_nm_per_rad=k, rest_angle_rad=0.0),
+            ViscousFriction("load_damping", connect={"velocity_rad_s": axis.velocity}, rename={"torque_nm": "load_nm"},
+                            damping_nm_s_per_rad=b),
+            Gain("load_into_plant", connect={"u": "load_nm"}, rename={"y": into}, gain=gain)]
+    inputs = (*binding.duty_inputs, *binding.constant_inputs)  # as the device's PlantIO compiles it
+    system = Diagram([*binding.parts, *load], inputs=inputs, sums=(*binding.sums, "load_nm")).compile(
+        binding.step_s, binding.substeps)
+    u = np.array([binding.constant_inputs.get(name, 0.0) for name in system.input_names], float)
+    return substeps_for(fastest_mode(system, u), binding.step_s, binding.substeps)

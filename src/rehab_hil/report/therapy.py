@@ -16,7 +16,8 @@ __all__ = ["SRD_SHARE", "changes", "cycle_table", "session_table"]
 # JNER 2021: ICC > 0.7, SRD < 30 %): a change between two sessions smaller than this is not flagged
 SRD_SHARE = 0.30
 
-_CYCLE = (("success", "success [share]"), ("assistance_ratio", "assistance ratio"),
+_CYCLE = (("success", "success [share]"), ("success_assisted", "success, moves the rig drives [share]"),
+          ("assistance_ratio", "assistance ratio"),
           ("active_rom_deg", "active ROM [deg]"), ("peak_velocity_deg_s", "peak velocity [deg/s]"),
           ("sparc", "SPARC"), ("ldlj", "LDLJ"),
           ("patient_torque_open_nm", "patient torque, opening, torque sensor [N m]"),
@@ -25,7 +26,8 @@ _CYCLE = (("success", "success [share]"), ("assistance_ratio", "assistance ratio
           ("patient_torque_close_model_nm", "patient torque, closing, {source} [N m]"),
           ("interaction_stiffness_nm_per_rad", "interaction stiffness [N m/rad]"),
           ("resistance_slope_nm_s_per_rad", "velocity-dependent resistance [N m s/rad]"))
-_SESSION = (("success", "success rate"), ("assistance_ratio", "assistance ratio"), ("rom_deg", "ROM [deg]"),
+_SESSION = (("success", "success rate"), ("success_assisted", "success rate, moves the rig drives"),
+            ("assistance_ratio", "assistance ratio"), ("rom_deg", "ROM [deg]"),
             ("peak_velocity_deg_s", "peak velocity [deg/s]"), ("sparc", "SPARC"),
             ("patient_torque_open_nm", "patient torque, opening [N m]"),
             ("patient_torque_open_model_nm", "patient torque, opening, model [N m]"))

@@ -68,7 +68,9 @@ def build_meter(cfg: PlantConfig, controller: ControllerRuntime, duration_s: flo
     plant = get_plant(cfg.plant)
     return SessionMeter(round(duration_s / period_s(cfg)) + 1, ref.period_s, ref.move_s, ref.first_open_s,
                         ref.closed_deg, ref.open_deg, lambda effort, vel: plant.actuator_power_w(cfg, effort, vel),
-                        baseline_energy_j=passive_energy_j(controller), interaction=interaction_channel(cfg))
+                        baseline_energy_j=passive_energy_j(controller), interaction=interaction_channel(cfg),
+                        assisted=("open", "close") if controller.controller.ctx.signed else ("open",),
+                        count_deg=controller.controller.ctx.binding.encoder_count_deg)
 
 
 def passive_energy_j(controller: ControllerRuntime) -> float:

@@ -139,6 +139,21 @@ class ControllerRuntime:
         self.learning = learning
         self._set_table(learning.table)
 
+    def discrete_states(self, qualified: tuple[str, ...]) -> dict[str, float]:
+        """The named discrete states now (``part.state``: an assistance learned in this session)."""
+        names = self.controller.diagram.discrete_state_names
+        return {q: float(self._xd[names.index(q)]) for q in qualified}
+
+    def start_from(self, values: dict[str, float]) -> None:
+        """Start with these discrete states instead of the declared ones (``part.state``: an
+        assistance learned in an earlier session); before the loop runs."""
+        names = self.controller.diagram.discrete_state_names
+        xd0 = self._xd0.copy()
+        for q, v in values.items():
+            xd0[names.index(q)] = v
+        self._xd0 = xd0
+        self._xd = xd0.copy()
+
     def retune(self, params: np.ndarray, constants: dict[str, float]) -> None:
         """The same diagram with other parameter values and plant constants (the controller built
         again on a model updated by estimates: its thermal observer and ceiling), between two samples."""

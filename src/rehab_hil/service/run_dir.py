@@ -149,4 +149,5 @@ def result_metadata(result: Any, rows: int) -> dict[str, Any]:
         "sinks": result.sinks,  # each sink's drops and error (None, or the one line it failed with)
         "session": result.session, "session_cycles": result.session_cycles,
         "rig_learning": getattr(result, "learning", None) or None,
+        "assistance_store": getattr(result, "assistance", None) or None,
     }

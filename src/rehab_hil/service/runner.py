@@ -104,6 +104,7 @@ class RunResult:
     session_cycles: list[dict[str, float]] = field(default_factory=list)
     twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
     learning: dict[str, Any] = field(default_factory=dict)  # the learning on the rig (service/rig_learning.py)
+    assistance: dict[str, Any] = field(default_factory=dict)  # assistance kept across sessions (service/assist_store)
     ran_s: float = math.nan  # device time the session ran until it stopped (a trip, a stop request, the duration)
     step: dict[str, float] = field(default_factory=dict)  # a step run's response (metrics.recorded_step)
     # the stalls seen: the host's write gap at the trip, the device's silences while its process could

@@ -28,7 +28,8 @@ from typing import Any
 from rehab_hil import metrics, shipped
 from rehab_hil.calibration import calibration_summary
 from rehab_hil.config import ConfigError
-from rehab_hil.controllers.build import Sources
+from rehab_hil.controllers.assist_as_needed import learned_directions
+from rehab_hil.controllers.build import Sources, settings_for
 from rehab_hil.hardware import RIG_KINDS, HardwareError, HardwareInterface, on_configure, open_rig
 from rehab_hil.loading import load_config
 from rehab_hil.patient.profile import load_patient
@@ -37,6 +38,7 @@ from rehab_hil.plants import get_plant
 from rehab_hil.profiles import apply_profile, load_profile, profile_rig_keys
 from rehab_hil.protocol import Configure
 from rehab_hil.service import assembly
+from rehab_hil.service.assist_store import AssistanceStore, KeptAssistance, default_assistance_dir
 from rehab_hil.service.controllers import ControllerRuntime
 from rehab_hil.service.errors import SessionError
 from rehab_hil.service.homing import HomingResult, home
@@ -93,6 +95,8 @@ class SessionOptions:
     sample_timeout_s: float | None = None  # how long a cycle waits for its sample (None: a period; lockstep 5 s)
     rig_learning: bool | None = None  # learn the feedforward on the rig (None: [controllers.model_based] rig_learning)
     learning_store: Path | None = None  # where learned tables are kept (None: ~/.cache/rehab-hil/rig_learning)
+    assistance_store: Path | None = None  # where learned assistance is kept (None: service.assist_store's default)
+    fresh_assistance: bool = False  # assist-as-needed starts from the config, not the patient's stored assistance
     thermal_replan: bool = True  # re-plan the learned feedforward on the twin's thermal estimates (service/replan.py)
 
 
@@ -118,6 +122,7 @@ class RigSession:
         self.loop: LoopService | None = None
         self.result: RunResult | None = None
         self.truth: SimTruth | None = None  # a simulated patient's sim_truth.csv, moved into the run directory
+        self.assistance: KeptAssistance | None = None  # assist-as-needed's assistance kept across sessions
 
     @property
     def progress(self) -> Progress:
@@ -162,10 +167,18 @@ class RigSession:
             self.loop.meter = assembly.build_meter(self.cfg, self.controller, duration_s)
             learning = self._learning(self.controller)
         realtime = self.options.realtime if self.options.realtime is not None else not self.lockstep
-        result = self.loop.run(duration_s, pacing=self.options.pacing, realtime=realtime,
-                               sample_timeout_s=self.options.sample_timeout_s or (
-                                   LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None),
-                               lockstep=self.lockstep)
+        try:
+            result = self.loop.run(duration_s, pacing=self.options.pacing, realtime=realtime,
+                                   sample_timeout_s=self.options.sample_timeout_s or (
+                                       LOCKSTEP_SAMPLE_TIMEOUT_S if self.lockstep else None),
+                                   lockstep=self.lockstep)
+        except BaseException as e:  # what was learned so far is kept
+            if self.assistance is not None:
+                self.assistance.finish(f"error: {type(e).__name__}")
+            raise
+        if self.assistance is not None:
+            ended = f"{result.events[0].reason}: {result.stop_reason}" if result.events else result.stop_reason
+            result.assistance = self.assistance.finish(ended)
         if learning is not None:
             if self.replan is not None:
                 self.replan.close()
@@ -218,6 +231,31 @@ class RigSession:
             self.stack.callback(self.replan.close)
         return learning
 
+    def _kept_assistance(self) -> None:
+        """An assist-as-needed controller's assistance starts where this patient's last session on
+        this rig and config ended (``service/assist_store.py``); a store that cannot be used is one
+        note (the CLI's warning line) and the config's start."""
+        runtime = self.controller
+        if not isinstance(runtime, ControllerRuntime) or runtime.reference.kind != "session":
+            return
+        directions = learned_directions(runtime.controller)
+        if not directions:
+            return
+        opts = self.options
+        patient = load_profile(opts.profile).patient_id if opts.profile is not None else (
+            load_patient(opts.sim_patient).patient_id if opts.sim_patient is not None else None)
+        rig = self.rig_id
+        if opts.sim_plant is not None:  # a simulated rig is its plant file (as the rig learning's store)
+            rig += "-sim-" + config_identity(opts.sim_plant)["config_sha256"][:12]
+        gains = settings_for(self.cfg, runtime.name, str(self.config_path))
+        key = {"plant": self.cfg.plant, "controller": runtime.name, "directions": sorted(directions),
+               "feedback": {k: getattr(gains, k) for k in ("kp_per_deg", "ki_per_deg_s", "kd_s_per_deg")}}
+        store = AssistanceStore(opts.assistance_store or default_assistance_dir(), rig, patient,
+                                self.config_path.stem, key)
+        self.assistance = KeptAssistance(store, runtime, directions, opts.fresh_assistance)
+        if self.assistance.problem:
+            runtime.notes.append(self.assistance.problem)
+
     # ---- building, in the order things must happen ------------------------------------------------
     def _open(self) -> None:
         """Before anything moves: the contract check, the homing; then the run directory, the sinks
@@ -227,6 +265,7 @@ class RigSession:
         except HardwareError as e:
             raise SessionError("device", f"{self.device}: {e}") from None
         self._home()
+        self._kept_assistance()
         if self.options.record is not None:
             self._recording()
         opts = self.options
