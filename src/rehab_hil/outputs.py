@@ -9,13 +9,14 @@ Both remove what they wrote when the block fails.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["replacing", "staged_folder"]
+__all__ = ["name_part", "replacing", "staged_folder"]
 
 
 @contextmanager
@@ -51,3 +52,9 @@ def staged_folder(out: str | Path) -> Iterator[Path]:
         raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def name_part(text: str, empty: str = "x") -> str:
+    """``text`` as part of a file or folder name: runs of anything but letters, digits, ``_.-``
+    become one ``-`` (a rig id, a patient id, a config name); ``empty`` if nothing is left."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or empty

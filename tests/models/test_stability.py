@@ -8,35 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from rehab_hil.models.mechanics import TorsionSpring, ViscousFriction
+from rehab_hil.models.mechanics import RotaryInertia, TorsionSpring, ViscousFriction
 from rehab_hil.models.stability import RK4_LIMIT, fastest_mode, substeps_for
-from rehab_hil.models.system import Diagram, Part, njit
-
-
-class Inertia(Part):
-    """theta'' = torque / J."""
-
-    inputs = ("torque_nm",)
-    states = ("angle_rad", "velocity_rad_s")
-    outputs = ("angle_rad", "velocity_rad_s")
-    params = ("inertia_kg_m2",)
-    feedthrough = False
-
-    @staticmethod
-    @njit
-    def output(t, x, xd, u, p, y):
-        y[0] = x[0]
-        y[1] = x[1]
-
-    @staticmethod
-    @njit
-    def derivatives(t, x, xd, u, p, dx):
-        dx[0] = x[1]
-        dx[1] = u[0] / p[0]
+from rehab_hil.models.system import Diagram
 
 
 def oscillator(k: float, b: float, inertia: float):
-    parts = [Inertia("mass", inertia_kg_m2=inertia),
+    parts = [RotaryInertia("mass", inertia_kg_m2=inertia),
              TorsionSpring("spring", stiffness_nm_per_rad=k, rest_angle_rad=0.0),
              ViscousFriction("damper", damping_nm_s_per_rad=b)]
     return Diagram(parts, inputs=(), sums=("torque_nm",)).compile(0.001, 1)

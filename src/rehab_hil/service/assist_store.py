@@ -25,10 +25,11 @@ import datetime as dt
 import json
 import math
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from rehab_hil.outputs import name_part
 
 __all__ = ["FORMAT", "AssistanceStore", "Stored", "default_assistance_dir"]
 
@@ -43,9 +44,6 @@ def default_assistance_dir() -> Path:
     data = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
     return Path(data) / "rehab-hil" / "assistance"
 
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "x"
 
 
 @dataclass(frozen=True)
@@ -63,8 +61,8 @@ class AssistanceStore:
     def __init__(self, directory: Path, rig_id: str, patient_id: str | None, config_name: str,
                  key: dict[str, Any]) -> None:
         self.key = key
-        who = _slug(patient_id) if patient_id else "no-patient"
-        self.path = Path(directory) / _slug(rig_id) / f"{who}-{_slug(config_name)}.json"
+        who = name_part(patient_id) if patient_id else "no-patient"
+        self.path = Path(directory) / name_part(rig_id) / f"{who}-{name_part(config_name)}.json"
 
     def load(self) -> tuple[Stored | None, str | None]:
         """(what the file holds, None); (None, None) without a file; (None, one line) for a file that

@@ -27,7 +27,6 @@ from __future__ import annotations
 import hashlib
 import os
 import queue
-import re
 import threading
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ import numpy as np
 
 from rehab_hil.controllers.rig_learning import RigLearner, RigLearningSpec
 from rehab_hil.models.engine import cache_dir
+from rehab_hil.outputs import name_part
 
 __all__ = ["LEAD_S", "LOCKSTEP_REPLAN_WAIT_S", "RigLearning", "TableStore", "default_store_dir"]
 
@@ -58,8 +58,8 @@ class TableStore:
     used). Writes are atomic (a killed session leaves the previous table)."""
 
     def __init__(self, directory: Path, rig_id: str, profile_id: str | None, plan_key: str) -> None:
-        slug = _slug(rig_id)
-        who = _slug(profile_id) if profile_id else "no-profile"
+        slug = name_part(rig_id)
+        who = name_part(profile_id) if profile_id else "no-profile"
         self.plan_key = plan_key
         self.path = Path(directory) / slug / f"{who}-{hashlib.sha1(plan_key.encode()).hexdigest()[:16]}.npz"
 
@@ -79,9 +79,6 @@ class TableStore:
         np.savez(tmp, table=table, trials=np.array(trials), plan_key=np.array(self.plan_key))
         os.replace(tmp, self.path)
 
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "x"
 
 
 class ReplanHandoff:

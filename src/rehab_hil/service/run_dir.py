@@ -19,6 +19,8 @@ from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.outputs import name_part
+
 __all__ = ["METADATA_FILE", "METADATA_SCHEMA", "RUN_FILES", "config_identity", "is_run_dir", "new_run_dir",
            "read_metadata", "reference_metadata", "result_metadata", "session_metadata", "write_metadata"]
 
@@ -27,9 +29,6 @@ METADATA_SCHEMA = "rehab-hil/run-metadata/1"
 RUN_FILES = ("run.csv", "run.mcap")
 RUN_NAME = re.compile(r"^\d{8}T\d{6}Z-")  # new_run_dir's names: the UTC start time first
 
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "rig"
 
 
 def is_run_dir(path: str | Path) -> bool:
@@ -48,7 +47,7 @@ def new_run_dir(root: str | Path, rig_id: str, now: dt.datetime | None = None) -
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     stamp = (now or dt.datetime.now(dt.UTC)).strftime("%Y%m%dT%H%M%SZ")
-    base = f"{stamp}-{_slug(rig_id)}"
+    base = f"{stamp}-{name_part(rig_id, 'rig')}"
     for i in range(1, 10_000):
         path = root / (base if i == 1 else f"{base}-{i}")
         try:
