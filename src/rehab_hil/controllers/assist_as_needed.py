@@ -19,7 +19,7 @@ from rehab_hil.config import Field, Section
 from rehab_hil.control.assist import AssistScale
 from rehab_hil.controllers.base import DT, ControlContext, Controller, ControllerSpec, Reference
 from rehab_hil.controllers.limits import guarded
-from rehab_hil.controllers.pid import feedback_parts
+from rehab_hil.controllers.pid import feedback_parts, needs_encoder
 from rehab_hil.therapy_measures import SUCCESS_WINDOW_S, success_tolerance_deg
 
 __all__ = ["ASSIST_PART", "AssistAsNeeded", "AssistAsNeededSettings", "learned_directions"]
@@ -54,7 +54,7 @@ class AssistAsNeeded(ControllerSpec):
 
     @classmethod
     def refuse(cls, ctx: ControlContext) -> str | None:
-        return None if ctx.binding.encoder_signal else "it needs an encoder, and the plant's rig has none"
+        return needs_encoder(ctx)
 
     @classmethod
     def build(cls, ctx: ControlContext, settings: AssistAsNeededSettings, reference: Reference) -> Controller:

@@ -14,7 +14,7 @@ from rehab_hil.control.pid import PIDController
 from rehab_hil.controllers.base import DT, ControlContext, Controller, ControllerSpec, Reference
 from rehab_hil.controllers.limits import guarded, safety_parts
 
-__all__ = ["PID", "PIDSettings", "feedback_parts", "limit_part"]
+__all__ = ["PID", "PIDSettings", "feedback_parts", "limit_part", "needs_encoder"]
 
 
 class PIDSettings(Section):
@@ -40,6 +40,11 @@ def feedback_parts(ctx: ControlContext, gains: Any, demand: str, authority: tupl
         derivative_filter_s=gains.derivative_filter_s, output_min=authority[0], output_max=authority[1])]
 
 
+def needs_encoder(ctx: ControlContext) -> str | None:
+    """Why a controller on the encoder angle cannot run on this plant's rig, or None."""
+    return None if ctx.binding.encoder_signal else "it needs an encoder, and the plant's rig has none"
+
+
 def limit_part(ctx: ControlContext, demand: str, cut: str | None = None) -> list:
     """The last links before the actuator (``controllers.limits.safety_parts``): the heating guard
     and the demand clamped to what PWM may apply, cut by ``cut`` (a temperature ceiling's)."""
@@ -55,7 +60,7 @@ class PID(ControllerSpec):
 
     @classmethod
     def refuse(cls, ctx: ControlContext) -> str | None:
-        return None if ctx.binding.encoder_signal else "it needs an encoder, and the plant's rig has none"
+        return needs_encoder(ctx)
 
     @classmethod
     def build(cls, ctx: ControlContext, settings: PIDSettings, reference: Reference) -> Controller:
