@@ -12,6 +12,9 @@ from rehab_hil.plants import get_plant
 
 from .conftest import ROOT
 
+# the module fixtures are built once: every test of the module runs on one xdist worker
+pytestmark = pytest.mark.xdist_group("test_other_plants")
+
 
 def _applicable(plant: str) -> set[str]:
     return {e.name for e in applicable(get_plant(plant).ports(load_config(ROOT / "configs" / f"{plant}.toml")))}

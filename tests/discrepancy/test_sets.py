@@ -22,6 +22,9 @@ from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
 from rehab_hil.testing import CONFIGS
 
+# the module fixtures are built once: every test of the module runs on one xdist worker
+pytestmark = pytest.mark.xdist_group("test_sets")
+
 HIDDEN = {"coulomb_friction_directional": {"level_pos_nm": 0.030, "level_neg_nm": 0.012}}
 VISCOUS_FACTOR = 1.7
 STARTS_DEG = (0.0, 30.0, -45.0, 90.0)  # each record starts at rest at its own angle

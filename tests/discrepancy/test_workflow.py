@@ -10,6 +10,9 @@ from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.synthetic import hidden_effect_recording
 from rehab_hil.discrepancy.workflow import Options, find_missing_effects
 
+# the module fixtures are built once: every test of the module runs on one xdist worker
+pytestmark = pytest.mark.xdist_group("test_workflow")
+
 # effect -> (true parameters, tolerance per parameter (absolute), least cut of the angle RMSE)
 CASES = {
     "coulomb_friction": ({"level_nm": 0.03}, {"level_nm": 0.003}, 0.6),

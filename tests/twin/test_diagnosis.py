@@ -18,6 +18,9 @@ from rehab_hil.plants import get_plant
 from rehab_hil.plants.sections import EffectSpec
 from rehab_hil.twin.diagnosis import changed_window, diagnose, rig_channels
 
+# the module fixtures are built once: every test of the module runs on one xdist worker
+pytestmark = pytest.mark.xdist_group("test_diagnosis")
+
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
