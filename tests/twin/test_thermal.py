@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import io
 import json
 import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
+from rich.console import Console
 
+from rehab_hil.cli.run import summary_table
 from rehab_hil.hardware.open import inprocess_hardware
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
@@ -101,6 +104,10 @@ def test_a_difference_that_is_not_thermal_is_not_handed_to_the_controller(tmp_pa
     th = res.twin["twin"]["thermal"]
     assert th["events"] and not any(e["explained"] for e in th["events"])
     assert calls == []
+    console = Console(width=400, record=True, file=io.StringIO())
+    console.print(summary_table(res))
+    rows = [x for x in console.export_text().splitlines() if "thermal_change" in x]
+    assert rows and all("not explained by the thermal quantities alone" in x and "not told" in x for x in rows)
 
 
 def _flat(obj: Any, prefix: str = "") -> dict[str, Any]:

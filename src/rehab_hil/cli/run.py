@@ -199,6 +199,7 @@ def _stall_rows(t: Table, stalls: dict[str, Any]) -> None:
 def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
     """The live twin's lines: its normal residual, the model events and the patient's estimate."""
     from rehab_hil.twin.live import normal_residual_text
+    from rehab_hil.twin.thermal import thermal_event_text
 
     if not meta:
         return
@@ -215,9 +216,7 @@ def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
         t.add_row("model events", "none")
     thermal = tw.get("thermal") or {}
     for ev in thermal.get("events", []):  # the thermal quantities first: they move the bend, the contact barely
-        t.add_row(f"[yellow]thermal_change {ev['label']}", f"{ev['key']} = {ev['value']:.4g} +/- {ev['ci95']:.2g} "
-                  f"(config {ev['config']:.4g}) at {ev['t_s']:.1f} s"
-                  + (f"; {ev['action']}" if ev.get("action") else ""))
+        t.add_row(f"[yellow]thermal_change {ev['label']}", thermal_event_text(ev, label=False))
     for key, est in thermal.get("estimates", {}).items():
         t.add_row(f"thermal {est['label']}", f"{key} = {est['value']:.4g} +/- {est['ci95']:.2g} "
                   f"(config {est['config']:.4g})")

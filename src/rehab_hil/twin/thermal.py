@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -47,7 +47,8 @@ import numpy as np
 from rehab_hil.twin.interaction import resolve_parameters
 from rehab_hil.twin.model import TwinModel, TwinSetupError
 
-__all__ = ["THERMAL_EVENT", "ThermalEstimator", "ThermalEvent", "ThermalQuantity", "thermal_quantities"]
+__all__ = ["THERMAL_EVENT", "ThermalEstimator", "ThermalEvent", "ThermalQuantity", "thermal_event_text",
+           "thermal_quantities"]
 
 THERMAL_EVENT = "thermal_change"
 NUDGE = 0.002  # finite-difference step of a relative quantity: the SMA's error valley is narrow (0.5 C off
@@ -131,13 +132,19 @@ class ThermalEvent:
 
     def text(self) -> str:
         """One line for the event channel and the summary."""
-        head = (f"{self.label} {self.key} = {self.value:.4g} +/- {self.ci95:.2g} (config {self.config:.4g}) "
-                f"at {self.t_s:.1f} s")
-        if self.explained:
-            return f"{head}; {self.action}" if self.action else head
-        rms = ", ".join(f"{r:.1f}" for r in self.residual_counts)
-        return (f"{head}; not explained by the thermal quantities alone ({rms} counts RMS left after the fit): "
-                "another difference, the controller is not told")
+        return thermal_event_text(self.as_dict())
+
+
+def thermal_event_text(ev: Mapping[str, Any], label: bool = True) -> str:
+    """A thermal event (``ThermalEvent.as_dict``, as metadata.json keeps it) in one line: the estimate,
+    and what the controller does about it, or why it is not told (the fit left the window unexplained)."""
+    head = (f"{ev['label'] + ' ' if label else ''}{ev['key']} = {ev['value']:.4g} +/- {ev['ci95']:.2g} "
+            f"(config {ev['config']:.4g}) at {ev['t_s']:.1f} s")
+    if ev.get("explained", True):
+        return f"{head}; {ev['action']}" if ev.get("action") else head
+    rms = ", ".join(f"{r:.1f}" for r in ev.get("residual_counts", []))
+    return (f"{head}; not explained by the thermal quantities alone ({rms} counts RMS left after the fit): "
+            "another difference, the controller is not told")
 
 
 class ThermalEstimator:
