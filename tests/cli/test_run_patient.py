@@ -37,7 +37,8 @@ def test_each_plant_runs_an_assist_as_needed_session_with_the_capable_patient(pl
     assert len(cycles_done) == cycles and meta["safety_events"] == []
     assert all(c["success_assisted"] == 1.0 and c["assistance_ratio"] >= 0.0 for c in cycles_done)
     kept = meta["assistance_store"]
-    assert "assistance kept" in out  # the summary's row
+    assert "assistance kept" in out  # the summary's rows, with what a therapist reads first
+    assert "per cycle: success" in out and f"{cycles_done[0]['assistance_ratio']:.2f} ->" in out
     assert Path(kept["store"]).exists() and kept["end"]["open"] < kept["start"]["open"] == 1.0
 
 

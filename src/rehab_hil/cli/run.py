@@ -10,6 +10,7 @@ and ESTOP before the exit.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -137,10 +138,7 @@ def summary_table(r: RunResult) -> Table:
         t.add_row("per cycle: time to open / closed", f"{s['time_to_open_s']:.3g} / {s['time_to_closed_s']:.3g} s")
         t.add_row("peak est. temperature / energy per cycle",
                   f"{s['peak_temperature_c']:.4g} C / {s['energy_per_cycle_j']:.4g} J")
-        if "patient_torque_open_model_nm" in s:  # the twin's estimate of the patient's torque per move
-            src = r.session_cycles[0].get("patient_torque_model_source", "model")
-            t.add_row(f"per cycle: patient torque ({src})", f"opening {s['patient_torque_open_model_nm']:+.3g}, "
-                      f"closing {s.get('patient_torque_close_model_nm', float('nan')):+.3g} N m toward the target")
+        _therapy_rows(t, r)
         if r.learning:
             rl, cyc = r.learning, r.session_cycles
             t.add_row("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "
@@ -194,6 +192,24 @@ def _stall_rows(t: Table, stalls: dict[str, Any]) -> None:
         longest = max(silences, key=lambda x: x["silent_s"])
         t.add_row("link silent while the device could not run", f"{len(silences)} times, longest "
                   f"{longest['silent_s'] * 1e3:.1f} ms at t={longest['t_s']:.3f} s (not a link loss)")
+
+
+def _therapy_rows(t: Table, r: RunResult) -> None:
+    """What a therapist reads first (``therapy_measures.py``): success, the assistance ratio from the
+    first cycle to the last, and the patient's torque from the twin's model when it ran."""
+    s, cyc = r.session, r.session_cycles
+    if "success" in s and cyc:
+        rig = (f" (the moves the rig drives {100 * s['success_assisted']:.0f} %)"
+               if s.get("success_assisted", s["success"]) != s["success"] else "")
+        t.add_row("per cycle: success", f"{100 * s['success']:.0f} % of the moves{rig}")
+    ratios = [c["assistance_ratio"] for c in cyc if math.isfinite(c.get("assistance_ratio", math.nan))]
+    if ratios:
+        t.add_row("per cycle: assistance ratio", f"{ratios[0]:.2f} -> {ratios[-1]:.2f} (first -> last cycle; "
+                  "the robot's work over its work with a passive patient)")
+    if "patient_torque_open_model_nm" in s:  # the twin's estimate of the patient's torque per move
+        src = cyc[0].get("patient_torque_model_source", "model")
+        t.add_row(f"per cycle: patient torque ({src})", f"opening {s['patient_torque_open_model_nm']:+.3g}, "
+                  f"closing {s.get('patient_torque_close_model_nm', float('nan')):+.3g} N m toward the target")
 
 
 def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
