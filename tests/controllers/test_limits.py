@@ -14,6 +14,7 @@ from rehab_hil.controllers import build_controller, closed_loop
 from rehab_hil.controllers.build import preflight_duration_s
 from rehab_hil.controllers.limits import heating_limit_s
 from rehab_hil.controllers.rig_learning import longest_run_s
+from rehab_hil.interchange import read_csv
 from rehab_hil.loading import load_config
 from rehab_hil.service.session import SessionError, open_session
 from rehab_hil.testing import CONFIGS
@@ -46,6 +47,23 @@ def test_pid_on_the_shipped_sma_config_runs_past_its_former_trip_without_one() -
         r = s.run(30.0)
     assert r.events == [] and r.pwm_off_at_end, r.events
     assert r.session_cycles and max(c["peak_temperature_c"] for c in r.session_cycles) <= 132.8
+
+
+@pytest.mark.parametrize("controller", ["pid", "assist_as_needed"])
+def test_a_tcp_coil_that_cannot_bend_a_passive_finger_is_held_below_its_temperature_trip(controller, tmp_path) -> None:
+    """A passive patient's finger is 70 times what the TCP muscle can bend: the controller asks for
+    more and more heat. Its ceiling reads the temperature the coil would still reach after a cut (TF_TP002
+    hides 2.7 C/W in a fast mode), not the temperature: before, both controllers tripped at 180 C (24 s
+    and 33 s in)."""
+    with open_session(CONFIGS / "tcp_finger.toml", "inprocess", controller=controller,
+                      sim_patient=CONFIGS.parent / "profiles" / "sim" / "passive.toml",
+                      assistance_store=tmp_path / "store", record=tmp_path / "runs") as s:
+        r = s.run(60.0)
+        run_dir = s.run_dir
+    assert r.events == [] and r.pwm_off_at_end, r.events
+    temperature = read_csv(run_dir / "run.csv").signals["estimated_temperature_c"]
+    limit = load_config(CONFIGS / "tcp_finger.toml").rig.limits.max_temperature_c
+    assert limit - 20.0 < temperature.max() < limit  # it worked near the limit, and stayed below it
 
 
 def test_the_example_profile_runs_with_the_shipped_sma_controller() -> None:

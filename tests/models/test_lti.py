@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rehab_hil.loading import load_config
-from rehab_hil.models.lti import StateSpace1, lti_part, state_space_params
+from rehab_hil.models.lti import StateSpace1, lti_part, peak_after_cut_part, state_space_params
 from rehab_hil.models.system import Diagram, DiagramError
 from rehab_hil.plants.tcp_finger import table1
 
@@ -74,3 +74,34 @@ def test_orders_above_three_are_refused():
 def test_a_part_needs_every_matrix_entry():
     with pytest.raises(DiagramError, match="missing parameters"):
         StateSpace1("x", a11=-1.0, b1=1.0, c1=1.0, d=0.0, u0=0.0)
+
+
+@pytest.mark.parametrize("name", ["TP002", "TP02", "TP01"])
+def test_the_peak_after_a_cut_bounds_what_the_output_still_rises_to(tfs, name):
+    """Power held 20 s, then cut: python-control's response after the cut never passes the bound the
+    part gives at the cut. A second-order lag (TF_TP02) goes on rising after the cut; TF_TP002's fast
+    mode hides heat while the power is on (its residue, the
+    rig's thermal estimate's second mode: -159.9 C at 60 W, -2.665 C/W) and gives it back within a
+    second: the temperature rises after the cut, and the bound is the output plus that hidden heat."""
+    tf = tfs[name]
+    part = lti_part("tf", tf, connect={"u": "u"})
+    peak = peak_after_cut_part("peak", part, connect={"u": "u"})
+    system = Diagram([part, peak], inputs=("u",)).compile(DT, 1)
+    hold = 20_000
+    res = system.simulate(hold + 1, {"u": 1.0}, outputs=["y", "peak"])
+    at_cut, bound = res["y"][-1], res["peak"][-1]
+    t = np.arange(0.0, 60.0, DT)
+    after = np.asarray(control.forced_response(tf, T=t, U=np.where(t < hold * DT, 1.0, 0.0)).outputs)[hold:]
+    assert after.max() <= bound + 1e-6 * abs(bound)
+    if name == "TP01":  # one mode: the output is its own bound
+        assert bound == pytest.approx(at_cut, rel=1e-9)
+        return
+    assert after.max() > at_cut  # a rise a ceiling on the output itself misses
+    if name == "TP002":
+        assert after.max() > at_cut + 0.3
+        assert bound - at_cut == pytest.approx(159.9 / 60.0, rel=2e-3)
+
+
+def test_no_peak_bound_where_the_output_reads_its_input_or_its_modes_oscillate(tfs):
+    assert peak_after_cut_part("p", lti_part("tf", tfs["TP1"], connect={"u": "u"})) is None  # biproper
+    assert peak_after_cut_part("p", lti_part("tf", tfs["TP03"], connect={"u": "u"})) is None  # -3.24 +- 0.34j

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from rehab_hil.control.limits import EffortLimit, HeatingGuard, TemperatureCeiling
 from rehab_hil.controllers.base import DT, ControlContext
 from rehab_hil.controllers.observer import OBSERVER, temperature_signal, thermal_slice
+from rehab_hil.models.lti import peak_after_cut_part
 from rehab_hil.models.system import Part
 from rehab_hil.plants.registry import compose
 
@@ -68,9 +69,23 @@ def thermal_guard(ctx: ControlContext, ceiling_c: float, band_c: float
                               mechanical_signals(ctx)) if temp else None)
     if observer is None or temp is None:
         return [], None, None
-    ceiling = TemperatureCeiling("ceiling", connect={"temperature_c": OBSERVER + temp},
+    peak = _peak_after_cut(observer, OBSERVER + temp)
+    watched = peak.signal_names[0] if peak is not None else OBSERVER + temp
+    ceiling = TemperatureCeiling("ceiling", connect={"temperature_c": watched},
                                  rename={"cut": "temperature_cut"}, ceiling_c=ceiling_c, band_c=band_c)
-    return [*observer, ceiling], "temperature_cut", OBSERVER + temp
+    return [*observer, *([peak] if peak else []), ceiling], "temperature_cut", OBSERVER + temp
+
+
+def _peak_after_cut(observer: Sequence[Part], temperature: str) -> Part | None:
+    """Where the observer's temperature is an LTI part's output, the most it can still rise once the
+    power is cut (``models.lti.PeakAfterCut``: the TCP coil's TF_TP002 hides 2.7 C per watt in a fast
+    mode that gives it back within a second of a cut; a ceiling on the temperature itself let the
+    coil's estimate pass its trip). None where the temperature is its own bound (a first-order wire)."""
+    source = next((p for p in observer if p.signal_names == (temperature,)), None)
+    if source is None or "u" not in source.connections:
+        return None
+    return peak_after_cut_part(OBSERVER + "peak_after_cut", source, connect={"u": source.connections["u"]},
+                               rename={"peak": temperature + "_peak_after_cut"})
 
 
 def observer_constants(ctx: ControlContext, parts: Sequence[Part]) -> dict[str, float]:

@@ -17,7 +17,8 @@ from rehab_hil.models.system import Part, njit
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control
 
-__all__ = ["MAX_ORDER", "StateSpace1", "StateSpace2", "StateSpace3", "lti_part", "state_space_params"]
+__all__ = ["MAX_ORDER", "PeakAfterCut", "StateSpace1", "StateSpace2", "StateSpace3", "lti_part", "peak_after_cut_part",
+           "state_space_params"]
 
 MAX_ORDER = 3
 
@@ -117,3 +118,55 @@ def lti_part(name: str, tf: control.TransferFunction, *, u0: float = 0.0, y0: fl
     if params["d"] == 0.0:  # strictly proper: the output does not read the input (no algebraic loop)
         part.feedthrough = False
     return part
+
+
+class PeakAfterCut(Part):
+    """The most a strictly proper LTI part's output can still rise to if its input returned to its
+    operating point now: y0 + the sum of its modes' positive parts (each real mode decays
+    monotonically, so no sum of them exceeds that). A mode that falls as the input rises (seed 001's
+    TF_TP002: -2.7 C/W at 2 1/s beside +55 C/W at 0.06 1/s) hides heat while the input is on and gives
+    it back once it is cut; the temperature a ceiling must keep below is this, not the output.
+    The modes run in parallel with the part they copy (modal form, up to ``MAX_ORDER``; unused modes
+    have zero gain)."""
+
+    inputs = ("u",)
+    states = ("z1", "z2", "z3")
+    outputs = ("peak",)
+    params = ("lam1", "lam2", "lam3", "b1", "b2", "b3", "c1", "c2", "c3", "u0", "y0")
+    feedthrough = False
+
+    @staticmethod
+    @njit
+    def output(t, x, xd, u, p, y):
+        acc = p[10]
+        for i in range(3):
+            acc += max(p[6 + i] * x[i], 0.0)
+        y[0] = acc
+
+    @staticmethod
+    @njit
+    def derivatives(t, x, xd, u, p, dx):
+        du = u[0] - p[9]
+        for i in range(3):
+            dx[i] = p[i] * x[i] + p[3 + i] * du
+
+
+def peak_after_cut_part(name: str, part: Part, **kwargs: Any) -> Part | None:
+    """A ``PeakAfterCut`` copying ``part`` (a ``StateSpace<n>``, started at rest), or None where the
+    bound does not hold: an output that reads its input (D != 0) or modes that oscillate."""
+    values = dict(zip(part.params, part.param_values, strict=True))
+    if not isinstance(part, _StateSpace) or values["d"] != 0.0 or np.any(part.x0 != 0.0):
+        return None
+    n = len(part.states)
+    A = np.array([values[f"a{i}{j}"] for i in range(1, n + 1) for j in range(1, n + 1)]).reshape(n, n)
+    B = np.array([values[f"b{i}"] for i in range(1, n + 1)])
+    C = np.array([values[f"c{i}"] for i in range(1, n + 1)])
+    lam, V = np.linalg.eig(A)
+    if np.any(np.abs(lam.imag) > 1e-12) or np.any(lam.real >= 0.0):
+        return None
+    lam, V = lam.real, V.real
+    b, c = np.linalg.solve(V, B), C @ V
+    pad = [0.0] * (MAX_ORDER - n)
+    modal = dict(zip(PeakAfterCut.params, [*lam, *[-1.0] * (MAX_ORDER - n), *b, *pad, *c, *pad,
+                                           values["u0"], values["y0"]], strict=True))
+    return PeakAfterCut(name, **kwargs, **modal)
