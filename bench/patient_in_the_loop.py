@@ -78,6 +78,8 @@ def truth_torque(truth: dict[str, np.ndarray], ref: Any, cycles: list[dict[str, 
 def judge(name: str, ratios: list[float], success: float) -> str:
     """The issue's target for this patient, met or not (a line); ``success`` of both moves (the moves
     the rig drives, ``success_assisted``, are printed beside it)."""
+    if not ratios:  # the session ended (a safety trip) before its first whole cycle
+        return "no complete cycle: not met"
     first, last3 = ratios[0], float(np.mean(ratios[-3:]))
     if not first > 0:  # the robot did nothing from the first cycle on: the ratio of the last three is theirs
         first = 1.0 if last3 == 0 else math.inf
@@ -101,8 +103,8 @@ def judge(name: str, ratios: list[float], success: float) -> str:
 def table(plant: str, name: str, run: dict[str, Any]) -> dict[str, Any]:
     cycles = run["meta"]["session_cycles"]
     ratios = [c.get("assistance_ratio", math.nan) for c in cycles]
-    success = float(np.nanmean([c.get("success", math.nan) for c in cycles]))
-    driven = float(np.nanmean([c.get("success_assisted", math.nan) for c in cycles]))
+    success = float(np.nanmean([c.get("success", math.nan) for c in cycles])) if cycles else math.nan
+    driven = float(np.nanmean([c.get("success_assisted", math.nan) for c in cycles])) if cycles else math.nan
     row = {"plant": plant, "patient": name, "assistance_ratio": ratios, "success": success,
            "success_assisted": driven,
            "rmse_deg": [c["rmse_deg"] for c in cycles], "sparc": [c.get("sparc") for c in cycles],
