@@ -42,9 +42,28 @@ def slow_watchdog(tmp_path):
     return path
 
 
-def _stop_device_for(pid: int, after_s: float, stop_s: float, stopped: list[float]) -> threading.Thread:
+def _at_session_time(session, t_s: float, action) -> threading.Thread:
+    """Run ``action`` once the session's loop has run ``t_s`` of device time (not ``t_s`` after the
+    call: on a busy machine opening the session can take longer than that, and a stall then hit the
+    CONFIGURE's answer instead of the running loop)."""
     def run() -> None:
-        time.sleep(after_s)
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline:
+            loop = session.loop
+            if loop is not None and loop.progress.t_s >= t_s:
+                action()
+                return
+            time.sleep(0.005)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+def _stop_device_for(session, after_s: float, stop_s: float, stopped: list[float]) -> threading.Thread:
+    pid = session.hw.device_process.pid
+
+    def stop() -> None:
         t0 = time.perf_counter()
         os.kill(pid, signal.SIGSTOP)
         try:
@@ -53,9 +72,7 @@ def _stop_device_for(pid: int, after_s: float, stop_s: float, stopped: list[floa
             os.kill(pid, signal.SIGCONT)
             stopped.append(time.perf_counter() - t0)
 
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    return th
+    return _at_session_time(session, after_s, stop)
 
 
 def _summary(result) -> str:
@@ -70,7 +87,7 @@ def test_a_stopped_simulated_device_trips_nothing_and_reports_its_stall(kind, sl
         pytest.skip(reason)
     stopped: list[float] = []
     with open_session(slow_watchdog, kind, controller="pid", reference="step") as s:
-        th = _stop_device_for(s.hw.device_process.pid, 1.0, STOP_S, stopped)
+        th = _stop_device_for(s, 1.0, STOP_S, stopped)
         result = s.run(3.0)
         th.join()
     if result.events:
@@ -133,8 +150,9 @@ def test_a_host_that_stops_calling_still_trips_the_watchdog_and_the_summary_says
 def test_a_dead_link_trips_link_loss_and_leaves_the_pwm_unconfirmed_saying_why(slow_watchdog):
     with open_session(slow_watchdog, "sim", controller="pid", reference="step") as s:
         proc = s.hw.device_process
-        threading.Timer(1.0, lambda: proc.control("stall 2000")).start()  # the device runs, sends nothing
+        th = _at_session_time(s, 1.0, lambda: proc.control("stall 2000"))  # the device runs, sends nothing
         result = s.run(2.5)
+        th.join(timeout=5.0)
     ev = result.events[0]
     assert ev.reason == "link_loss" and "not a host stall" in ev.cause and "could run" in ev.cause
     assert result.pwm_off_at_end is None and result.pwm_unconfirmed.startswith("unconfirmed: the link was lost")
