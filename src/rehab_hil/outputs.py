@@ -12,6 +12,7 @@ import os
 import re
 import shutil
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -24,7 +25,7 @@ def replacing(path: str | Path) -> Iterator[Path]:
     """A temporary file beside ``path`` (same folder, so the rename is atomic) that becomes ``path``
     when the block ends without an exception, and is removed when it does not."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.partial")  # two writers, two files
     try:
         yield tmp
         os.replace(tmp, path)

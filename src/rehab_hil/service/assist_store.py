@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rehab_hil.outputs import name_part
+from rehab_hil.outputs import name_part, replacing
 
 __all__ = ["FORMAT", "AssistanceStore", "Stored", "default_assistance_dir"]
 
@@ -98,12 +98,10 @@ class AssistanceStore:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         data = {"format": FORMAT, "key": self.key, "assistance": assistance, "sessions": sessions, "ended": ended,
                 "saved_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds")}
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
+        with replacing(self.path) as tmp, open(tmp, "w", encoding="utf-8") as f:
             f.write(json.dumps(data, indent=1) + "\n")
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, self.path)
 
 
 def _key_difference(stored: Any, wanted: dict[str, Any]) -> str:

@@ -35,7 +35,7 @@ import numpy as np
 
 from rehab_hil.controllers.rig_learning import RigLearner, RigLearningSpec
 from rehab_hil.models.engine import cache_dir
-from rehab_hil.outputs import name_part
+from rehab_hil.outputs import name_part, replacing
 
 __all__ = ["LEAD_S", "LOCKSTEP_REPLAN_WAIT_S", "RigLearning", "TableStore", "default_store_dir"]
 
@@ -75,9 +75,8 @@ class TableStore:
 
     def save(self, table: np.ndarray, trials: int) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp.npz")
-        np.savez(tmp, table=table, trials=np.array(trials), plan_key=np.array(self.plan_key))
-        os.replace(tmp, self.path)
+        with replacing(self.path) as tmp, open(tmp, "wb") as f:  # a file object: savez adds no suffix
+            np.savez(f, table=table, trials=np.array(trials), plan_key=np.array(self.plan_key))
 
 
 
