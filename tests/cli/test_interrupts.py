@@ -59,8 +59,11 @@ def assert_one_line(code: int, err: str, command: str) -> None:
 
 def test_ctrl_c_while_the_command_starts(tmp_path):
     out = tmp_path / "run.csv"
-    cmd = Command("simulate", "--config", str(FE), "--scenario", "step", "--duration", "0.5", "--out", str(out))
+    # an hour of simulated time: the command must still be running when Ctrl-C comes (0.5 s of it ended within
+    # 0.4 s on a fast machine with a warm cache, and the test then saw exit 0)
+    cmd = Command("simulate", "--config", str(FE), "--scenario", "step", "--duration", "3600", "--out", str(out))
     time.sleep(0.4)  # importing numpy, pydantic, the plants
+    assert cmd.proc.poll() is None, "".join(cmd.err)
     code, err = cmd.interrupt()
     assert_one_line(code, err, "simulate")
     assert not out.exists()

@@ -13,16 +13,43 @@ import hashlib
 import importlib.util
 import inspect
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 
 from rehab_hil.models.layout import Layout, PartLayout, Span
 from rehab_hil.progress import watch_compiles
 
-__all__ = ["cache_dir", "engine_for"]
+__all__ = ["cache_dir", "ctrl_c_held", "engine_for"]
 
 _LOADED: dict[str, ModuleType] = {}
+
+
+@contextmanager
+def ctrl_c_held() -> Iterator[None]:
+    """Hold a Ctrl-C that comes during the block and raise it when the block ends.
+
+    numba boxes the arrays a compiled function returns with a call into Python (its unpickler); a
+    Ctrl-C pending from the long loop before raises inside that call, and numba then fails with a
+    ``SystemError`` or, sometimes, a segmentation fault (numba 0.68). Compiled code cannot be stopped
+    midway anyway, so holding the interrupt costs nothing. Outside the main thread (which alone runs
+    Python's signal handlers) the block runs as it is."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield
+        return
+    held: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if held:
+        previous(signal.SIGINT, None)
 
 
 def cache_dir() -> Path:

@@ -24,7 +24,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
-from rehab_hil.models.engine import engine_for
+from rehab_hil.models.engine import ctrl_c_held, engine_for
 from rehab_hil.models.layout import Layout, PartLayout
 
 __all__ = ["Connection", "Diagram", "DiagramError", "Part", "njit"]
@@ -333,11 +333,12 @@ class CompiledSystem:
         P = self.params if params is None else np.asarray(params, dtype=float)
         if P.shape != self.params.shape:
             raise DiagramError(f"parameter vector has shape {P.shape}, expected {self.params.shape}")
-        X, Y = self.engine.simulate(
-            (self.x0 if x0 is None else np.asarray(x0, float)).copy(),
-            (self.xd0 if xd0 is None else np.asarray(xd0, float)).copy(),
-            U, P, self.dt, self.substeps, self.out_slots(outputs), *self.workspace(),
-        )
+        with ctrl_c_held():  # a Ctrl-C during the compiled loop would crash numba's return (see ctrl_c_held)
+            X, Y = self.engine.simulate(
+                (self.x0 if x0 is None else np.asarray(x0, float)).copy(),
+                (self.xd0 if xd0 is None else np.asarray(xd0, float)).copy(),
+                U, P, self.dt, self.substeps, self.out_slots(outputs), *self.workspace(),
+            )
         t = np.arange(n_steps) * self.dt
         return SimulationResult(t, {n: Y[:, i] for i, n in enumerate(outputs)}, X, self.diagram.state_names)
 
