@@ -195,14 +195,15 @@ def test_recording_read_while_running_holds_everything_up_to_the_last_flush(bind
             s = _sample(i)
             rec.offer(SampleRecord(float(i), i * 0.001, s, est.update(s.encoder_count, s.device_time_us, (512, 0)),
                              Command((0.01, 0.0), 0, True), i, 23.0))
-        deadline = time.monotonic() + 10.0
-        while rec.rows < 200 and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.2)  # at least one flush after the last record
-        csv = read_csv(rec.csv_path)  # the run has not ended: no close() yet
-        assert list(csv["sample_index"].astype(int)) == list(range(200))
-        got = [m["sample_index"] for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/sample"]
-        assert got == list(range(200))
+
+        def mcap_indices() -> list[int]:  # the run has not ended: no close() yet
+            return [m["sample_index"] for topic, _, m in read_mcap(rec.mcap_path) if topic == "/rig/sample"]
+
+        deadline = time.monotonic() + 30.0  # a flush every 0.05 s; a busy machine delays the writer's thread
+        while len(mcap_indices()) < 200 and time.monotonic() < deadline:  # the MCAP is flushed after the CSV
+            time.sleep(0.05)
+        assert mcap_indices() == list(range(200))
+        assert list(read_csv(rec.csv_path)["sample_index"].astype(int)) == list(range(200))
     finally:
         rec.close()
     assert [m["sample_index"] for t, _, m in read_mcap(rec.mcap_path) if t == "/rig/sample"] == list(range(200))
