@@ -92,3 +92,35 @@ def test_ctrl_c_while_discrepancy_fits_leaves_no_report_folder(tmp_path):
     code, err = cmd.interrupt()
     assert_one_line(code, err, "discrepancy")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["measured.csv"]  # no report folder, no staging folder
+
+
+LOST_CTRL_C = """
+import sys
+import time
+from rehab_hil.cli import keep_ctrl_c
+
+if sys.argv[1] == "keep":
+    sys.unraisablehook = keep_ctrl_c
+
+class Interrupted:  # a KeyboardInterrupt where Python cannot propagate it, as in the import lock's callback
+    def __del__(self):
+        raise KeyboardInterrupt
+
+try:
+    Interrupted()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 2.0:  # the main thread's next safe points
+        pass
+    print("ran on")
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+@pytest.mark.parametrize(("hook", "expected"), [("keep", "interrupted"), ("python", "ran on")])
+def test_a_ctrl_c_python_would_drop_is_raised_again(hook, expected):
+    """The CI failure of a Ctrl-C during start-up: 'Exception ignored in: <function _get_module_lock.<locals>.cb>
+    ... KeyboardInterrupt', and the command ran to its end. Python's own hook is the case that shows it."""
+    proc = subprocess.run([sys.executable, "-c", LOST_CTRL_C, hook], capture_output=True, text=True, timeout=60,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert proc.stdout.strip() == expected, proc.stderr

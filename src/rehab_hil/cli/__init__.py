@@ -6,19 +6,23 @@ the file and key or line, and exit with status 2; no traceback.
 
 from __future__ import annotations
 
+import _thread
 import argparse
 import importlib
 import os
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 # One BLAS thread per process, unless the user says otherwise: the matrices here are small, and a
 # BLAS pool's idle workers spin on the second core beside the real-time loop (a 100 x 100 solve took
 # 4 ms in the twin's thread with the default pool on 2 busy cores). Set before numpy is first loaded.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__all__ = ["SUBCOMMANDS", "UserError", "config_file", "device_arg", "interrupted", "main", "writable_folder"]
+__all__ = ["SUBCOMMANDS", "UserError", "config_file", "device_arg", "interrupted", "keep_ctrl_c", "main",
+           "writable_folder"]
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
@@ -108,11 +112,26 @@ def interrupted(exc: BaseException) -> bool:
     return False
 
 
+def keep_ctrl_c(unraisable: Any) -> None:
+    """A ``sys.unraisablehook`` that does not lose Ctrl-C: an interrupt raised where Python cannot
+    propagate it (the import lock's weakref callback, a ``__del__``) is printed "Exception ignored" and
+    dropped, and the command would run on; it is raised again at the main thread's next safe point."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt):
+        # from another thread 50 ms on, once this hook has returned (an interrupt raised in the hook is dropped for
+        # good); it calls the SIGINT handler as a new Ctrl-C would, and does nothing when SIGINT is ignored
+        again = threading.Timer(0.05, _thread.interrupt_main)
+        again.daemon = True
+        again.start()
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """The command line: 0 done, 1 a session that tripped, 2 a user error (one line), 130 Ctrl-C
     (one line, wherever it came: while importing, compiling the model or fitting)."""
     words = list(sys.argv[1:] if argv is None else argv)
     command = next((w for w in words if not w.startswith("-")), "")
+    previous_hook, sys.unraisablehook = sys.unraisablehook, keep_ctrl_c
     try:
         return _main(words)
     except BaseException as e:
@@ -120,6 +139,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"\nrehab-hil {command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        sys.unraisablehook = previous_hook
 
 
 def _main(words: list[str]) -> int:
