@@ -93,8 +93,8 @@ def state_scales(replay: Replay, P: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     not one this drive makes (a wire colder than ambient, 7 C fitted on an SMA record whose first
     heating the nominal model found too strong), so the nuisance fit stays inside it."""
     s = replay.system
-    X, _ = s.engine.simulate(s.x0.copy(), s.xd0.copy(), replay.U, P[:replay.n_diagram_params], s.dt, s.substeps,
-                             s.out_slots(replay.channels[:1]), *s.workspace())
+    X, _ = s.run_arrays(s.x0.copy(), s.xd0.copy(), replay.U, P[:replay.n_diagram_params],
+                        s.out_slots(replay.channels[:1]), s.workspace())
     X = np.vstack([s.x0, np.nan_to_num(X)])
     scales = np.maximum(np.maximum(np.std(X, axis=0), 0.1 * np.abs(s.x0)), 1e-3)
     pad = RANGE_MARGIN * (X.max(axis=0) - X.min(axis=0))

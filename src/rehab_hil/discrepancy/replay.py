@@ -192,8 +192,8 @@ class Replay:
         scales = P[npar:]
         if scales.size and np.any(scales != 1.0):
             U = U * scales
-        _, Y = s.engine.simulate(x, xd, np.ascontiguousarray(U), np.ascontiguousarray(P[:npar]), s.dt, s.substeps,
-                                 self._slots(), *s.workspace())
+        _, Y = s.run_arrays(x, xd, np.ascontiguousarray(U), np.ascontiguousarray(P[:npar]), self._slots(),
+                            s.workspace())
         return Y
 
     def use_segments(self, segment_s: float) -> None:

@@ -333,14 +333,18 @@ class CompiledSystem:
         P = self.params if params is None else np.asarray(params, dtype=float)
         if P.shape != self.params.shape:
             raise DiagramError(f"parameter vector has shape {P.shape}, expected {self.params.shape}")
-        with ctrl_c_held():  # a Ctrl-C during the compiled loop would crash numba's return (see ctrl_c_held)
-            X, Y = self.engine.simulate(
-                (self.x0 if x0 is None else np.asarray(x0, float)).copy(),
-                (self.xd0 if xd0 is None else np.asarray(xd0, float)).copy(),
-                U, P, self.dt, self.substeps, self.out_slots(outputs), *self.workspace(),
-            )
+        X, Y = self.run_arrays((self.x0 if x0 is None else np.asarray(x0, float)).copy(),
+                               (self.xd0 if xd0 is None else np.asarray(xd0, float)).copy(),
+                               U, P, self.out_slots(outputs), self.workspace())
         t = np.arange(n_steps) * self.dt
         return SimulationResult(t, {n: Y[:, i] for i, n in enumerate(outputs)}, X, self.diagram.state_names)
+
+    def run_arrays(self, x: np.ndarray, xd: np.ndarray, U: np.ndarray, P: np.ndarray, out_slots: np.ndarray,
+                   workspace: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """The compiled loop on raw arrays (``x`` and ``xd`` advanced in place): the states and outputs per
+        step. For callers that keep their own workspace; a Ctrl-C during it is raised when it returns."""
+        with ctrl_c_held():  # raised inside numba's return, it would crash the interpreter (see ctrl_c_held)
+            return self.engine.simulate(x, xd, U, P, self.dt, self.substeps, out_slots, *workspace)
 
     def stepper(self, outputs: Sequence[str] | None = None, params: np.ndarray | None = None) -> Stepper:
         return Stepper(self, outputs, params)

@@ -165,8 +165,7 @@ class TwinModel:
 
     def _outputs_at(self, x: np.ndarray, xd: np.ndarray, u: np.ndarray) -> np.ndarray:
         s = self.system
-        _, Y = s.engine.simulate(x.copy(), xd.copy(), u[None, :].copy(), self.P, s.dt, s.substeps, self._slots,
-                                 *self._ws)
+        _, Y = s.run_arrays(x.copy(), xd.copy(), u[None, :].copy(), self.P, self._slots, self._ws)
         return self.sensed(Y)[0]
 
     def realtime_factor(self, seconds: float = 1.0) -> float:
@@ -202,7 +201,7 @@ class TwinModel:
     def run(self, U: np.ndarray, x: np.ndarray, xd: np.ndarray, P: np.ndarray | None = None) -> np.ndarray:
         """Channel outputs of the model steps ``U`` from (x, xd), advanced in place, as the rig reads them."""
         s = self.system
-        _, Y = s.engine.simulate(x, xd, U, self.P if P is None else P, s.dt, s.substeps, self._slots, *self._ws)
+        _, Y = s.run_arrays(x, xd, U, self.P if P is None else P, self._slots, self._ws)
         return self.sensed(Y)
 
     def sensed(self, Y: np.ndarray) -> np.ndarray:

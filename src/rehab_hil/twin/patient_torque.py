@@ -133,8 +133,7 @@ class PatientTorqueEstimator:
         """The change of the estimate that makes the mean of the axis's torque sum over the segment zero
         (the middle of the static friction's band, where a held joint says no more than that)."""
         s = self.model.system
-        _, Y = s.engine.simulate(x0.copy(), xd0.copy(), steps, self.model.P, s.dt, s.substeps, self._sum_slots,
-                                 *self._sum_ws)
+        _, Y = s.run_arrays(x0.copy(), xd0.copy(), steps, self.model.P, self._sum_slots, self._sum_ws)
         return -float(np.mean(Y[:, 0]))
 
     def _run(self, segment: tuple[np.ndarray, ...], delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
