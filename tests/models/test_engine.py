@@ -40,3 +40,23 @@ def test_ctrl_c_during_a_compiled_run_is_a_keyboard_interrupt_when_the_run_retur
     lines = proc.stdout.split("\n")[:-1]
     assert len(lines) == 3 and all(line.startswith("KeyboardInterrupt after") for line in lines), proc.stdout
     assert all(float(line.split()[2]) > 0.3 for line in lines), proc.stdout  # raised when the run returned
+
+
+def test_a_model_recompiles_when_a_helper_its_kernels_import_from_another_module_changes():
+    from rehab_hil.models.engine import kernel_modules
+    from rehab_hil.models.system import Part
+    from rehab_hil.patient.parts import TaskCue
+
+    # the simulated patient's cue calls control.trajectories.open_close_reference inside its kernel: the
+    # class's own modules alone (the key before) left the model compiled against the old reference
+    assert "rehab_hil.control.trajectories" in kernel_modules([TaskCue], Part)
+
+
+def test_an_edit_to_the_diagram_framework_does_not_recompile_every_model():
+    from rehab_hil.models.engine import kernel_modules
+    from rehab_hil.models.mechanics import RotaryInertia
+    from rehab_hil.models.system import Part
+
+    # the key held models/system.py, so any edit there recompiled every model (~400 on this machine, 7 min of
+    # the next make test); its kernel of nothing lives in models/jit.py
+    assert kernel_modules([RotaryInertia], Part) == ("rehab_hil.models.jit", "rehab_hil.models.mechanics")

@@ -4,7 +4,8 @@ The engine source is generated for each diagram structure (which parts, how wire
 slice and wire as a constant, so LLVM inlines the whole closed loop; RK4 stages use a
 preallocated workspace (no allocation per step). It is written to a real file so numba's
 on-disk cache works: a structure compiles once per machine (~10 s) and loads in about a second
-after. The file name hashes the kernels' module sources too, so editing a kernel recompiles.
+after. The file name hashes the source of every module the kernels come from or call into
+(``kernel_modules``), so editing a kernel or a helper it calls recompiles, and nothing else does.
 """
 
 from __future__ import annotations
@@ -16,17 +17,57 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from types import ModuleType
+from types import CodeType, ModuleType
+from typing import Any
 
 from rehab_hil.models.layout import Layout, PartLayout, Span
 from rehab_hil.progress import watch_compiles
 
-__all__ = ["cache_dir", "ctrl_c_held", "engine_for"]
+__all__ = ["KERNELS", "cache_dir", "ctrl_c_held", "engine_for", "kernel_modules"]
 
 _LOADED: dict[str, ModuleType] = {}
+
+
+KERNELS = ("output", "derivatives", "update")  # a part's numba functions (models.system.Part)
+
+
+def kernel_modules(classes: Sequence[type], framework: type) -> tuple[str, ...]:
+    """The modules whose source a compiled model depends on, sorted: those of the part classes and
+    their bases (not ``framework``, the base class, which holds no kernel code) and, followed through
+    every call, those of the jitted functions the kernels call: a helper imported from another module
+    (the simulated patient's reference from ``control.trajectories``) recompiles the model when edited."""
+    modules = {c.__module__ for cls in classes for c in cls.__mro__ if c not in (object, framework)}
+    todo = [getattr(cls, name) for cls in classes for name in KERNELS]
+    seen: set[Any] = set()
+    while todo:
+        fn = getattr(todo.pop(), "py_func", None)  # a numba dispatcher's Python function
+        if fn is None or fn in seen:
+            continue
+        seen.add(fn)
+        modules.add(fn.__module__)
+        todo += _named_callables(fn)
+    return tuple(sorted(modules))
+
+
+def _named_callables(fn: Any) -> list[Any]:
+    """The globals ``fn``'s code names, and the attributes it names of the modules among them (``mod.f``)."""
+    names: set[str] = set()
+    codes = [fn.__code__]
+    while codes:
+        code = codes.pop()
+        names.update(code.co_names)
+        codes += [c for c in code.co_consts if isinstance(c, CodeType)]
+    found = []
+    for name in names:
+        value = fn.__globals__.get(name)
+        if isinstance(value, ModuleType):
+            found += [getattr(value, n) for n in names if hasattr(value, n)]
+        elif value is not None:
+            found.append(value)
+    return found
 
 
 @contextmanager

@@ -21,24 +21,16 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numba
 import numpy as np
 
-from rehab_hil.models.engine import ctrl_c_held, engine_for
+from rehab_hil.models.engine import ctrl_c_held, engine_for, kernel_modules
+from rehab_hil.models.jit import njit, noop
 from rehab_hil.models.layout import Layout, PartLayout
 
 __all__ = ["Connection", "Diagram", "DiagramError", "Part", "njit"]
 
-njit = numba.njit(cache=True, nogil=True, inline="always")
-
-
 class DiagramError(ValueError):
     """A diagram cannot be built: unknown signal, algebraic loop, duplicate name."""
-
-
-@njit
-def _noop(t, x, xd, u, p, out):  # pragma: no cover - compiled
-    pass
 
 
 # A connection feeds one input port: a weighted sum of named signals.
@@ -61,9 +53,9 @@ class Part:
     params: ClassVar[tuple[str, ...]] = ()
     feedthrough: ClassVar[bool | tuple[str, ...]] = True
 
-    output = staticmethod(_noop)
-    derivatives = staticmethod(_noop)
-    update = staticmethod(_noop)
+    output = staticmethod(noop)
+    derivatives = staticmethod(noop)
+    update = staticmethod(noop)
 
     def __init__(
         self,
@@ -163,15 +155,13 @@ class Diagram:
                        wires=tuple(tuple(part.connections[port]) for port in part.inputs))
             for part, (x, xd, u, p, y) in zip(self.parts, spans, strict=True)
         )
-        # The kernels live in the part classes (and their bases); njit and _noop live here.
-        modules = {c.__module__ for part in self.parts for c in type(part).__mro__ if c is not object}
         return Layout(
             parts=parts,
             producers={s: tuple(slots) for s, slots in self.producers.items()},
             input_names=self.input_names,
             order=tuple(self.order),
             n_x=self.n_x, n_xd=self.n_xd, n_w=self.n_w, n_p=self.n_p, n_sig=self.n_sig,
-            kernel_modules=tuple(sorted(modules | {__name__})),
+            kernel_modules=kernel_modules([type(part) for part in self.parts], framework=Part),
         )
 
     def _check_sums(self, owners: Mapping[str, Sequence[str]]) -> None:
