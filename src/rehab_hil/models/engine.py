@@ -17,8 +17,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any
@@ -26,7 +25,7 @@ from typing import Any
 from rehab_hil.models.layout import Layout, PartLayout, Span
 from rehab_hil.progress import watch_compiles
 
-__all__ = ["KERNELS", "cache_dir", "ctrl_c_held", "engine_for", "kernel_modules"]
+__all__ = ["KERNELS", "cache_dir", "call_holding_ctrl_c", "engine_for", "kernel_modules"]
 
 _LOADED: dict[str, ModuleType] = {}
 
@@ -70,27 +69,27 @@ def _named_callables(fn: Any) -> list[Any]:
     return found
 
 
-@contextmanager
-def ctrl_c_held() -> Iterator[None]:
-    """Hold a Ctrl-C that comes during the block and raise it when the block ends.
+def call_holding_ctrl_c(fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)``, with a Ctrl-C that comes meanwhile held and raised when it returns.
 
     numba boxes the arrays a compiled function returns with a call into Python (its unpickler); a
     Ctrl-C pending from the long loop before raises inside that call, and numba then fails with a
     ``SystemError`` or, sometimes, a segmentation fault (numba 0.68). Compiled code cannot be stopped
     midway anyway, so holding the interrupt costs nothing. Outside the main thread (which alone runs
-    Python's signal handlers) the block runs as it is."""
+    Python's signal handlers) it is a plain call: the twin's thread pays no more than the check."""
+    if threading.current_thread() is not threading.main_thread():
+        return fn(*args)
     previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or not callable(previous):
-        yield
-        return
+    if not callable(previous):  # SIGINT ignored or at the OS default: Python raises nothing
+        return fn(*args)
     held: list[int] = []
     signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
     try:
-        yield
+        return fn(*args)
     finally:
         signal.signal(signal.SIGINT, previous)
-    if held:
-        previous(signal.SIGINT, None)
+        if held:
+            previous(signal.SIGINT, None)  # Python's own handler raises KeyboardInterrupt here
 
 
 def cache_dir() -> Path:

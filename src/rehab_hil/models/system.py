@@ -23,7 +23,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from rehab_hil.models.engine import ctrl_c_held, engine_for, kernel_modules
+from rehab_hil.models.engine import call_holding_ctrl_c, engine_for, kernel_modules
 from rehab_hil.models.jit import njit, noop
 from rehab_hil.models.layout import Layout, PartLayout
 
@@ -333,8 +333,9 @@ class CompiledSystem:
                    workspace: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
         """The compiled loop on raw arrays (``x`` and ``xd`` advanced in place): the states and outputs per
         step. For callers that keep their own workspace; a Ctrl-C during it is raised when it returns."""
-        with ctrl_c_held():  # raised inside numba's return, it would crash the interpreter (see ctrl_c_held)
-            return self.engine.simulate(x, xd, U, P, self.dt, self.substeps, out_slots, *workspace)
+        # a Ctrl-C raised inside numba's return could crash the interpreter (see call_holding_ctrl_c)
+        return call_holding_ctrl_c(self.engine.simulate, x, xd, U, P, self.dt, self.substeps, out_slots,
+                                   *workspace)
 
     def stepper(self, outputs: Sequence[str] | None = None, params: np.ndarray | None = None) -> Stepper:
         return Stepper(self, outputs, params)
