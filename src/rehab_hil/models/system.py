@@ -29,6 +29,7 @@ from rehab_hil.models.layout import Layout, PartLayout
 
 __all__ = ["Connection", "Diagram", "DiagramError", "Part", "njit"]
 
+
 class DiagramError(ValueError):
     """A diagram cannot be built: unknown signal, algebraic loop, duplicate name."""
 
