@@ -3,7 +3,7 @@
 Issue 41's target: N real-time sessions of D s each, ``--parallel`` at a time, ``--device sim`` and
 ``--device avr`` alternating, with ``--busy`` busy loops (``sh -c 'while :; do :; done'``) beside
 them. Each session is the real CLI (``rehab-hil run --no-display --record DIR``) in its own process;
-its metadata.json gives the stop reason, every trip with its cause (``service/trip_cause.py``), the
+its metadata.json gives the stop reason, every trip with its cause (``loop/trip_cause.py``), the
 stalls the device reported of its own process and the silences the host excused because the device
 process could not run. A trip whose cause is not "host stall" counts against the target.
 

@@ -37,10 +37,10 @@ def rig(ep: str, rig_id: str, seconds: float) -> None:
     """Publish 1 kHz cycles (sample + command record) for ``seconds`` after 'go' on stdin."""
     import zenoh
 
+    from rehab_hil.loop.controllers import Command
+    from rehab_hil.loop.estimation import State
+    from rehab_hil.loop.records import CommandRecord, SampleRecord
     from rehab_hil.protocol import Sample
-    from rehab_hil.service.controllers import Command
-    from rehab_hil.service.estimation import State
-    from rehab_hil.service.records import CommandRecord, SampleRecord
     from rehab_hil.telemetry import NetworkConfig, TelemetryPublisher, open_session
 
     zenoh.init_log_from_env_or("error")

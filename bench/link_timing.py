@@ -32,11 +32,11 @@ import numpy as np
 
 from rehab_hil.hardware import Arrival, open_rig
 from rehab_hil.loading import load_config
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.records import EventRecord
 from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Fault, Sample
 from rehab_hil.service import assembly
-from rehab_hil.service.estimation import State
-from rehab_hil.service.records import EventRecord
 from rehab_hil.service.session import open_session
 from rehab_hil.testing import push_runtime
 

@@ -124,10 +124,10 @@ def _child_session(args: argparse.Namespace, cfg: Any, conf: Any, hw: Any, rec_d
 
 def _child_loop(args: argparse.Namespace, cfg: Any, conf: Any, hw: Any, rec_dir: str) -> tuple[Any, Any, Any]:
     """The tree before issue 37: the loop wired by hand as its ``rehab-hil run`` did."""
+    from rehab_hil.loop.recorder import Recorder
+    from rehab_hil.loop.runner import LoopService
     from rehab_hil.plants import get_plant
     from rehab_hil.service import assembly
-    from rehab_hil.service.recorder import Recorder
-    from rehab_hil.service.runner import LoopService
     from rehab_hil.telemetry import NetworkConfig
     from rehab_hil.telemetry.rig import RigTelemetry, rig_info
 

@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def run(learning: bool, device_s: float) -> dict[str, float]:
     from rehab_hil.loading import load_config
+    from rehab_hil.loop.estimation import State
     from rehab_hil.service import assembly
-    from rehab_hil.service.estimation import State
     from rehab_hil.service.rig_learning import RigLearning, TableStore
 
     cfg = load_config(ROOT / "configs" / "sma_exoskeleton.toml")

@@ -38,8 +38,8 @@ import numpy as np
 
 from rehab_hil.cli import main
 from rehab_hil.loading import load_config
+from rehab_hil.loop.estimation import State
 from rehab_hil.service import assembly
-from rehab_hil.service.estimation import State
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"

@@ -42,10 +42,10 @@ from link_proxy import LinkProxy  # noqa: E402
 from rehab_hil.devices.spawn import spawn_sim_device  # noqa: E402
 from rehab_hil.hardware import HardwareError, SerialHardware  # noqa: E402
 from rehab_hil.loading import load_config  # noqa: E402
+from rehab_hil.loop.controllers import Command  # noqa: E402
+from rehab_hil.loop.estimation import State  # noqa: E402
 from rehab_hil.plants import get_plant  # noqa: E402
 from rehab_hil.service import assembly  # noqa: E402
-from rehab_hil.service.controllers import Command  # noqa: E402
-from rehab_hil.service.estimation import State  # noqa: E402
 from rehab_hil.service.session import open_session  # noqa: E402
 from rehab_hil.testing import pid_runtime  # noqa: E402
 

@@ -83,7 +83,7 @@ class Hold:
         pass
 
     def __call__(self, t_s: float, state: Any) -> Any:
-        from rehab_hil.service.controllers import Command
+        from rehab_hil.loop.controllers import Command
 
         err = 20.0 - state.angle_deg
         return Command((min(max(0.3 + 0.01 * err, 0.0), 0.6), 0.0), 0, True, 20.0)
@@ -164,8 +164,8 @@ def main() -> None:
     dropped_1k = rig.sink.dropped
     # flat-out: how fast the publisher thread drains a burst (encode + put), samples/s
     burst = 15_000  # below the queue size: nothing dropped
-    from rehab_hil.service.controllers import Command
-    from rehab_hil.service.records import CommandRecord
+    from rehab_hil.loop.controllers import Command
+    from rehab_hil.loop.records import CommandRecord
 
     rec = CommandRecord(time.perf_counter(), 0.0, Command((0.1, 0.0), 0, True, 1.0), 0, 25.0)
     base = rig.sink.published_samples

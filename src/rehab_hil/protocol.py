@@ -204,7 +204,7 @@ class Configure(Message):
 @dataclass(frozen=True)
 class CommandFrame(Message):
     """The COMMAND frame: PWM duty per channel, direction bits and enable; applied on arrival, feeds
-    the watchdog. (``service.controllers.Command`` is the loop's command, in duty 0..1.)"""
+    the watchdog. (``loop.controllers.Command`` is the loop's command, in duty 0..1.)"""
 
     TYPE: ClassVar[int] = 0x03
     FMT: ClassVar[struct.Struct] = struct.Struct("<HHBB")

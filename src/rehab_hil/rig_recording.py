@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.interchange import CsvError, Recording, may_be_empty, read_csv
-from rehab_hil.service.run_dir import METADATA_FILE, read_metadata
+from rehab_hil.loop.run_dir import METADATA_FILE, read_metadata
 
 __all__ = ["LoadedRecording", "load_recording", "read_mcap_recording", "read_recording"]
 
@@ -37,7 +37,7 @@ def read_mcap_recording(path: str | Path) -> tuple[Recording, bool]:
     """The ``/rig/sample`` messages of a session MCAP as columns, and whether the file was cut short
     (no footer: a killed run; everything up to the last complete message is kept). A column with a
     null is left out, except a reference column: NaN where no reference was tracked, as in run.csv."""
-    from rehab_hil.service.recorder import read_mcap
+    from rehab_hil.loop.recorder import read_mcap
 
     path = Path(path)
     try:

@@ -14,8 +14,8 @@ import numpy as np
 
 from rehab_hil import metrics
 from rehab_hil.interchange import CsvError
+from rehab_hil.loop.run_dir import METADATA_FILE, read_metadata
 from rehab_hil.rig_recording import read_recording
-from rehab_hil.service.run_dir import METADATA_FILE, read_metadata
 from rehab_hil.session_metrics import cycle_metrics
 
 __all__ = ["angle_columns", "run_figures"]

@@ -79,7 +79,7 @@ def pid_runtime(cfg, target_deg: float | None = None, *, sine: tuple[float, floa
     from rehab_hil.control.trajectories import SineReference
     from rehab_hil.controllers import ControlContext, Controller, Reference
     from rehab_hil.controllers.pid import PID, PIDSettings, feedback_parts, limit_part
-    from rehab_hil.service.controllers import ControllerRuntime
+    from rehab_hil.loop.controllers import ControllerRuntime
 
     ctx = ControlContext.of(cfg)
     settings = cfg.controllers.get("pid")
@@ -100,7 +100,7 @@ def push_runtime(cfg, duty: float, on_s: float = 600.0, off_s: float = 0.0) -> A
     """A steady open-loop push at ``duty`` (the ``pulsed`` controller, one long pulse)."""
     from rehab_hil.controllers import ControlContext, Reference
     from rehab_hil.controllers.pulsed import Pulsed, PulsedSettings
-    from rehab_hil.service.controllers import ControllerRuntime
+    from rehab_hil.loop.controllers import ControllerRuntime
 
     ctx = ControlContext.of(cfg)
     scale = ctx.ports.actuators[0].duty_scale

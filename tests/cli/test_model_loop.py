@@ -13,7 +13,7 @@ import pytest
 
 from rehab_hil.cli import main
 from rehab_hil.interchange import read_csv
-from rehab_hil.service.recorder import read_mcap
+from rehab_hil.loop.recorder import read_mcap
 
 ROOT = Path(__file__).resolve().parents[2]
 FE = ROOT / "configs" / "finger_extensor.toml"

@@ -22,8 +22,8 @@ from rehab_hil.controllers import (
 from rehab_hil.controllers.pid import limit_part
 from rehab_hil.interfaces import Claims
 from rehab_hil.loading import load_config
-from rehab_hil.service.controllers import ControllerRuntime
-from rehab_hil.service.estimation import State
+from rehab_hil.loop.controllers import ControllerRuntime
+from rehab_hil.loop.estimation import State
 from rehab_hil.testing import CONFIGS
 
 from .conftest import with_text

@@ -17,10 +17,10 @@ import pytest
 from rehab_hil.cli import main
 from rehab_hil.hardware import HardwareError, SerialHardware, on_configure
 from rehab_hil.loading import load_config
+from rehab_hil.loop.estimation import Estimator
 from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Sample
 from rehab_hil.service import assembly
-from rehab_hil.service.estimation import Estimator
 from rehab_hil.service.homing import home, home_count, home_current, home_hard_stop
 from rehab_hil.testing import inprocess_rig
 

@@ -31,12 +31,12 @@ import numpy as np
 import pytest
 
 from rehab_hil.interchange import read_csv
+from rehab_hil.loop.controllers import Command, ControllerRuntime
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.recorder import Recorder, read_mcap
+from rehab_hil.loop.result import RunResult
 from rehab_hil.protocol import Fault
 from rehab_hil.service import assembly
-from rehab_hil.service.controllers import Command, ControllerRuntime
-from rehab_hil.service.estimation import State
-from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.runner import RunResult
 from rehab_hil.service.session import open_session
 from rehab_hil.testing import pid_runtime
 

@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 
 from rehab_hil.interchange import read_csv
-from rehab_hil.service.recorder import read_mcap
+from rehab_hil.loop.recorder import read_mcap
 
 from .conftest import CONFIG
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 ROWS_BEFORE_KILL = 600
-FLUSH_S = 0.1  # the recorder's flush period (service/recorder.py, Recorder(flush_s=0.1), as `run --record` uses it)
+FLUSH_S = 0.1  # the recorder's flush period (loop/recorder.py, Recorder(flush_s=0.1), as `run --record` uses it)
 WORST_WRITER_LATENESS_S = 2.0  # the writer's flushes came up to 1.11 s late (a 1.21 s interval) at load 15 (below)
 
 
@@ -39,7 +39,7 @@ def data_lines(path: Path) -> int:
 
 
 def run_file(out: Path, name: str) -> Path:
-    """``--record DIR`` writes into a fresh run directory inside DIR (service/run_dir.py)."""
+    """``--record DIR`` writes into a fresh run directory inside DIR (loop/run_dir.py)."""
     found = sorted(out.glob(f"*/{name}")) or [out / name]
     return found[-1]
 
@@ -78,7 +78,7 @@ def test_sigkill_mid_recording_leaves_csv_and_mcap_readable_with_every_flushed_s
     n = min(len(idx), len(mcap_idx))
     assert n > 0
     np.testing.assert_array_equal(mcap_idx[:n], idx[:n])  # the same samples, in the same order
-    # The kill can fall between the CSV's write and the MCAP's flush (service/recorder.py writes both
+    # The kill can fall between the CSV's write and the MCAP's flush (loop/recorder.py writes both
     # every flush_s = 0.1 s): the samples one file holds beyond the other are then one flush's batch,
     # i.e. they arrived within one flush interval. A count of rows is no bound: the lockstep loop's rate
     # sets it (275 rows apart were seen, 200 were allowed). The interval is flush_s plus the writer

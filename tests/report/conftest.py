@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rehab_hil.service.run_dir import write_metadata
+from rehab_hil.loop.run_dir import write_metadata
 
 PERIOD_S = 4.0
 FIRST_OPEN_S = 1.0

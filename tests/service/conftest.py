@@ -11,10 +11,10 @@ import pytest
 from rehab_hil.devices.spawn import spawn_sim_device
 from rehab_hil.hardware import SerialHardware
 from rehab_hil.loading import load_config
+from rehab_hil.loop.supervisor import Supervisor
 from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
 from rehab_hil.service.session import open_session
-from rehab_hil.service.supervisor import Supervisor
 from rehab_hil.testing import pid_runtime
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "finger_extensor.toml"

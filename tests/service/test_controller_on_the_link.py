@@ -10,7 +10,7 @@ import pytest
 
 from rehab_hil import metrics
 from rehab_hil.interchange import read_csv
-from rehab_hil.service.recorder import Recorder
+from rehab_hil.loop.recorder import Recorder
 from rehab_hil.service.session import open_session
 from rehab_hil.testing import inprocess_rig
 

@@ -9,10 +9,10 @@ import random
 import pytest
 
 from rehab_hil.control.thermal import FirstOrderThermal
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.protocol import Status
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import State
-from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
 
 DT = 0.001
 

@@ -80,7 +80,7 @@ def test_the_learned_table_starts_the_next_session_on_the_same_rig_and_profile_o
     def session(rig_id: str, profile: Path | None = None, duration_s: float = 20.0) -> dict:
         with open_session(SMA, "inprocess", rig_id=rig_id, profile=profile, learning_store=store) as s:
             r = s.run(duration_s)
-            table = s.controller.learning.table.copy()
+            table = s.controller.learned_table.copy()
         assert r.events == [], r.events
         return {**r.learning, "table": table}
 

@@ -12,11 +12,11 @@ import pytest
 from rehab_hil import metrics
 from rehab_hil.control.thermal import FirstOrderThermal
 from rehab_hil.interchange import read_csv
+from rehab_hil.loop.recorder import Recorder, read_mcap
+from rehab_hil.loop.supervisor import Supervisor
 from rehab_hil.protocol import Status
 from rehab_hil.service import assembly
-from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.session import open_session
-from rehab_hil.service.supervisor import Supervisor
 from rehab_hil.testing import push_runtime
 
 from .conftest import CONFIG

@@ -8,8 +8,8 @@ import math
 
 import pytest
 
+from rehab_hil.loop.controllers import SAFE_COMMAND
 from rehab_hil.protocol import Fault
-from rehab_hil.service.controllers import SAFE_COMMAND
 from rehab_hil.service.session import SessionError, open_session
 from rehab_hil.testing import CONFIGS
 

@@ -1,4 +1,4 @@
-"""The loop's sinks (``service.sinks``): one bounded queue, one overflow policy, a worker whose
+"""The loop's sinks (``loop.sinks``): one bounded queue, one overflow policy, a worker whose
 exception is never silent; and what a failed sink does to a session: a recorder that hits a full
 disk stops it safely (PWM off, a ``sink_failure`` event naming it, what was written still
 readable), a failed telemetry sink is reported and the session goes on to its duration."""
@@ -14,12 +14,12 @@ from rich.console import Console
 
 from rehab_hil.cli.run import summary_table
 from rehab_hil.interchange import read_csv
-from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.records import CommandRecord, EventRecord
-from rehab_hil.service.run_dir import result_metadata
+from rehab_hil.loop.recorder import Recorder, read_mcap
+from rehab_hil.loop.records import CommandRecord, EventRecord
+from rehab_hil.loop.run_dir import result_metadata
+from rehab_hil.loop.sinks import Overflow, Sink, ThreadedSink
+from rehab_hil.loop.stats import QueueSink
 from rehab_hil.service.session import open_session
-from rehab_hil.service.sinks import Overflow, Sink, ThreadedSink
-from rehab_hil.service.telemetry import QueueSink
 
 from .conftest import CONFIG
 
@@ -120,7 +120,7 @@ class DiskFillsUp(Recorder):
 
 def _session(sinks, duration_s: float = 3.0):
     with open_session(CONFIG, "inprocess", controller="pid", reference="step", sinks=tuple(sinks)) as session:
-        return session.loop, session.run(duration_s)
+        return session, session.run(duration_s)
 
 
 def test_a_recorder_on_a_full_disk_stops_the_session_safely_and_keeps_what_it_wrote(binding, tmp_path) -> None:

@@ -20,7 +20,7 @@ from rehab_hil.cli.run import summary_table
 from rehab_hil.controllers import build_controller
 from rehab_hil.devices.avr_device import unavailable_reason
 from rehab_hil.loading import load_config
-from rehab_hil.service.controllers import SAFE_COMMAND
+from rehab_hil.loop.controllers import SAFE_COMMAND
 from rehab_hil.service.session import open_session
 from rehab_hil.testing import CONFIGS
 

@@ -16,14 +16,14 @@ from rehab_hil.control.thermal import FirstOrderThermal
 from rehab_hil.controllers import Reference
 from rehab_hil.interchange import read_csv
 from rehab_hil.interfaces import AdcChannel
+from rehab_hil.loop.controllers import Actuator, Command
+from rehab_hil.loop.estimation import Estimator, State, adc_to_si, unwrap_delta
+from rehab_hil.loop.recorder import Recorder, read_mcap
+from rehab_hil.loop.records import SampleRecord
+from rehab_hil.loop.stats import NullSink, QueueSink, TelemetrySink
+from rehab_hil.loop.supervisor import Supervisor, SupervisorLimits
+from rehab_hil.loop.timing import DeadlineTimer, realtime_setup, realtime_teardown
 from rehab_hil.protocol import Fault, Sample
-from rehab_hil.service.controllers import Actuator, Command
-from rehab_hil.service.estimation import Estimator, State, adc_to_si, unwrap_delta
-from rehab_hil.service.loop import DeadlineTimer, realtime_setup, realtime_teardown
-from rehab_hil.service.recorder import Recorder, read_mcap
-from rehab_hil.service.records import SampleRecord
-from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
-from rehab_hil.service.telemetry import NullSink, QueueSink, TelemetrySink
 
 
 def limits(**kw):
@@ -238,7 +238,7 @@ def _drive(sup: Supervisor, duty: float, reference_deg: float, angle_deg: float,
            t: float = 0.0) -> float:
     """Send ``duty`` towards ``reference_deg`` for ``seconds`` from ``t`` while the encoder reads
     ``angle_deg``; returns the time reached."""
-    from rehab_hil.service.controllers import Command
+    from rehab_hil.loop.controllers import Command
 
     for _ in range(round(seconds / 0.001)):
         sup.admit(t, Command((duty, 0.0), 0, True, reference_deg))
@@ -267,7 +267,7 @@ def test_holding_at_the_reference_or_at_low_duty_never_trips_stuck_sensor():
 
 
 def test_a_moving_encoder_keeps_resetting_the_stuck_timer():
-    from rehab_hil.service.controllers import Command
+    from rehab_hil.loop.controllers import Command
 
     sup = Supervisor(limits(max_heating_s=100.0, stuck_sensor_s=0.5, stuck_min_duty=0.3, stuck_min_error_deg=10.0,
                             stuck_min_motion_deg=1.0), 0.001)

@@ -41,7 +41,7 @@ class RampController:
         pass
 
     def __call__(self, t_s: float, state: object) -> object:
-        from rehab_hil.service.controllers import Command
+        from rehab_hil.loop.controllers import Command
 
         ref = 35.0 + 15.0 * math.sin(8 * t_s)
         effort = 0.02 * (ref - state.angle_deg)  # type: ignore[attr-defined]

@@ -13,10 +13,10 @@ import zenoh
 from rehab_hil.cli import main
 from rehab_hil.interchange import read_csv
 from rehab_hil.loading import load_config
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import Estimator
+from rehab_hil.loop.records import SampleRecord
 from rehab_hil.plants import get_plant
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.records import SampleRecord
 from rehab_hil.telemetry import TelemetryPublisher
 from rehab_hil.telemetry.rig import rig_info
 

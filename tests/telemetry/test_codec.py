@@ -5,10 +5,10 @@ import math
 
 import pytest
 
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.records import CommandRecord, SampleRecord
 from rehab_hil.protocol import Sample
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import State
-from rehab_hil.service.records import CommandRecord, SampleRecord
 from rehab_hil.telemetry.codec import (
     STATE_HEADER,
     STATE_RECORD,

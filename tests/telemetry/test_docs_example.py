@@ -11,10 +11,10 @@ from pathlib import Path
 
 import zenoh
 
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.records import SampleRecord
 from rehab_hil.protocol import Sample
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import State
-from rehab_hil.service.records import SampleRecord
 from rehab_hil.telemetry import NetworkConfig, TelemetryPublisher
 from rehab_hil.telemetry.rig import RigTelemetry
 

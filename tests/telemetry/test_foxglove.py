@@ -13,11 +13,11 @@ from mcap.reader import make_reader
 from rehab_hil.cli import main
 from rehab_hil.config import ConfigError
 from rehab_hil.loading import load_config
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import Estimator
+from rehab_hil.loop.recorder import GENERIC_FIELDS, Recorder, read_mcap
+from rehab_hil.loop.records import SampleRecord
 from rehab_hil.plants import get_plant
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, read_mcap
-from rehab_hil.service.records import SampleRecord
 from rehab_hil.service.session import open_session
 from rehab_hil.telemetry.foxglove import FoxgloveError, FoxgloveLive, rig_prefix, schemas, topics
 from rehab_hil.telemetry.foxglove_layout import layout_json, message_paths

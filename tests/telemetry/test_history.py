@@ -16,8 +16,8 @@ import zenoh
 from rehab_hil.cli import main
 from rehab_hil.interchange import read_csv
 from rehab_hil.loading import load_config
+from rehab_hil.loop.records import SampleRecord
 from rehab_hil.plants import get_plant
-from rehab_hil.service.records import SampleRecord
 from rehab_hil.telemetry import NetworkConfig, TelemetryPublisher, decode_state, subscribe
 from rehab_hil.telemetry.history import BATCH_ATTACHMENT, BatchLedger
 from rehab_hil.telemetry.rig import RigTelemetry

@@ -18,11 +18,11 @@ from mcap.reader import make_reader
 
 from rehab_hil.cli import main
 from rehab_hil.loading import load_config
+from rehab_hil.loop.recorder import Recorder
+from rehab_hil.loop.run_dir import read_metadata
 from rehab_hil.plants import get_plant
 from rehab_hil.protocol import Sample
 from rehab_hil.service import assembly
-from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.run_dir import read_metadata
 from rehab_hil.service.session import open_session as open_rig_session  # beside zenoh's open_session
 from rehab_hil.telemetry import (
     NetworkConfig,

@@ -8,10 +8,10 @@ from collections.abc import Callable
 import zenoh
 from rich.console import Console
 
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.records import CommandRecord, SampleRecord
 from rehab_hil.protocol import Sample
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import State
-from rehab_hil.service.records import CommandRecord, SampleRecord
 from rehab_hil.telemetry.codec import encode_state
 from rehab_hil.telemetry.lab_view import LabView, render_lab
 

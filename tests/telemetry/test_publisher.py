@@ -105,7 +105,7 @@ def test_an_unpublishable_offer_is_counted_and_the_stream_goes_on(client: Callab
 
 
 def test_the_publisher_is_a_loop_telemetry_sink(client: Callable[..., zenoh.Session]) -> None:
-    from rehab_hil.service.telemetry import TelemetrySink
+    from rehab_hil.loop.stats import TelemetrySink
 
     with TelemetryPublisher(client(), "sink1") as pub:
         assert isinstance(pub, TelemetrySink)

@@ -12,8 +12,8 @@ import zenoh
 
 from rehab_hil.hardware.interface import LinkStats
 from rehab_hil.loading import load_config
+from rehab_hil.loop.supervisor import SafetyEvent
 from rehab_hil.plants import get_plant
-from rehab_hil.service.supervisor import SafetyEvent
 from rehab_hil.telemetry import NetworkConfig, TelemetryConfigError, open_session, query_info, subscribe
 from rehab_hil.telemetry.cliargs import PASSWORD_ENV, add_network_args, network_from_args
 from rehab_hil.telemetry.rig import RigTelemetry, rig_info

@@ -15,8 +15,8 @@ import pytest
 from mcap.reader import make_reader
 
 from rehab_hil.loading import load_config
+from rehab_hil.loop.recorder import Recorder, read_mcap
 from rehab_hil.plants import get_plant
-from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.session import open_session
 from rehab_hil.telemetry.foxglove import FoxgloveLive, topics
 from rehab_hil.telemetry.ws_subprotocol import CLASSIC, SDK, rewrite_request, rewrite_response
@@ -165,10 +165,10 @@ def test_a_plain_zenoh_subscriber_written_from_the_docs_alone_decodes_the_publis
                                                                                              tmp_path, wait):
     import math
 
+    from rehab_hil.loop.controllers import Command
+    from rehab_hil.loop.estimation import State
+    from rehab_hil.loop.records import CommandRecord, SampleRecord
     from rehab_hil.protocol import Sample
-    from rehab_hil.service.controllers import Command
-    from rehab_hil.service.estimation import State
-    from rehab_hil.service.records import CommandRecord, SampleRecord
     from rehab_hil.telemetry import TelemetryPublisher
 
     code = _docs_block("### Without this project's code")

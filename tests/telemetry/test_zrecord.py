@@ -11,9 +11,9 @@ import pytest
 import zenoh
 
 from rehab_hil.loading import load_config
+from rehab_hil.loop.recorder import Recorder, read_mcap
 from rehab_hil.plants import get_plant
 from rehab_hil.service import assembly
-from rehab_hil.service.recorder import Recorder, read_mcap
 from rehab_hil.service.session import open_session
 from rehab_hil.telemetry import TelemetryPublisher
 from rehab_hil.telemetry.rig import rig_info

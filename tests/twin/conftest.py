@@ -11,11 +11,11 @@ import numpy as np
 
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.loading import load_config
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import Estimator
+from rehab_hil.loop.records import SampleRecord
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.protocol import DUTY_FULL
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.records import SampleRecord
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

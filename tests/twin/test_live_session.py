@@ -15,7 +15,7 @@ import zenoh
 
 from rehab_hil.cli import main
 from rehab_hil.interchange import read_csv
-from rehab_hil.service.recorder import read_mcap
+from rehab_hil.loop.recorder import read_mcap
 from rehab_hil.telemetry.codec import decode_json
 from rehab_hil.testing import CONFIGS, config_with_changes
 from rehab_hil.twin.outputs import GENERIC_TWIN_FIELDS

@@ -18,12 +18,12 @@ import pytest
 from rehab_hil.controllers import Reference
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.loading import load_config
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import Estimator
+from rehab_hil.loop.records import SampleRecord
 from rehab_hil.patient.truth import TRUTH_FILE, read_truth
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.protocol import DUTY_FULL
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.records import SampleRecord
 from rehab_hil.service.session import open_session
 from rehab_hil.therapy_measures import move_windows
 from rehab_hil.twin.live import Twin

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rehab_hil.service.run_dir import is_run_dir
+from rehab_hil.loop.run_dir import is_run_dir
 
 __all__ = ["load_checked", "missing_channels", "resolve_data"]
 

@@ -25,9 +25,10 @@ from rich.table import Table
 from rehab_hil import shipped
 from rehab_hil.cli import UserError, config_file, device_arg, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError
+from rehab_hil.loop.figures import Progress
+from rehab_hil.loop.result import RunResult
 from rehab_hil.service import assembly
 from rehab_hil.service.errors import SessionError
-from rehab_hil.service.runner import Progress, RunResult
 from rehab_hil.service.session import FoxgloveOptions, RigSession, TelemetryOptions, open_session
 
 
@@ -339,8 +340,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"warning: {note}")
         if session.homed is not None:
             print(f"homed ({session.homed.mode}): encoder count {session.homed.count} at the home pose")
-        if session.foxglove is not None:
-            print(f"Foxglove live view: {session.foxglove.live.url} (layout: {shipped.FOXGLOVE_LAYOUT})")
+        if (fox := session.feature("foxglove")) is not None:
+            print(f"Foxglove live view: {fox.url} (layout: {shipped.FOXGLOVE_LAYOUT})")
         signals: list[int] = []
         result = _run_in_thread(session, args.duration, not args.no_display, console, signals)
     console.print(summary_table(result))

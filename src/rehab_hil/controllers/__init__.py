@@ -1,7 +1,7 @@
 """Controllers declared like plants: one module per controller, each one ``ControllerSpec`` (its
 settings table, what it needs of a plant, and the parts it builds). ``controllers()`` finds them
 by scanning this package; ``build_controller`` turns a config into a checked controller that runs
-offline with the plant model (``closed_loop``) and on the rig (``service/controllers.py``)."""
+offline with the plant model (``closed_loop``) and on the rig (``loop/controllers.py``)."""
 
 from rehab_hil.controllers.base import (
     DT,

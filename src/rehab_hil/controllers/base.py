@@ -7,7 +7,7 @@ rig's state interfaces by the plant's own signal names (the encoder angle ``thet
 axis velocity, the ADC channels) and the sample interval ``dt_s``; they write the plant's actuator
 input (``pwm_duty``, ``power_w``, ``motor_voltage_v``) and the reference it tracked. So the same
 parts compose with the plant model in one diagram offline (``closed_loop``) and run alone on the
-rig, stepped by the loop with dt from device time (``service/controllers.py``). Claims are
+rig, stepped by the loop with dt from device time (``loop/controllers.py``). Claims are
 derived from the parts' inputs and outputs, never typed. In the spirit of ros2_control's
 chainable controllers: reference -> feedforward + feedback -> limits -> actuator.
 """

@@ -269,7 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.uno:
         argv_h += ["-b", str(optiboot_path()), "-u"]
     if args.clock == "realtime" and args.fifo_priority > 0:  # before the harness starts: it inherits the policy
-        from rehab_hil.service.loop import realtime_setup
+        from rehab_hil.loop.timing import realtime_setup
 
         report = realtime_setup(args.fifo_priority)
         print(f"avr device: scheduler {report.scheduler}", file=sys.stderr, flush=True)

@@ -339,7 +339,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"sim device: error: {e}", file=sys.stderr)
         return 2
     if args.clock == "realtime" and args.fifo_priority > 0:
-        from rehab_hil.service.loop import realtime_setup
+        from rehab_hil.loop.timing import realtime_setup
 
         report = realtime_setup(args.fifo_priority)
         print(f"sim device: scheduler {report.scheduler}", file=sys.stderr, flush=True)

@@ -19,11 +19,29 @@ from types import TracebackType
 from rehab_hil.devices.stall import parse_status
 from rehab_hil.devices.starvation import Starvation
 
-__all__ = ["DeviceProcessError", "SimDeviceProcess", "maybe_bridged", "spawn_sim_device", "usb_bridge_wanted"]
+__all__ = ["DeviceProcessError", "DeviceProcessView", "SimDeviceProcess", "maybe_bridged", "spawn_sim_device",
+           "usb_bridge_wanted"]
 
 
 class DeviceProcessError(RuntimeError):
     """The device process failed to start, died, or refused a control command."""
+
+
+class DeviceProcessView:
+    """A local simulated device's process seen from a loop process (``loop.process``): alive, starved;
+    its own stall counts are asked for by the session's process, which holds its control channel."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+
+    def alive(self) -> bool:
+        return Starvation(self.pid).alive()
+
+    def starvation(self) -> Starvation:
+        return Starvation(self.pid)
+
+    def reported_stalls(self) -> dict[str, float]:
+        return {}
 
 
 class SimDeviceProcess:
@@ -98,6 +116,10 @@ class SimDeviceProcess:
             return parse_status(self.control("status", timeout=2.0))
         except (DeviceProcessError, OSError):
             return {}
+
+    def view(self) -> DeviceProcessView:
+        """What a loop process needs of this device's process: whether it runs, and its starvation."""
+        return DeviceProcessView(self.pid)
 
     def set_estop_input(self, active: bool) -> None:
         """Drive the e-stop input pin (active = pressed)."""

@@ -169,7 +169,7 @@ class HardwareInterface(ABC):
         self.last_sample_gap = 0
         self.last_reboot = ""
         # a simulated device this host spawned (devices/spawn.py): its process's stalls are told
-        # apart from the link's (service/trip_cause.py); None for a real board or an in-process device
+        # apart from the link's (loop/trip_cause.py); None for a real board or an in-process device
         self.device_process: Any = None
         self._samples: deque[Arrival] = deque()  # received and not yet read, oldest first
         self.faults_reported: deque[FaultReport] = deque(maxlen=256)  # FAULT frames, oldest first

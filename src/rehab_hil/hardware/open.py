@@ -37,23 +37,24 @@ def inprocess_hardware(binding: Any, *, adc_noise_counts: float = 0.0, seed: int
 def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, baud: int | None = None,
              connect_timeout_s: float = 3.0, write_timeout_s: float = 0.2,
              spawn_args: list[str] | None = None, sim_patient: str | Path | None = None,
-             sim_truth: str | Path | None = None) -> Iterator[HardwareInterface]:
+             sim_truth: str | Path | None = None, cfg: Any = None) -> Iterator[HardwareInterface]:
     """Open ``device`` (see the module docstring) on the plant of ``config_path`` and connect (HELLO);
     closes the hardware and stops a spawned device process on exit. ``lockstep``: the simulated
     device runs in virtual time, one sample period per COMMAND (deterministic; "inprocess" always
     does; "avr": the harness stops simulated time once the firmware has answered the host).
     ``baud``: a serial path's rate (default ``[rig].baud``). ``sim_patient``: a simulated patient
     (``profiles/sim/*.toml``) on a simulated device's plant, its true state written to ``sim_truth``.
-    Failures raise ``HardwareError``."""
+    ``cfg``: ``config_path`` already loaded (a session loads it once). Failures raise ``HardwareError``."""
+    cfg = cfg if cfg is not None else _config(config_path)
     device = resolve_device(device)  # "auto": the one Arduino-like USB serial port (hardware/discovery.py)
-    announce_device(device, config_path, _config(config_path).rig.port)  # which device, on stderr
+    announce_device(device, config_path, cfg.rig.port)  # which device, on stderr
     with ExitStack() as stack:
         hw: HardwareInterface
         patient = ["--sim-patient", str(sim_patient)] if sim_patient is not None else []
         if sim_patient is not None and sim_truth is not None:
             patient += ["--sim-truth", str(sim_truth)]
         if device == "inprocess":
-            hw = _inprocess(stack, config_path, sim_patient, sim_truth)
+            hw = _inprocess(stack, cfg, sim_patient, sim_truth)
         else:
             from rehab_hil.hardware.serial_hw import SerialHardware
 
@@ -64,24 +65,26 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
             elif lockstep:
                 raise HardwareError(f"lockstep is a mode of the simulated devices, not of {device}")
             never = {"resend_s": None} if lockstep else {}  # virtual time: a resend would cost device time
-            hw = SerialHardware(port, baud or _config(config_path).rig.baud, write_timeout_s=write_timeout_s, **never)
+            hw = SerialHardware(port, baud or cfg.rig.baud, write_timeout_s=write_timeout_s, **never)
             hw.device_process = proc
         stack.callback(hw.close)
         hw.connect(timeout=connect_timeout_s)
         yield hw
 
 
-def _inprocess(stack: ExitStack, config_path: str | Path, sim_patient: str | Path | None,
+def _inprocess(stack: ExitStack, cfg: Any, sim_patient: str | Path | None,
                sim_truth: str | Path | None) -> InProcessHardware:
     """The in-process rig, with a simulated patient on its plant when one is given."""
-    binding = _binding(config_path)
+    from rehab_hil.plants import get_plant
+
+    binding = get_plant(cfg.plant).device(cfg)
     if sim_patient is None:
         return inprocess_hardware(binding)
     from rehab_hil.config import ConfigError
     from rehab_hil.devices.patient_plant import patient_plant
 
     try:
-        plant = patient_plant(_config(config_path), binding, sim_patient, sim_truth)
+        plant = patient_plant(cfg, binding, sim_patient, sim_truth)
     except (ConfigError, ValueError) as e:
         raise HardwareError(f"inprocess device: {e}") from None
     if plant.truth_sink is not None:
@@ -109,10 +112,3 @@ def _config(config_path: str | Path) -> Any:
     from rehab_hil.loading import load_config
 
     return load_config(config_path)
-
-
-def _binding(config_path: str | Path) -> Any:
-    from rehab_hil.plants import get_plant
-
-    cfg = _config(config_path)
-    return get_plant(cfg.plant).device(cfg)

@@ -17,6 +17,7 @@ import select
 import threading
 import time
 from collections import deque
+from typing import Any
 
 import serial
 
@@ -36,6 +37,20 @@ from rehab_hil.protocol import (
 )
 
 __all__ = ["SerialHardware"]
+
+
+class _OpenPort:
+    """A port opened by another process and handed over as a file descriptor: what ``SerialHardware``
+    needs of its pyserial object (the marker that it is open, and ``close``)."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+    def fileno(self) -> int:
+        return self.fd
 
 _ACTIVE = LifecycleState.ACTIVE  # read tests against a module global: ~15 ns; the enum class attribute ~100 ns
 
@@ -190,6 +205,49 @@ class SerialHardware(HardwareInterface):
             ser.close()
         except (serial.SerialException, OSError):
             pass
+
+    # ---- crossing to a loop process ------------------------------------------------------------
+
+    @classmethod
+    def handed_over(cls, state: dict[str, Any], fd: int) -> SerialHardware:
+        """The link a session's process handed to a loop process (``loop.process``): its state
+        (``link_state``) and the port's file descriptor, passed to the process as it was started, so the
+        port is neither opened again (an Arduino's reset) nor closed; the session's copy stays open beside
+        it, idle while the loop process runs."""
+        hw = cls.__new__(cls)
+        hw.__dict__.update(state)
+        hw._fd = fd
+        hw._ser = _OpenPort(fd)
+        hw._poll = select.poll()
+        hw._poll.register(fd, _POLLIN)
+        hw._wlock = threading.Lock()
+        hw.stats.bad_frames = hw._decoder.bad
+        return hw
+
+    @property
+    def fd(self) -> int:
+        """The open port's file descriptor (-1 when closed)."""
+        return self._fd
+
+    def link_state(self) -> dict[str, Any]:
+        """What the link knows besides its OS handles: counters, sequence numbers, the lifecycle state,
+        queued samples and a partly decoded frame (``adopt_link_state`` takes it back after a run)."""
+        skip = ("_ser", "_fd", "_poll", "_wlock", "device_process")
+        return {k: v for k, v in self.__dict__.items() if k not in skip}
+
+    def close_handed(self) -> None:
+        """A loop process's end: release its copy of the handed-over port, sending nothing (the session's
+        copy goes on)."""
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            ser.close()
+        self._fd = -1
+        self.state = LifecycleState.FINALIZED
+
+    def adopt_link_state(self, state: dict[str, Any]) -> None:
+        """Go on where a loop process's copy of this link stopped (its bytes were read there)."""
+        self.__dict__.update({k: v for k, v in state.items() if k not in ("_ser", "_fd", "_poll", "_wlock")})
+        self.stats.bad_frames = self._decoder.bad
 
     # ---- internals ----------------------------------------------------------------------------
 

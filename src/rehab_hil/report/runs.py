@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.interchange import CsvError
-from rehab_hil.service.run_dir import METADATA_FILE, RUN_FILES, is_run_dir, read_metadata
+from rehab_hil.loop.run_dir import METADATA_FILE, RUN_FILES, is_run_dir, read_metadata
 
 __all__ = ["ReportError", "RunData", "find_runs", "load_run"]
 

@@ -16,12 +16,12 @@ from rehab_hil.controllers import build_controller as build
 from rehab_hil.controllers.build import Sources
 from rehab_hil.hardware.interface import configure_from_config
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.loop.controllers import ControllerRuntime
+from rehab_hil.loop.estimation import Estimator
+from rehab_hil.loop.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.plants.sections import PlantConfig
 from rehab_hil.protocol import Configure
-from rehab_hil.service.controllers import ControllerRuntime
-from rehab_hil.service.estimation import Estimator
-from rehab_hil.service.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.session_metrics import SessionMeter
 
 __all__ = ["REFERENCES", "ServiceSetupError", "build_controller", "build_estimator", "build_meter", "build_supervisor",

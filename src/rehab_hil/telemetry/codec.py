@@ -13,7 +13,7 @@ import struct
 from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
-from rehab_hil.service.records import CommandRecord, SampleRecord
+from rehab_hil.loop.records import CommandRecord, SampleRecord
 
 __all__ = [
     "JSON_KINDS",

@@ -1,12 +1,12 @@
 """Live view in Foxglove: a Foxglove WebSocket server (foxglove-sdk) fed with a rig's loop records.
 
 ``FoxgloveLive`` owns one server (127.0.0.1 by default); ``add_rig`` gives a ``RigFeed`` per rig,
-which is one of the loop's sinks ("foxglove", a ``service.sinks.ThreadedSink``: ``offer`` only
+which is one of the loop's sinks ("foxglove", a ``loop.sinks.ThreadedSink``: ``offer`` only
 appends to a bounded deque, a full one drops and counts; its thread logs). Channels per rig
 (``<prefix>`` is ``/rig`` for one rig, so the layout in
 ``docs/foxglove_layout.json`` and the MCAP recordings use the same topics): ``<prefix>/sample``,
 ``<prefix>/command``, ``<prefix>/event``, ``<prefix>/stats``, all JSON with JSON schemas. Sample and
-command messages are exactly the recorder's MCAP messages (``service.recorder``); extra channels (the
+command messages are exactly the recorder's MCAP messages (``loop.recorder``); extra channels (the
 twin's ``/twin/prediction``) come as ``MessageRecord`` s. docs/telemetry.md.
 """
 
@@ -25,10 +25,10 @@ from typing import Any
 import foxglove
 
 from rehab_hil.interfaces import DeviceBinding
-from rehab_hil.service.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
-from rehab_hil.service.records import CommandRecord, EventRecord, MessageRecord, SampleRecord
-from rehab_hil.service.sinks import ThreadedSink
-from rehab_hil.service.telemetry import loop_stats
+from rehab_hil.loop.recorder import GENERIC_FIELDS, Recorder, csv_columns, generic_fields
+from rehab_hil.loop.records import CommandRecord, EventRecord, MessageRecord, SampleRecord
+from rehab_hil.loop.sinks import ThreadedSink
+from rehab_hil.loop.stats import loop_stats
 from rehab_hil.telemetry.ws_subprotocol import SubprotocolFront
 
 __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "FoxgloveError", "FoxgloveLive", "LiveView", "RigFeed", "rig_prefix",

@@ -1,7 +1,7 @@
 """A lab of rigs on one zenoh router: rig patterns, rig discovery, recording several rigs at once.
 
 ``LabRecorder`` records every live rig whose id matches a pattern (and those that appear later),
-each into its own run directory (``service.run_dir.new_run_dir``: run.csv, run.mcap, metadata.json).
+each into its own run directory (``loop.run_dir.new_run_dir``: run.csv, run.mcap, metadata.json).
 Zenoh callbacks only note which rigs came and went; info queries and file creation happen on the
 caller's thread (``poll``), never inside a zenoh callback. docs/telemetry.md, "A lab of rigs".
 """
@@ -23,8 +23,8 @@ import zenoh
 
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.loading import load_config
+from rehab_hil.loop.run_dir import new_run_dir, write_metadata
 from rehab_hil.plants import get_plant
-from rehab_hil.service.run_dir import new_run_dir, write_metadata
 from rehab_hil.telemetry.subscriber import query_info, watch_alive
 from rehab_hil.telemetry.zrecord import ZenohRecorder
 

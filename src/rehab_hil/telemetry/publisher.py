@@ -1,7 +1,7 @@
 """``TelemetryPublisher``: the loop's telemetry sink ("telemetry"). ``offer`` never blocks; a worker
 thread publishes.
 
-A ``service.sinks.ThreadedSink``: the loop thread only appends to a bounded queue (a full queue
+A ``loop.sinks.ThreadedSink``: the loop thread only appends to a bounded queue (a full queue
 drops the record and counts it) and, once per cycle after its command is out, calls ``wake``; the
 worker (woken so, or every 2 ms) batches samples and commands into the binary state encoding,
 publishes the loop's safety events (``EventRecord``) on ``.../safety``, stats at 1 Hz, holds the
@@ -24,9 +24,9 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
+from rehab_hil.loop.records import CycleRecord, EventRecord, MessageRecord, SampleRecord
+from rehab_hil.loop.sinks import ThreadedSink
 from rehab_hil.protocol import Sample
-from rehab_hil.service.records import CycleRecord, EventRecord, MessageRecord, SampleRecord
-from rehab_hil.service.sinks import ThreadedSink
 from rehab_hil.telemetry.codec import PayloadError, StateSample, decode_json, encode_json, join_records, pack_record
 from rehab_hil.telemetry.history import BATCH_ATTACHMENT
 from rehab_hil.telemetry.keys import RigKeys

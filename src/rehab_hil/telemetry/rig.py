@@ -16,9 +16,9 @@ from typing import Any
 import zenoh
 
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.loop.records import EventRecord
+from rehab_hil.loop.stats import loop_stats
 from rehab_hil.protocol import PROTOCOL_VERSION
-from rehab_hil.service.records import EventRecord
-from rehab_hil.service.telemetry import loop_stats
 from rehab_hil.telemetry.codec import JSON_VERSION, STATE_VERSION
 from rehab_hil.telemetry.publisher import TelemetryPublisher
 from rehab_hil.telemetry.session import NetworkConfig, TelemetryConfigError, open_session

@@ -1,6 +1,6 @@
 """Record a rig from zenoh into the same CSV and MCAP files a local recording writes.
 
-Decoded ``StateSample`` s are turned back into the loop's records (``service.records``) and handed
+Decoded ``StateSample`` s are turned back into the loop's records (``loop.records``) and handed
 to the loop's ``Recorder`` unchanged, so both paths share one writer (docs/telemetry.md).
 
 Nothing is lost silently. The rig publishes reliably with congestion control BLOCK and the
@@ -26,12 +26,12 @@ from typing import Any
 import zenoh
 
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.loop.controllers import Command
+from rehab_hil.loop.estimation import State
+from rehab_hil.loop.recorder import Recorder
+from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
+from rehab_hil.loop.sinks import Overflow
 from rehab_hil.protocol import Sample
-from rehab_hil.service.controllers import Command
-from rehab_hil.service.estimation import State
-from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.records import CommandRecord, EventRecord, SampleRecord
-from rehab_hil.service.sinks import Overflow
 from rehab_hil.telemetry.codec import StateSample
 from rehab_hil.telemetry.subscriber import Subscription, subscribe, watch_alive
 

@@ -6,7 +6,7 @@ same ``SampleRecord`` s the recorder gets), turns each sample into the model's i
 says it applied) and measured channels, and every ``segment_s`` of samples runs the model
 (``TwinModel``), the residual test (``ResidualMonitor``), the online interaction estimate and,
 after a mismatch, the quick diagnosis. ``LiveTwin`` runs it off the hot path as one of the loop's
-sinks (``service.sinks.ThreadedSink``, named "twin"): the work happens while the loop waits for its
+sinks (``loop.sinks.ThreadedSink``, named "twin"): the work happens while the loop waits for its
 next sample, and gives the interpreter back every few records. A twin that falls behind drops
 records from its queue (counted, reported) and never slows the loop; a twin that fails is reported
 and the session goes on.
@@ -31,8 +31,8 @@ import numpy as np
 from rehab_hil.config import TwinSection
 from rehab_hil.interchange import Recording
 from rehab_hil.interfaces import DeviceBinding
-from rehab_hil.service.records import SampleRecord
-from rehab_hil.service.sinks import Overflow, ThreadedSink
+from rehab_hil.loop.records import SampleRecord
+from rehab_hil.loop.sinks import Overflow, ThreadedSink
 from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
 from rehab_hil.twin.model import TwinModel, TwinSetupError, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor

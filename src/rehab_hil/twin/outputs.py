@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rehab_hil.service.records import EventRecord, MessageRecord
+from rehab_hil.loop.records import EventRecord, MessageRecord
 from rehab_hil.twin.monitor import MismatchEvent
 from rehab_hil.twin.thermal import THERMAL_EVENT, ThermalEvent
 

@@ -1,7 +1,7 @@
 """The loop's sinks: one contract (``Sink``) and one base for sinks that work on a thread of their own
 (``ThreadedSink``): the recorder, the zenoh publisher, the Foxglove feed and the live twin.
 
-The loop offers each record (``service.records``) to every sink right after its command is out and
+The loop offers each record (``loop.records``) to every sink right after its command is out and
 then wakes each sink once; ``offer`` only appends to a bounded deque. What a full queue does is the
 sink's one ``Overflow`` policy: ``DROP`` counts and drops the record (real time: the loop never
 waits), ``WAIT`` holds the producer until there is room (a lockstep session, a zenoh recording:
@@ -23,7 +23,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
-from rehab_hil.service.records import EventRecord
+from rehab_hil.loop.records import EventRecord
 
 __all__ = ["Overflow", "Sink", "ThreadedSink", "sink_report"]
 

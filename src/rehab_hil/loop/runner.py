@@ -1,6 +1,7 @@
 """The real-time loop service: read a sample, estimate, supervise, control, write the command; then,
-with the command out, hand the cycle's records to the sinks (recording, telemetry, Foxglove, the
-twin) and update the figures. Sessions are built around it by ``service.session.open_session``.
+with the command out, hand the cycle's records on (``outlet``): to the figures and the sinks in this
+process (lockstep, ``loop.dispatch``), or into the shared-memory ring that the session's process reads
+(a loop process of its own, ``loop.process``). Sessions are built around it by ``service.session``.
 One run = configure the device, loop for a duration (or until a trip or a stop request), then
 leave the device in the safe state (PWM 0) and report.
 
@@ -10,28 +11,24 @@ monotonic clock and consumes what arrived. Samples that arrive while a cycle is 
 estimated, supervised and recorded, but only the newest is controlled: the older ones are
 coalesced (never caught up) and count as missed cycles.
 
-Nothing but the loop's own work happens before the write: the sinks' threads are woken after it
-and do their work while the loop waits for the next sample.
+Nothing but the loop's own work happens before the write. What comes back to the loop (a stop
+request, a learned table) is taken at a cycle's start (``mail``, a loop process's inbox).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol
 
-import numpy as np
-
-from rehab_hil import metrics
 from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState
-from rehab_hil.protocol import Configure, Sample, Status
-from rehab_hil.service.controllers import SAFE_COMMAND, Command, LoopController
-from rehab_hil.service.estimation import Estimator, State
-from rehab_hil.service.loop import (
+from rehab_hil.loop.controllers import SAFE_COMMAND, Command, LoopController
+from rehab_hil.loop.estimation import Estimator, State
+from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
+from rehab_hil.loop.supervisor import SafetyEvent, Supervisor
+from rehab_hil.loop.timing import (
     HELPER_NICE,
     DeadlineTimer,
     RealtimeReport,
@@ -40,14 +37,10 @@ from rehab_hil.service.loop import (
     realtime_teardown,
     run_queue_wait_s,
 )
-from rehab_hil.service.recorder import Recorder
-from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, SampleRecord
-from rehab_hil.service.sinks import Sink, sink_report
-from rehab_hil.service.supervisor import SafetyEvent, Supervisor
-from rehab_hil.service.trip_cause import StallFacts, explain, pwm_unconfirmed_text
-from rehab_hil.session_metrics import SessionMeter
+from rehab_hil.loop.trip_cause import StallFacts, pwm_unconfirmed_text
+from rehab_hil.protocol import Configure, Sample, Status
 
-__all__ = ["PACINGS", "LoopService", "Progress", "RunResult", "RunState"]
+__all__ = ["PACINGS", "LoopReport", "LoopService", "Outlet", "RunState"]
 
 log = logging.getLogger(__name__)
 # tuple.__new__ builds a record NamedTuple without its generated Python-level __new__ (as its _make
@@ -56,7 +49,7 @@ _new_record = tuple.__new__
 
 CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
 CONFIRM_S = 0.5  # ... and at least this long (host clock) while no sample shows it
-PROGRESS_EVERY = 50  # cycles between updates of the live figures
+STALL_MARK_EVERY = 50  # cycles between marks of the loop thread's run-queue wait (a host stall's baseline)
 RECENT_GAP_S = 1.0  # a gap between two commands this recent can explain a watchdog trip (trip_cause.py)
 CONFIGURE_TIMEOUT_S = 1.0  # a board answers CONFIGURE within milliseconds; 1 s is a dead or wrong port
 # a simulated device spawned here is a process that may wait seconds for a CPU on a busy machine (two
@@ -64,25 +57,25 @@ CONFIGURE_TIMEOUT_S = 1.0  # a board answers CONFIGURE within milliseconds; 1 s 
 LOCAL_DEVICE_CONFIGURE_TIMEOUT_S = 10.0
 
 
+class Outlet(Protocol):
+    """Where the loop's records go after each write: ``loop.dispatch.Dispatch`` (figures and sinks in this
+    process) or ``loop.ring.RingOutlet`` (the shared-memory ring of a loop process)."""
+
+    def cycle(self, samples: list[SampleRecord], command: CommandRecord | None) -> None: ...
+
+    def events(self, events: list[EventRecord]) -> None: ...
+
+
+class Mail(Protocol):
+    """What reaches a loop process from the session's process (``loop.process``): looked at once a cycle."""
+
+    def check(self, loop: LoopService) -> None: ...
+
+
 @dataclass
-class Progress:
-    """Live figures the display thread reads (plain floats; written by the loop thread)."""
-
-    t_s: float = 0.0
-    duration_s: float = 0.0
-    angle_deg: float = math.nan
-    reference_deg: float = math.nan
-    duty: float = 0.0
-    temperature_c: float = math.nan
-    samples: int = 0
-    sample_gaps: int = 0  # samples missing from the device's sample_index sequence
-    tripped: str = ""
-    last_cycle: dict[str, float] = field(default_factory=dict)  # the last finished open-close cycle's figures
-
-
-@dataclass
-class RunResult:
-    """Everything the summary prints."""
+class LoopReport:
+    """What the loop itself knows at its end (it crosses back from a loop process as it is); the session
+    adds the figures of the records, the sinks' reports and its features' results (``RunResult``)."""
 
     pacing: str
     realtime: RealtimeReport | None
@@ -93,46 +86,14 @@ class RunResult:
     reboots: int
     timing: dict[str, float]
     reaction: dict[str, float]
-    tracking: dict[str, float]
     link: dict[str, Any]
     events: list[SafetyEvent]
     final_sample: Sample | None
     stop_reason: str
-    sinks: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> {"dropped": n, "error": str | None}
-    files: list[str] = field(default_factory=list)
-    session: dict[str, float] = field(default_factory=dict)  # per-cycle figures summed up (session_metrics)
-    session_cycles: list[dict[str, float]] = field(default_factory=list)
-    twin: dict[str, Any] = field(default_factory=dict)  # the live twin's summary, model events and estimates
-    learning: dict[str, Any] = field(default_factory=dict)  # the learning on the rig (service/rig_learning.py)
-    assistance: dict[str, Any] = field(default_factory=dict)  # assistance kept across sessions (service/assist_store)
     ran_s: float = math.nan  # device time the session ran until it stopped (a trip, a stop request, the duration)
-    step: dict[str, float] = field(default_factory=dict)  # a step run's response (metrics.recorded_step)
-    # the stalls seen: the host's write gap at the trip, the device's silences while its process could
-    # not run (host view) and the stalls it reported itself (service/trip_cause.py)
-    stalls: dict[str, Any] = field(default_factory=dict)
+    stall_facts: StallFacts | None = None  # the causes of a stall trip are explained from these (trip_cause.py)
     pwm_unconfirmed: str = ""  # why no sample after the trip shows the PWM state ("" = confirmed or not needed)
-
-    @property
-    def recorder_dropped(self) -> int:
-        return int(self.sinks.get("recorder", {}).get("dropped", 0))
-
-    @property
-    def telemetry_dropped(self) -> int:
-        """Drops of the live views: zenoh telemetry and the Foxglove feed."""
-        return sum(int(v["dropped"]) for k, v in self.sinks.items() if k in ("telemetry", "foxglove"))
-
-    @property
-    def twin_dropped(self) -> int:
-        return int(self.sinks.get("twin", {}).get("dropped", 0))
-
-    @property
-    def pwm_off_at_end(self) -> bool | None:
-        """The last sample shows every PWM off; None when no sample after the trip could show it
-        (``pwm_unconfirmed`` says why)."""
-        if self.pwm_unconfirmed:
-            return None
-        s = self.final_sample
-        return s is not None and s.duty0 == 0 and s.duty1 == 0 and not (s.status & Status.PWM_ENABLED)
+    ring_overflow: int = 0  # a loop process's records written over unread ones (loop.ring)
 
 
 class RunState:
@@ -163,15 +124,6 @@ class RunState:
         self.pwm_unconfirmed = ""  # why no sample after a trip shows the PWM state
         self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
         self.ran_s = 0.0  # device time covered when the loop stopped (before the shutdown's samples)
-        # each recorded row's time, reference (of the command in force; NaN: none) and angle, as the
-        # recorder writes them: the summary's tracking figures are run.csv's
-        self.rows = 0
-        self.row_cols = np.full((3, n_max + CONFIRM_CYCLES + 64), np.nan)
-
-    def recorded_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(time, reference, angle) of the rows taken so far (the recording's rows, in order)."""
-        t, r, a = self.row_cols[:, :self.rows]
-        return t, r, a
 
     @property
     def t_s(self) -> float:
@@ -255,25 +207,16 @@ PACINGS = ("device", "host")
 
 
 class LoopService:
-    """Runs one session on a connected ``HardwareInterface``; see the module docstring."""
+    """Runs one session on a connected ``HardwareInterface``; see the module docstring. ``outlet`` takes
+    the records after each write; ``mail`` (a loop process's inbox) is looked at once a cycle."""
 
     def __init__(self, hw: HardwareInterface, configure: Configure, controller: LoopController, estimator: Estimator,
-                 supervisor: Supervisor, period_s: float, sinks: Sequence[Sink] = (),
-                 meter: SessionMeter | None = None) -> None:
+                 supervisor: Supervisor, period_s: float, outlet: Outlet, mail: Mail | None = None) -> None:
         self.hw, self.configure_msg, self.controller = hw, configure, controller
         self.estimator, self.supervisor, self.period_s = estimator, supervisor, period_s
-        self.meter = meter
+        self.outlet, self.mail = outlet, mail
         self._advance = getattr(controller, "advance", None)  # the controller's work that can wait for the write
-        actuator = getattr(controller, "actuator", None)
-        self._effort_of = actuator.effort if actuator is not None else (lambda cmd: math.nan)
-        # who takes the records after the write, and who is woken once they are all there
-        self.sinks = list(sinks)
-        self._sinks = [x.offer for x in self.sinks]
-        self._wakes = [x.wake for x in self.sinks]
-        self.sink_failures: list[str] = []  # one line per sink that stopped working (in the order they did)
-        for x in self.sinks:
-            x.on_failure = self._critical_failure if x.critical else self.sink_failures.append
-        self.progress = Progress()
+        self._last_step = getattr(controller, "last_step", None)  # what it computed, for the learning on the rig
         self._stop_reason = ""
         self._stop_kind = "stop_request"
         self._host_clock = True  # link loss judged on the host's clock (run(lockstep=True): empty waits)
@@ -285,15 +228,9 @@ class LoopService:
         self._stop_kind = kind
         self._stop_reason = reason
 
-    def _critical_failure(self, text: str) -> None:
-        """A critical sink (the recorder) stopped working (a full disk): a session must not go on
-        unrecorded, so the loop trips into the safe state at its next cycle (from the sink's thread)."""
-        self.sink_failures.append(text)
-        self.request_stop(text, "sink_failure")
-
     # ------------------------------------------------------------------------------------------
     def run(self, duration_s: float, pacing: str = "device", realtime: bool = True,
-            sample_timeout_s: float | None = None, lockstep: bool = False) -> RunResult:
+            sample_timeout_s: float | None = None, lockstep: bool = False) -> LoopReport:
         """Loop for ``duration_s`` of samples. ``sample_timeout_s`` (device pacing) is how long a
         cycle waits for its sample before it counts as missing (default: one period; lockstep
         devices on a busy machine need more). ``lockstep``: the device runs in virtual time, so
@@ -302,7 +239,6 @@ class LoopService:
         if pacing not in PACINGS:
             raise ValueError(f"pacing must be 'device' or 'host', got {pacing!r}")
         n_max = max(1, round(duration_s / self.period_s))
-        self.progress.duration_s = duration_s
         s = self.run_state = RunState(self.period_s, n_max, self.hw.stats.reboots)
         pace = (DevicePacing(s, sample_timeout_s or self.period_s) if pacing == "device" else HostPacing(s))
         for t in (0.0, self.period_s):  # warm up: numba kernels (sample, integrate) load before the watchdog runs
@@ -337,8 +273,10 @@ class LoopService:
 
     def _cycles(self, pace: DevicePacing | HostPacing) -> None:
         """The loop: wait and take, judge, control, write; the rest after the write. Each check once."""
-        s, sup = self.run_state, self.supervisor
+        s, sup, mail = self.run_state, self.supervisor, self.mail
         while (timeout := pace.wait()) is not None:
+            if mail is not None:
+                mail.check(self)
             taken = self._take_arrived(timeout)
             if taken == 0 and self._host_clock and sup.silent_beyond_budget(time.perf_counter()):
                 taken = self._take_arrived(0.0)  # a host stalled in its wait: what came meanwhile is no silence
@@ -433,64 +371,26 @@ class LoopService:
 
     # ---- after the write -----------------------------------------------------------------------
     def _after_write(self, t_s: float, state: State, cmd: Command) -> None:
-        """The command is out: the reaction time, the controller's integration ahead, the records, the
-        session meter, the live figures."""
+        """The command is out: the reaction time, the controller's integration ahead, the records."""
         now = time.perf_counter()
         s = self.run_state
         s.reaction.add(now - s.arrival_s)
         if self._advance is not None:
             self._advance()
         s.cycles += 1
-        self._hand_over(_new_record(CommandRecord, (now, t_s, cmd, s.command_seq, self.supervisor.temperature_c)))
-        if self.meter is not None:
-            self._meter()
-        if s.cycles % PROGRESS_EVERY == 0:
-            self._update_progress(t_s, state, cmd)
+        step = self._last_step() if self._last_step is not None else (-1, math.nan, math.nan, 0.0)
+        self.outlet.cycle(s.pending, _new_record(CommandRecord, (now, t_s, cmd, s.command_seq,
+                                                                 self.supervisor.temperature_c, *step)))
+        s.pending = []
+        if s.cycles % STALL_MARK_EVERY == 0:
+            s.wait_mark = (time.perf_counter(), run_queue_wait_s())  # a host stall's baseline (_note_trip_gap)
 
-    def _hand_over(self, command_record: CommandRecord | None = None) -> None:
-        """Offer the samples' records (then the command's) to every sink, and wake each once: they
-        work while the loop waits for the next sample. Each record is also a row of the session's
-        figures, as the recorder writes it (reference of the command in force, the sample's angle)."""
-        s, meter = self.run_state, self.meter
-        cols, n = s.row_cols, s.rows
-        for rec in s.pending:
-            st, cmd = rec.state, rec.command
-            if n < cols.shape[1]:
-                cols[0, n], cols[1, n], cols[2, n] = rec.time_s, cmd.reference_deg, st.angle_deg
-                n += 1
-            if meter is not None:
-                meter.add(rec.time_s, cmd.reference_deg, st.angle_deg, self._effort_of(cmd), st.velocity_rad_s,
-                          rec.temperature_c, meter.torque_of(st.analog))
-        s.rows = n
-        sinks = self._sinks
-        if sinks:
-            for rec in s.pending:
-                for offer in sinks:
-                    offer(rec)
-            if command_record is not None:
-                for offer in sinks:
-                    offer(command_record)
-            for wake in self._wakes:
-                wake()
-        s.pending.clear()
-
-    def _meter(self) -> None:
-        """A finished cycle's figures (the meter has this cycle's rows from ``_hand_over``) to the
-        recording (MCAP ``/rig/cycle``) and the live stats (telemetry, Foxglove)."""
-        assert self.meter is not None
-        cycle = self.meter.poll()
-        if cycle is not None:
-            self.progress.last_cycle = cycle.as_dict()
-            rec = CycleRecord(cycle.as_dict())
-            for offer in self._sinks:
-                offer(rec)
-
-    def _update_progress(self, t_s: float, state: State, cmd: Command) -> None:
-        p, s = self.progress, self.run_state
-        p.t_s, p.angle_deg, p.reference_deg = t_s, state.angle_deg, cmd.reference_deg
-        p.duty, p.temperature_c, p.samples = max(cmd.duty), self.supervisor.temperature_c, s.samples
-        p.sample_gaps = s.sample_gaps
-        s.wait_mark = (time.perf_counter(), run_queue_wait_s())  # a host stall's baseline (_note_trip_gap)
+    def _hand_over(self) -> None:
+        """Samples taken in a cycle that ended before its write, to the outlet."""
+        s = self.run_state
+        if s.pending:
+            self.outlet.cycle(s.pending, None)
+            s.pending = []
 
     # ---- the end -------------------------------------------------------------------------------
     def _shutdown(self) -> None:
@@ -502,14 +402,8 @@ class LoopService:
         if self.hw.state is not LifecycleState.ACTIVE:
             return
         self._write(SAFE_COMMAND)
-        if sup.tripped:
-            self.progress.tripped = sup.events[0].reason
-            for ev in sup.events:  # to every sink: recorded, published on zenoh's .../safety, shown
-                rec = EventRecord(ev.t_s, ev.reason, ev.detail)
-                for offer in self._sinks:
-                    offer(rec)
-            for wake in self._wakes:
-                wake()
+        if sup.tripped:  # to every sink: recorded, published on zenoh's .../safety, shown
+            self.outlet.events([EventRecord(ev.t_s, ev.reason, ev.detail) for ev in sup.events])
             if sup.events[0].reason not in ("link_loss",):
                 try:
                     self.hw.estop(timeout=0.5)
@@ -552,10 +446,6 @@ class LoopService:
         self.supervisor.forget_events(n_events)
         self._hand_over()
 
-    def _sink_reports(self) -> dict[str, dict[str, Any]]:
-        names = _unique_names([x.name for x in self.sinks])
-        return {n: sink_report(x) for n, x in zip(names, self.sinks, strict=True)}
-
     def _stall_facts(self) -> StallFacts:
         """What the loop knows of stalls at the end (the device asked for its own count once)."""
         s, sup, proc = self.run_state, self.supervisor, getattr(self.hw, "device_process", None)
@@ -563,29 +453,14 @@ class LoopService:
         return StallFacts(float(self.configure_msg.watchdog_ms), s.trip_gap_s, list(sup.device_stalls), reported,
                           simulated=proc is not None, host_cpu_wait_s=s.trip_cpu_wait_s)
 
-    def _stalls(self, facts: StallFacts) -> dict[str, Any]:
-        return {"host_gap_at_trip_ms": facts.host_gap_s * 1e3 if self.supervisor.tripped else None,
-                "host_cpu_wait_at_trip_ms": facts.host_cpu_wait_s * 1e3 if self.supervisor.tripped else None,
-                "device_silences_not_scheduled": [dataclasses.asdict(x) for x in facts.device_stalls],
-                "device_reported": facts.device_reported}
-
-    def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> RunResult:
+    def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> LoopReport:
         s, sup = self.run_state, self.supervisor
-        _, refs, angles = s.recorded_rows()
-        facts = self._stall_facts()
-        return RunResult(
+        return LoopReport(
             pacing=pace.name, realtime=rt, duration_s=duration_s, cycles=s.cycles, samples=s.samples,
             sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **_speed(s)},
-            reaction=s.reaction.summary(),
-            tracking=metrics.recorded_tracking(refs, angles), ran_s=s.ran_s,
-            link=self.hw.stats.as_dict(), events=[dataclasses.replace(e, cause=explain(e, facts)) for e in sup.events],
-            stalls=self._stalls(facts), pwm_unconfirmed=s.pwm_unconfirmed,
-            final_sample=s.final, sinks=self._sink_reports(),
-            stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached",
-            files=[f for x in self.sinks if isinstance(x, Recorder) for f in x.files],
-            session=self.meter.summary() if self.meter else {},
-            session_cycles=[c.as_dict() for c in self.meter.cycles] if self.meter else [],
-        )
+            reaction=s.reaction.summary(), ran_s=s.ran_s, link=self.hw.stats.as_dict(), events=list(sup.events),
+            stall_facts=self._stall_facts(), pwm_unconfirmed=s.pwm_unconfirmed, final_sample=s.final,
+            stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached")
 
 
 def _configure_timeout_s(lockstep: bool, sample_timeout_s: float | None, device_process: object) -> float:
@@ -594,16 +469,6 @@ def _configure_timeout_s(lockstep: bool, sample_timeout_s: float | None, device_
     if lockstep:
         return max(CONFIGURE_TIMEOUT_S, sample_timeout_s or 0.0)
     return LOCAL_DEVICE_CONFIGURE_TIMEOUT_S if device_process is not None else CONFIGURE_TIMEOUT_S
-
-
-def _unique_names(names: list[str]) -> list[str]:
-    """``names`` with a second "foxglove" as "foxglove-2" (keys of ``RunResult.sinks``)."""
-    seen: dict[str, int] = {}
-    out = []
-    for n in names:
-        seen[n] = seen.get(n, 0) + 1
-        out.append(n if seen[n] == 1 else f"{n}-{seen[n]}")
-    return out
 
 
 def _speed(s: RunState) -> dict[str, float]:

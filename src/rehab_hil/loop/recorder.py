@@ -1,6 +1,6 @@
 """Recording of every sample and command to the interchange CSV and to MCAP, off the loop thread.
 
-``Recorder`` is the loop's critical sink (``service.sinks.ThreadedSink``): the loop offers its
+``Recorder`` is the loop's critical sink (``loop.sinks.ThreadedSink``): the loop offers its
 records after the command is out and wakes the writer once per cycle; the writer then works while
 the loop waits for its next sample, and otherwise every ``flush_s`` (a producer that never calls
 ``wake`` gets its records written in batches). It turns records into CSV rows (plant signal names +
@@ -10,7 +10,7 @@ and PlotJuggler open them), and flushes both files at least every ``flush_s``: a
 files that hold everything up to the last flush. A row's reference is that of the command in force
 when its sample arrived; a row with none (before the first command, the stop's rows) leaves it
 empty in the CSV and null in MCAP, never 0. ``read_mcap`` reads such a file even without its
-footer. The session's metadata (``service/run_dir.py``) goes into MCAP metadata records at the
+footer. The session's metadata (``loop/run_dir.py``) goes into MCAP metadata records at the
 start and the end. A write that fails (a full disk) stops the writer with its error kept; the loop,
 told so, stops the session: a session must not go on unrecorded.
 """
@@ -34,9 +34,9 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from rehab_hil.interfaces import DeviceBinding
+from rehab_hil.loop.records import CommandRecord, CycleRecord, EventRecord, MessageRecord, SampleRecord
+from rehab_hil.loop.sinks import Overflow, ThreadedSink
 from rehab_hil.protocol import DUTY_FULL
-from rehab_hil.service.records import CommandRecord, CycleRecord, EventRecord, MessageRecord, SampleRecord
-from rehab_hil.service.sinks import Overflow, ThreadedSink
 from rehab_hil.session_metrics import CycleMetrics
 
 __all__ = ["GENERIC_FIELDS", "Recorder", "csv_columns", "generic_fields", "read_mcap"]

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SPIN_S", "DeadlineTimer", "RealtimeReport", "TimingStats", "realtime_setup", "realtime_teardown",
-           "run_queue_wait_s"]
+__all__ = ["SPIN_S", "DeadlineTimer", "RealtimeReport", "TimingStats", "lock_memory", "realtime_setup",
+           "realtime_teardown", "run_queue_wait_s"]
 
 SPIN_S = 200e-6  # sleep until this long before the deadline, then spin (sleep overshoots ~60-100 us)
 SWITCH_INTERVAL_S = 50e-6  # the GIL switch interval while the loop runs (CPython's default: 5 ms)
@@ -43,6 +43,7 @@ class RealtimeReport:
     scheduler: str  # "SCHED_FIFO <prio>" or "SCHED_OTHER (<why>)"
     gc_frozen: bool
     switch_interval_s: float = SWITCH_INTERVAL_S
+    process: str = ""  # a loop process's pid, its memory lock and its threads ("": the session's own process)
 
 
 def realtime_setup(fifo_priority: int | None = 10, switch_interval_s: float = SWITCH_INTERVAL_S,
@@ -67,6 +68,23 @@ def realtime_setup(fifo_priority: int | None = 10, switch_interval_s: float = SW
         return RealtimeReport(f"SCHED_OTHER ({type(e).__name__}: SCHED_FIFO not permitted)", True,
                               switch_interval_s)
     return RealtimeReport(f"SCHED_FIFO {fifo_priority}", True, switch_interval_s)
+
+
+def lock_memory() -> str:
+    """Lock the process's pages in RAM, present and future (``mlockall``): a loop process never waits
+    for a page to come back from swap. Says what it got (needs CAP_IPC_LOCK or a large enough
+    RLIMIT_MEMLOCK)."""
+    import ctypes
+    import ctypes.util
+
+    mcl_current, mcl_future = 1, 2
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        if libc.mlockall(mcl_current | mcl_future) != 0:
+            return f"not locked ({os.strerror(ctypes.get_errno())})"
+    except (OSError, AttributeError) as e:
+        return f"not locked ({type(e).__name__})"
+    return "locked"
 
 
 def _renice_other_threads(nice: int) -> None:

@@ -8,12 +8,13 @@ dispatches on the type (``type(r) is SampleRecord``, or ``match``): a command is
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:  # annotations only: the telemetry codec imports this module without the service's weight
+    from rehab_hil.loop.controllers import Command
+    from rehab_hil.loop.estimation import State
     from rehab_hil.protocol import Sample
-    from rehab_hil.service.controllers import Command
-    from rehab_hil.service.estimation import State
 
 __all__ = ["CommandRecord", "CycleRecord", "EventRecord", "LoopRecord", "MessageRecord", "SampleRecord"]
 
@@ -31,13 +32,19 @@ class SampleRecord(NamedTuple):
 
 
 class CommandRecord(NamedTuple):
-    """A command the loop wrote."""
+    """A command the loop wrote, with what its controller computed for it: the row of its periodic table
+    it read, its tracking error, the effort it asked for and the demand its limit did not apply (the
+    learning on the rig learns from these; -1, nan and 0 for a controller without them)."""
 
     host_time_s: float  # when it was out (perf_counter)
     time_s: float  # the time of the sample it answered
     command: Command
     command_seq: int
     temperature_c: float
+    row: int = -1  # the plan row read (-1: no periodic table)
+    error_deg: float = math.nan  # reference - angle the controller saw [deg]
+    effort: float = math.nan  # the effort asked for, after the controller's own limits [actuator unit]
+    saturation: float = 0.0  # the demand the limit cut [actuator unit]
 
 
 class CycleRecord(NamedTuple):

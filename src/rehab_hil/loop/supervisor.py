@@ -21,9 +21,9 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from rehab_hil.control.thermal import ModalThermal
+from rehab_hil.loop.controllers import SAFE_COMMAND, Command
+from rehab_hil.loop.estimation import State
 from rehab_hil.protocol import Fault, Status
-from rehab_hil.service.controllers import SAFE_COMMAND, Command
-from rehab_hil.service.estimation import State
 
 __all__ = ["DeviceStall", "SafetyEvent", "Supervisor", "SupervisorLimits"]
 
@@ -37,7 +37,7 @@ class SafetyEvent:
     t_s: float
     reason: str
     detail: str
-    cause: str = ""  # whose stall it was and how long, with a hint (service/trip_cause.py); "" = a limit
+    cause: str = ""  # whose stall it was and how long, with a hint (loop/trip_cause.py); "" = a limit
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """The loop's telemetry hook: a sink the loop offers records to without ever blocking.
 
 ``TelemetrySink`` is the minimal contract (offer, close) of a telemetry consumer; the loop's sinks
-follow ``service.sinks.Sink``. ``QueueSink`` hands records to a consumer callable on its own thread
+follow ``loop.sinks.Sink``. ``QueueSink`` hands records to a consumer callable on its own thread
 (a ``ThreadedSink``: bounded queue, drops counted). ``loop_stats`` is the 1 Hz stats source.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
-from rehab_hil.service.sinks import ThreadedSink
+from rehab_hil.loop.sinks import ThreadedSink
 
 __all__ = ["NullSink", "QueueSink", "TelemetrySink", "loop_stats"]
 

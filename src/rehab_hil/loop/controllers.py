@@ -19,8 +19,7 @@ import numpy as np
 
 from rehab_hil.controllers.base import DT, Controller, Reference
 from rehab_hil.interfaces import Claims, CommandInterface, DeviceBinding
-from rehab_hil.service.estimation import State
-from rehab_hil.service.rig_learning import RigLearning
+from rehab_hil.loop.estimation import State
 
 __all__ = ["SAFE_COMMAND", "Actuator", "Command", "ControllerRuntime", "LoopController"]
 
@@ -124,20 +123,71 @@ class ControllerRuntime:
                 self._u[names.index(name)] = value
         self._u_prev = self._u.copy()
         self._row = -1  # the plan row the last step read
-        self._table_slot = 0  # the learned table's place in ``_tables``
-        self.learning: RigLearning | None = None
+        self._table_slot = -1  # the learned table's place in ``_tables`` (-1: none learned on the rig)
+        self._offered: tuple[np.ndarray, tuple[np.ndarray, dict[str, float]] | None] | None = None
+        self.swapped_at: list[float] = []  # device times an offered table was taken (a loop process's swaps)
         self.reset()
 
-    def learn_on_rig(self, learning: RigLearning) -> None:
-        """Keep learning the feedforward on the rig (``service/rig_learning.py``): the table read
-        from now on is the learning's (a stored one when the rig and profile have learned before)."""
+    def learn_on_rig(self, table: np.ndarray) -> None:
+        """Read the learned feedforward from now on (``service/rig_learning.py``: a stored table when
+        the rig and patient have learned before); later tables come through ``swap_table``."""
         plan = self._plan
         assert plan is not None and self._tables, "learning on the rig needs a plan table"
         names = self.controller.diagram.input_names
         slots = [j for j, (i, _) in enumerate(self._tables) if names[i] in plan.signals]
         self._table_slot = slots[0]
-        self.learning = learning
-        self._set_table(learning.table)
+        self.swap_table(table)
+
+    def swap_table(self, table: np.ndarray, retune: tuple[np.ndarray, dict[str, float]] | None = None) -> None:
+        """A new learned table (and the re-planned controller's parameters with it), between two samples."""
+        i, _ = self._tables[self._table_slot]
+        self._tables[self._table_slot] = (i, np.asarray(table, float))
+        if retune is not None:
+            self.retune(*retune)
+
+    def offer_table(self, table: np.ndarray, retune: tuple[np.ndarray, dict[str, float]] | None = None) -> None:
+        """A table learned in the session's process while this runtime runs in a loop process: taken at
+        the next swap window the controller names (``RigLearningSpec.swap_s`` to the end of the closed
+        hold, where the table is idle), never in a move."""
+        self._offered = (np.asarray(table, float), retune)
+
+    def _take_offered(self, t_s: float) -> None:
+        spec = self.controller.rig_learning
+        phase = t_s % spec.period_s
+        if spec.swap_s <= phase < 2.0 * spec.swap_s and self._offered is not None:
+            self.swap_table(*self._offered)
+            self._offered = None
+            self.swapped_at.append(t_s)
+
+    @property
+    def learned_table(self) -> np.ndarray | None:
+        """The learned table read now (None: no learning on the rig)."""
+        return self._tables[self._table_slot][1] if self._table_slot >= 0 else None
+
+    def last_step(self) -> tuple[int, float, float, float]:
+        """What the last step computed, for the learning on the rig: (plan row, reference - angle [deg],
+        effort, the demand the limit cut)."""
+        y = self._y
+        error = float(y[1]) - float(self._u_prev[self._i_angle]) if self._i_angle >= 0 else math.nan
+        return self._row, error, float(y[0]), float(y[2])
+
+    def __getstate__(self) -> dict[str, object]:
+        """Everything but the compiled engine (a loop process compiles it again from the diagram: the
+        on-disk cache makes that a load), so the runtime crosses to the loop process as it is."""
+        state = dict(self.__dict__)
+        state.pop("_engine")
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        ctx = self.controller.ctx
+        self._engine = self.controller.diagram.compile(ctx.period_s, 1).engine
+
+    def adopt(self, other: ControllerRuntime) -> None:
+        """Take the states, tables and parameters ``other`` ended with (the loop process's copy of this
+        runtime, back after its run): a kept assistance reads them."""
+        self._x, self._xd, self._params, self._tables = other._x, other._xd, other._params, other._tables
+        self.swapped_at = list(other.swapped_at)
 
     def discrete_states(self, qualified: tuple[str, ...]) -> dict[str, float]:
         """The named discrete states now (``part.state``: an assistance learned in this session)."""
@@ -165,10 +215,6 @@ class ControllerRuntime:
             if name in names:
                 self._u[names.index(name)] = self._u_prev[names.index(name)] = value
 
-    def _set_table(self, table: np.ndarray) -> None:
-        i, _ = self._tables[self._table_slot]
-        self._tables[self._table_slot] = (i, np.asarray(table, float))
-
     @property
     def name(self) -> str:
         """The declared controller's name."""
@@ -191,18 +237,10 @@ class ControllerRuntime:
         self._ahead_s = 0.0  # of the interval after the last step, already integrated by ``advance``
 
     def advance(self) -> None:
-        """After the command is out: the learning's record of this sample (a new table at a swap
-        point), then integrate one period ahead with the effort just applied (the interval to the
-        next sample, when none is lost), so the next call only takes the sample."""
-        if self.learning is not None and self._t_last is not None and self._i_angle >= 0:
-            y = self._y
-            new = self.learning.record(self._t_last, self._row, float(y[1]) - float(self._u_prev[self._i_angle]),
-                                       float(y[0]), float(y[2]))
-            if new is not None:
-                self._set_table(new)
-                retuned = self.learning.take_retune()
-                if retuned is not None:
-                    self.retune(*retuned)
+        """After the command is out: integrate one period ahead with the effort just applied (the
+        interval to the next sample, when none is lost), so the next call only takes the sample."""
+        if self._offered is not None and self._t_last is not None:
+            self._take_offered(self._t_last)
         if self._t_last is None or self._ahead_s:
             return
         sig, w, stage, _ = self._ws

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from rehab_hil.service.supervisor import DeviceStall, SafetyEvent
+from rehab_hil.loop.supervisor import DeviceStall, SafetyEvent
 
 __all__ = ["HINT", "StallFacts", "explain", "pwm_unconfirmed_text"]
 

@@ -1,0 +1,371 @@
+"""The real-time loop in a process of its own: nothing else in it holds its interpreter lock.
+
+A real-time session's loop runs in a spawned process (``LoopProcess``) that holds the link (the open
+serial port, handed over as a file descriptor), the controller, the estimator and the supervisor, and
+nothing else: no helper thread runs Python there. It asks for SCHED_FIFO and locks its memory. Every
+sample, command and event goes into the shared-memory ring (``loop.ring``); the session's process reads
+the ring on a thread of its own and hands the records to the figures, the feeds and the sinks
+(``loop.dispatch``: the recorder, zenoh, Foxglove, the twin), which may stall for as long as the ring
+holds (``ring.RING_S``) without losing a record. What flows back (a stop request, a learned table) goes
+through the mailbox (``loop.mailbox``), looked at once a cycle.
+
+Either side's death is a safety event with the PWM off: the loop process looks at its parent each
+cycle and, if the session's process is gone, trips (``session_lost``), sends PWM 0 and ESTOP and ends;
+the session's process sees the loop process end without its report and sends ESTOP itself over its
+copy of the link (``loop_process_lost``, with the exit status).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import select
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from rehab_hil.hardware.interface import HardwareError
+from rehab_hil.loop.dispatch import Dispatch
+from rehab_hil.loop.mailbox import Mailbox, MailboxFull
+from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
+from rehab_hil.loop.ring import RING_S, RecordRing, RingReader, RingWriter
+from rehab_hil.loop.runner import LoopReport, LoopService
+from rehab_hil.loop.supervisor import SafetyEvent
+from rehab_hil.loop.timing import lock_memory
+
+__all__ = ["LoopJob", "LoopProcess", "RingOutlet", "can_cross"]
+
+PUMP_IDLE_S = 0.002  # the ring reader's sleep when the ring is empty (a record waits at most this long)
+LINK_EVERY = 100  # commands between writes of the link's counters for the live views
+PARENT_CHECK_EVERY = 10  # cycles between the loop process's looks at its parent
+START_TIMEOUT_S = 120.0  # spawning, importing and loading the controller's kernels (a busy machine: seconds)
+END_TIMEOUT_S = 30.0  # from the end of the loop's duration to its report (the shutdown's confirmation: < 1 s)
+
+
+class RingOutlet:
+    """The loop process's outlet: each record into the ring (``loop.runner.Outlet``), and every
+    ``LINK_EVERY`` commands the link's counters."""
+
+    def __init__(self, writer: RingWriter, link_stats: Any) -> None:
+        self.writer, self.link_stats = writer, link_stats
+        self._sample, self._command = writer.sample, writer.command
+        self.n = 0
+
+    def cycle(self, samples: list[SampleRecord], command: CommandRecord | None) -> None:
+        for rec in samples:
+            self._sample(rec)
+        if command is not None:
+            self._command(command)
+            self.n += 1
+            if self.n % LINK_EVERY == 0:
+                self.writer.link(self.link_stats)
+
+    def events(self, events: list[EventRecord]) -> None:
+        for rec in events:
+            self.writer.event(rec)
+
+
+class ProcessMail:
+    """The loop process's look at the session, once a cycle: messages in the mailbox, its parent, and
+    (``writer`` given) a ring that overflowed."""
+
+    def __init__(self, mailbox: Mailbox, parent_pid: int, writer: RingWriter | None = None) -> None:
+        self.mailbox, self.parent_pid, self.writer = mailbox, parent_pid, writer
+        self.n = 0
+
+    def check(self, loop: LoopService) -> None:
+        if self.mailbox.waiting():
+            for message in self.mailbox.take():
+                _act(loop, message)
+        self.n += 1
+        if self.n % PARENT_CHECK_EVERY:
+            return
+        if os.getppid() != self.parent_pid:
+            loop.request_stop("the session's process ended (it reads the ring: recording, telemetry, the twin)",
+                              "session_lost")
+        elif self.writer is not None and self.writer.overflow:
+            loop.request_stop(f"the session's readers fell {self.writer.capacity} records behind the ring "
+                              "(its length): the recording would have a hole", "sink_failure")
+
+
+def _act(loop: LoopService, message: tuple[Any, ...]) -> None:
+    """One message from the session: ("stop", reason, kind) or ("table", table, retune)."""
+    if message[0] == "stop":
+        loop.request_stop(message[1], message[2])
+    elif message[0] == "table":
+        loop.controller.offer_table(message[1], message[2])  # type: ignore[attr-defined]
+
+
+@dataclass
+class LoopJob:
+    """Everything the loop process needs, pickled into its stdin when it is started."""
+
+    link: dict[str, Any]  # the connected SerialHardware's state (``link_state``)
+    fd: int  # its port's file descriptor, passed to the process (the same number there)
+    device: Any  # a local simulated device's process (``DeviceProcessView``), or None
+    configure: Any
+    controller: Any
+    estimator: Any
+    supervisor: Any
+    period_s: float
+    ring: str
+    mailbox: str
+    parent_pid: int
+    run: dict[str, Any]  # LoopService.run's keyword arguments
+    trip_on_overflow: bool = False
+
+
+def can_cross(hw: Any, controller: Any) -> str:
+    """Why this session's loop cannot run in a process of its own ("" when it can): a link that is not a
+    serial port (the in-process device is lockstep by nature), or a controller that does not pickle."""
+    import pickle
+
+    if not hasattr(hw, "link_state"):
+        return f"the {type(hw).__name__} link stays in the session's process"
+    try:
+        pickle.dumps(controller)
+    except Exception as e:  # a test's own controller class defined where a spawned process cannot import it
+        return f"its controller {type(controller).__name__} cannot be sent to a loop process ({type(e).__name__})"
+    return ""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The loop process (``python -m rehab_hil.loop.process RESULT_FD``): the job from stdin, run, the report
+    and the link's state back through ``RESULT_FD``."""
+    from rehab_hil.hardware.serial_hw import SerialHardware
+
+    result_fd = int((argv or sys.argv[1:])[0])
+    job: LoopJob = pickle.load(sys.stdin.buffer)
+    hw = SerialHardware.handed_over(job.link, job.fd)
+    hw.device_process = job.device
+    report = _run(job, hw)
+    with os.fdopen(result_fd, "wb") as out:
+        pickle.dump((report, hw.link_state(), job.controller), out, protocol=pickle.HIGHEST_PROTOCOL)
+    hw.close_handed()
+    return 0
+
+
+def _run(job: LoopJob, hw: Any) -> LoopReport:
+    """Attach the ring and the mailbox, lock the memory, run the loop."""
+    memory = lock_memory()
+    ring, mailbox = RecordRing.attach(job.ring), Mailbox.attach(job.mailbox)
+    writer = RingWriter(ring)
+    loop = LoopService(hw, job.configure, job.controller, job.estimator, job.supervisor, job.period_s,
+                       RingOutlet(writer, hw.stats),
+                       ProcessMail(mailbox, job.parent_pid, writer if job.trip_on_overflow else None))
+    report = loop.run(**job.run)
+    if report.realtime is not None:
+        where = f"loop process {os.getpid()}, memory {memory}, {threading.active_count()} thread(s)"
+        report.realtime = dataclasses.replace(report.realtime, process=where)
+    if report.events and report.events[0].reason == "session_lost":
+        print(f"rehab-hil loop: {report.events[0].detail}; the rig was left with PWM 0 and ESTOP sent",
+              file=sys.stderr, flush=True)
+    report.ring_overflow = writer.overflow
+    return report
+
+
+class RingLink:
+    """The link's figures while a loop process holds it: the counters from the ring, the rest (latency)
+    as the session's copy last knew them (the loop's report has the whole)."""
+
+    def __init__(self, ring: RecordRing, hw: Any) -> None:
+        self.ring, self.hw = ring, hw
+
+    @property
+    def stats(self) -> RingLink:
+        return self
+
+    def as_dict(self) -> dict[str, Any]:
+        d = self.hw.stats.as_dict()
+        if self.ring.buf is not None:
+            d.update(self.ring.link_counts())
+        d["bad_frames"] = {"all": d["bad_frames"]} if isinstance(d["bad_frames"], int) else d["bad_frames"]
+        return d
+
+
+class LoopProcess:
+    """The session's handle on a loop process; ``run`` spawns it and returns its ``LoopReport``."""
+
+    separate = True
+
+    def __init__(self, hw: Any, configure: Any, controller: Any, estimator: Any, supervisor: Any, period_s: float,
+                 dispatch: Dispatch, analog_names: tuple[str, ...], ring_s: float = RING_S,
+                 trip_on_overflow: bool = False) -> None:
+        """``trip_on_overflow``: a record lost for want of room in the ring stops the loop (a session that
+        records must not go on with a hole in its recording)."""
+        self.hw, self.configure, self.controller = hw, configure, controller
+        self.estimator, self.supervisor, self.period_s = estimator, supervisor, period_s
+        self.dispatch = dispatch
+        self.ring = RecordRing.for_session(1.0 / period_s, ring_s)
+        self.mailbox = Mailbox.create()
+        self.reader = RingReader(self.ring, analog_names)
+        self.overflow = 0
+        self.trip_on_overflow = trip_on_overflow
+        self.link = RingLink(self.ring, hw)
+        self.pid: int | None = None
+        self._stop: tuple[str, str] | None = None
+        self._done = threading.Event()
+
+    @property
+    def progress(self) -> Any:
+        return self.dispatch.figures.progress
+
+    @property
+    def ring_s(self) -> float:
+        """How long the session's process may stall without losing a record."""
+        return self.ring.capacity * self.period_s / 2.5
+
+    def request_stop(self, reason: str, kind: str = "stop_request") -> None:
+        """Stop at the loop's next cycle through the safe state (any thread; before ``run``: at its start)."""
+        self._stop = (reason, kind)
+        try:
+            self.mailbox.post(("stop", reason, kind), timeout_s=0.5, stop=True)
+        except (MailboxFull, ValueError, TypeError):
+            pass  # not taken yet: the loop's first look at the mail, or it has ended
+
+    def offer_table(self, table: Any, retune: Any = None) -> bool:
+        """A learned table for the controller's next swap window; False if the loop has not taken the
+        ones before it (counted by the caller as late)."""
+        try:
+            self.mailbox.post(("table", table, retune), timeout_s=0.5)
+        except MailboxFull:
+            return False
+        return True
+
+    def run(self, **run: Any) -> LoopReport:
+        job = LoopJob(self.hw.link_state(), self.hw.fd, _view(self.hw), self.configure, self.controller,
+                      self.estimator, self.supervisor, self.period_s, self.ring.name, self.mailbox.name, os.getpid(),
+                      run, self.trip_on_overflow)
+        result_r, result_w = os.pipe()
+        try:
+            proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.loop.process", str(result_w)],
+                                    stdin=subprocess.PIPE, pass_fds=(self.hw.fd, result_w))
+        finally:
+            os.close(result_w)
+        self.pid = proc.pid
+        if self._stop is not None:  # a stop asked for while it started
+            self.request_stop(*self._stop)
+        pump = threading.Thread(target=self._pump, name="ring-reader", daemon=True)
+        pump.start()
+        try:
+            _send(proc, job)
+            got = self._wait(proc, result_r, run)
+        finally:
+            self._done.set()
+            pump.join()
+            os.close(result_r)
+        return got
+
+    def _wait(self, proc: subprocess.Popen[bytes], result_r: int, run: dict[str, Any]) -> LoopReport:
+        """The loop process's report, or, if it ended without one, the rig made safe from here."""
+        data = _read_all(result_r, proc, START_TIMEOUT_S + run["duration_s"] + END_TIMEOUT_S)
+        if proc.poll() is None and data:
+            try:
+                proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                pass
+        try:
+            report, link, controller = pickle.loads(data)
+        except Exception:  # nothing, or half a report: it died
+            return self._lost(proc, run)
+        self.hw.adopt_link_state(link)
+        if hasattr(self.controller, "adopt"):
+            self.controller.adopt(controller)
+        self.overflow = getattr(report, "ring_overflow", 0)
+        self._device_said(report)
+        return report
+
+    def _device_said(self, report: LoopReport) -> None:
+        """A local simulated device's own stall counts, asked for here (this process holds its control
+        channel), into the report's stall facts."""
+        proc, facts = getattr(self.hw, "device_process", None), report.stall_facts
+        if proc is not None and facts is not None and facts.simulated and proc.alive():
+            facts.device_reported = proc.reported_stalls()
+
+    def _lost(self, proc: subprocess.Popen[bytes], run: dict[str, Any]) -> LoopReport:
+        """The loop process ended (or hung) without its report: ESTOP from this side, a safety event."""
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        code = proc.returncode
+        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit status {code}"
+        detail = f"the loop process {proc.pid} ended without its report ({how})"
+        try:
+            self.hw.estop(timeout=0.5)
+            detail += "; ESTOP sent from the session's process"
+        except HardwareError as e:
+            detail += f"; ESTOP not confirmed: {e}"
+        t_s = self.dispatch.figures.progress.t_s
+        event = SafetyEvent(t_s, "loop_process_lost", detail)
+        self.dispatch.events([EventRecord(t_s, event.reason, detail)])
+        return LoopReport(pacing=run.get("pacing", "device"), realtime=None, duration_s=run["duration_s"],
+                          cycles=self.dispatch.figures.commands,
+                          samples=self.dispatch.figures.progress.samples, sample_gaps=0, reboots=0, timing={},
+                          reaction={}, link=self.hw.stats.as_dict(), events=[event], final_sample=None,
+                          stop_reason="safety trip: loop_process_lost",
+                          pwm_unconfirmed="the loop process ended: no sample after the trip was read")
+
+    def _pump(self) -> None:
+        """The ring reader: records to the dispatch until the loop process is done and the ring is read."""
+        take, records = self.reader.take, self.dispatch.records
+        while True:
+            got = take()
+            if got:
+                records(got)
+                continue
+            if self._done.is_set():
+                got = take()
+                if not got:
+                    return
+                records(got)
+            else:
+                time.sleep(PUMP_IDLE_S)
+
+    def reports(self) -> dict[str, dict[str, Any]]:
+        """The ring's line in ``RunResult.sinks``: records the writer put over unread ones, and those the
+        session's reader found gone."""
+        return {"ring": {"dropped": self.reader.lost, "overflow": self.overflow, "error": None,
+                         "holds_s": round(self.ring_s, 1)}}
+
+    def close(self) -> None:
+        self.ring.close()
+        self.mailbox.close()
+
+
+def _view(hw: Any) -> Any:
+    """What the loop process needs of a local simulated device's process (None: a real board)."""
+    proc = getattr(hw, "device_process", None)
+    return proc.view() if proc is not None and hasattr(proc, "view") else None
+
+
+def _send(proc: subprocess.Popen[bytes], job: LoopJob) -> None:
+    """The job into the loop process's stdin (a process that died at its start: its exit is seen next)."""
+    assert proc.stdin is not None
+    try:
+        proc.stdin.write(pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL))
+        proc.stdin.close()
+    except (BrokenPipeError, OSError):
+        pass
+
+
+def _read_all(fd: int, proc: subprocess.Popen[bytes], timeout_s: float) -> bytes:
+    """Everything the loop process writes to ``fd`` until it closes it (its end), or the timeout."""
+    chunks, deadline = [], time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.2)
+        if ready:
+            chunk = os.read(fd, 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+        elif proc.poll() is not None and not select.select([fd], [], [], 0)[0]:
+            break
+    return b"".join(chunks)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
