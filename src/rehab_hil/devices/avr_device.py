@@ -269,10 +269,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.uno:
         argv_h += ["-b", str(optiboot_path()), "-u"]
     if args.clock == "realtime" and args.fifo_priority > 0:  # before the harness starts: it inherits the policy
-        from rehab_hil.loop.timing import realtime_setup
+        from rehab_hil.loop.timing import lock_memory, realtime_setup
 
-        report = realtime_setup(args.fifo_priority)
-        print(f"avr device: scheduler {report.scheduler}", file=sys.stderr, flush=True)
+        report = realtime_setup(args.fifo_priority)  # a real MCU is never descheduled, nor paged out
+        print(f"avr device: scheduler {report.scheduler}, memory {lock_memory()}", file=sys.stderr, flush=True)
     estop = cfg.rig.estop
     driver = _Driver(plant, [*argv_h, str(elf)], estop.normally_closed if estop is not None else False)
     driver.realtime = args.clock == "realtime"

@@ -339,10 +339,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"sim device: error: {e}", file=sys.stderr)
         return 2
     if args.clock == "realtime" and args.fifo_priority > 0:
-        from rehab_hil.loop.timing import realtime_setup
+        from rehab_hil.loop.timing import lock_memory, realtime_setup
 
-        report = realtime_setup(args.fifo_priority)
-        print(f"sim device: scheduler {report.scheduler}", file=sys.stderr, flush=True)
+        report = realtime_setup(args.fifo_priority)  # a real MCU is never descheduled, nor paged out
+        print(f"sim device: scheduler {report.scheduler}, memory {lock_memory()}", file=sys.stderr, flush=True)
     print(device.path, flush=True)
     try:
         device.run(stdin_fd=sys.stdin.fileno())

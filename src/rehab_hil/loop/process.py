@@ -161,9 +161,11 @@ def _run(job: LoopJob, hw: Any) -> LoopReport:
     if report.realtime is not None:
         where = f"loop process {os.getpid()}, memory {memory}, {threading.active_count()} thread(s)"
         report.realtime = dataclasses.replace(report.realtime, process=where)
-    if report.events and report.events[0].reason == "session_lost":
-        print(f"rehab-hil loop: {report.events[0].detail}; the rig was left with PWM 0 and ESTOP sent",
-              file=sys.stderr, flush=True)
+    if os.getppid() != job.parent_pid:  # nobody reads the report: say on the terminal how it ended
+        first = report.events[0] if report.events else None
+        how = f"{first.reason}: {first.detail}" if first is not None else report.stop_reason
+        print(f"rehab-hil loop: the session's process ended; the loop stopped ({how}); the rig was left with "
+              "PWM 0 and ESTOP sent", file=sys.stderr, flush=True)
     report.ring_overflow = writer.overflow
     return report
 
@@ -296,17 +298,19 @@ class LoopProcess:
         detail = f"the loop process {proc.pid} ended without its report ({how})"
         try:
             self.hw.estop(timeout=0.5)
+            self.hw.discard_pending()  # the samples from before the ESTOP
             detail += "; ESTOP sent from the session's process"
         except HardwareError as e:
             detail += f"; ESTOP not confirmed: {e}"
-        t_s = self.dispatch.figures.progress.t_s
+        figures = self.dispatch.figures
+        t_s = float(figures.cols[0, figures.rows - 1]) if figures.rows else 0.0  # the last sample read
         event = SafetyEvent(t_s, "loop_process_lost", detail)
         self.dispatch.events([EventRecord(t_s, event.reason, detail)])
         return LoopReport(pacing=run.get("pacing", "device"), realtime=None, duration_s=run["duration_s"],
                           cycles=self.dispatch.figures.commands,
                           samples=self.dispatch.figures.progress.samples, sample_gaps=0, reboots=0, timing={},
                           reaction={}, link=self.hw.stats.as_dict(), events=[event], final_sample=None,
-                          stop_reason="safety trip: loop_process_lost",
+                          stop_reason="safety trip: loop_process_lost", ran_s=t_s,
                           pwm_unconfirmed="the loop process ended: no sample after the trip was read")
 
     def _pump(self) -> None:

@@ -14,6 +14,7 @@ from typing import Any
 from rehab_hil.loop.dispatch import Dispatch
 from rehab_hil.loop.figures import Progress
 from rehab_hil.loop.process import LoopProcess, can_cross
+from rehab_hil.loop.ring import RING_S
 from rehab_hil.loop.runner import LoopReport, LoopService
 from rehab_hil.service import assembly
 from rehab_hil.service.features.base import SessionParts
@@ -63,7 +64,8 @@ def start_loop(parts: SessionParts, dispatch: Dispatch, stack: ExitStack) -> Loc
     if wanted and not why:
         critical = any(getattr(s, "critical", False) for s in dispatch.sinks)
         handle = LoopProcess(parts.hw, _configure(parts), parts.controller, estimator, supervisor, parts.period_s,
-                             dispatch, tuple(ch.signal for ch in parts.binding.adc), trip_on_overflow=critical)
+                             dispatch, tuple(ch.signal for ch in parts.binding.adc), ring_s=opts.test.ring_s or RING_S,
+                             trip_on_overflow=critical)
         stack.callback(handle.close)
         return handle
     if why:

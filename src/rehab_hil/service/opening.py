@@ -154,4 +154,4 @@ def session_features(loaded: Loaded, parts: SessionParts) -> list[Feature]:
         out += [Twin(), PatientTorque()]
     if hasattr(controller, "controller") and learning_wanted(controller, opts.learning.rig_learning):
         out.append(RigLearningFeature())
-    return out
+    return out + list(opts.test.features)

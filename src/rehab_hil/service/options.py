@@ -87,6 +87,8 @@ class TestOverrides:
     sinks: tuple[Any, ...] = ()  # more sinks after the loop's write (``loop.sinks.Sink``)
     sample_timeout_s: float | None = None  # how long a cycle waits for its sample (None: a period; lockstep 5 s)
     loop_process: bool | None = None  # the loop in a process of its own (None: every real-time session)
+    ring_s: float | None = None  # the loop process's ring, in seconds of records (None: loop.ring.RING_S)
+    features: tuple[Any, ...] = ()  # more session features (``service.features.base.Feature``), opened last
 
 
 _GROUPS = {"rig": RigOptions, "sim": SimulationOptions, "learning": LearningOptions, "views": ViewOptions,
