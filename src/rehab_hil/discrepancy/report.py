@@ -15,7 +15,7 @@ from rehab_hil.discrepancy.parameters import corrected_config_text
 from rehab_hil.discrepancy.result import Result, parameter_sentence
 from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.discrepancy.verdict import channel_unit
-from rehab_hil.discrepancy.wording import effect_words, is_linear, param_label, param_unit
+from rehab_hil.discrepancy.wording import change_words, effect_words, is_linear, param_label, param_unit
 from rehab_hil.effects import EFFECTS
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
@@ -82,6 +82,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path | str, figures: 
             "augmented_holdout": res.metrics("augmented", "holdout"),
         },
         "gap_reduction_pct": gap,
+        "gap_change": {c: change_words(v) for c, v in gap.items()},
         "rounds": _rounds(res),
         "gaps": res.gaps, "at_bound": res.bounds, "records_lack": res.lacking, "dropped_from_best_set": res.dropped,
         "localisation": {
@@ -229,14 +230,14 @@ def _markdown(rep: dict[str, Any]) -> str:
           + ("; every record's fit part then every held-out part" if several else "")
           + "; the gap per record below is the measure a validation record gets, and the validation is always "
           "a whole-record open-loop replay):", "",
-          "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut | "
+          "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | error | "
           "held-out residual | noise floor |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:
         b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
         r = rep["residual"][ch]
         L.append(f"| {ch} | {rep['channel_units'][ch]} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | "
                  f"{a['mae']:.4g} | {b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | "
-                 f"{rep['gap_reduction_pct'][ch]:.1f} % | {r['rms']:.3g} | {r['noise_floor']:.3g} |")
+                 f"{change_words(rep['gap_reduction_pct'][ch])} | {r['rms']:.3g} | {r['noise_floor']:.3g} |")
     L += _gaps_md(rep.get("gaps")) + _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
     if rep.get("records_lack"):
         L += ["", "The records lack: " + "; ".join(rep["records_lack"]) + "."]
@@ -294,10 +295,10 @@ def _validation_md(val: dict[str, Any] | None) -> list[str]:
     if not val:
         return []
     L = ["", f"## Validation on `{val['data']}`", "", f"Replay: {val['replay']}.", "",
-         "| channel | RMSE nominal | RMSE augmented | error cut |", "|---|---|---|---|"]
+         "| channel | RMSE nominal | RMSE augmented | error |", "|---|---|---|---|"]
     for ch in val["channels"]:
         n, a = val["metrics"]["nominal"][ch], val["metrics"]["augmented"][ch]
-        L.append(f"| {ch} | {n['rmse']:.4g} | {a['rmse']:.4g} | {val['error_cut_pct'][ch]:.1f} % |")
+        L.append(f"| {ch} | {n['rmse']:.4g} | {a['rmse']:.4g} | {change_words(val['error_cut_pct'][ch])} |")
     return L
 
 

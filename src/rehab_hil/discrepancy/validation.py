@@ -5,7 +5,8 @@ corrected parameters) and the nominal model are both replayed on the validation 
 its own start state estimated from that record (``initial_state``), with the same replay (the
 recorded controller's closed loop when the config declares it and the record carries its reference:
 EMPS, whose validation run adds known force pulses to the drive input, ``closed_loop.py``). The
-figures are whole-record per-channel RMSE and the cut, nominal -> augmented, on data the fit never saw.
+figures are whole-record per-channel RMSE and the cut, nominal -> augmented, on data the fit never saw,
+worded as what it is ("cut by 81.5 %", "worse by 92.5 %": ``wording.change_words``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.replay import Replay, channel_metrics
 from rehab_hil.discrepancy.result import Result
+from rehab_hil.discrepancy.wording import change_words
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
@@ -41,13 +43,13 @@ class Validation:
     def as_dict(self) -> dict[str, Any]:
         return {"data": self.data, "replay": self.replay, "channels": self.channels,
                 "metrics": {"nominal": self.nominal, "augmented": self.augmented},
-                "error_cut_pct": self.cut_pct}
+                "error_cut_pct": self.cut_pct, "error_change": {c: change_words(v) for c, v in self.cut_pct.items()}}
 
     def lines(self) -> list[str]:
         out = [f"validation on {self.data} ({self.replay}; RMSE of the whole-record open-loop replay):"]
         for c in self.channels:
             out.append(f"  {c:24s} RMSE {self.nominal[c]['rmse']:.4g} -> {self.augmented[c]['rmse']:.4g} "
-                       f"({self.cut_pct[c]:+.1f} % cut)")
+                       f"({change_words(self.cut_pct[c])})")
         return out
 
 
