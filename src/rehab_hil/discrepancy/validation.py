@@ -5,8 +5,10 @@ corrected parameters) and the nominal model are both replayed on the validation 
 its own start state estimated from that record (``initial_state``), with the same replay (the
 recorded controller's closed loop when the config declares it and the record carries its reference:
 EMPS, whose validation run adds known force pulses to the drive input, ``closed_loop.py``). The
-figures are whole-record per-channel RMSE and the cut, nominal -> augmented, on data the fit never saw,
-worded as what it is ("cut by 81.5 %", "worse by 92.5 %": ``wording.change_words``).
+figures are whole-record per-channel RMSE and the cut, nominal -> augmented, worded as what it is
+("cut by 81.5 %", "worse by 92.5 %": ``wording.change_words``). The workflow also judges its
+findings on these records (``judge``): a term that makes them worse than the model as given is not
+reported, so the augmented model scored here holds only what they did not reject.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from rehab_hil.discrepancy.wording import change_words
 from rehab_hil.interchange import Recording
 from rehab_hil.plants import get_plant
 
-__all__ = ["Validation", "validate"]
+__all__ = ["Validation", "validate", "validation_replay"]
 
 
 @dataclass
@@ -53,18 +55,25 @@ class Validation:
         return out
 
 
-def validate(res: Result, cfg: Any, rec: Recording, data_path: str | Path) -> Validation:
-    """Score the nominal and the augmented model of ``res`` on another record of the same plant."""
-    spec = get_plant(cfg.plant)
-    fitted: Replay = res.extras["replay"]
-    replay = Replay.build(spec, cfg, rec, data_path, closed_loop=bool(fitted.loop))
+def validation_replay(fitted: Any, cfg: Any, rec: Recording, data_path: str | Path) -> Replay:
+    """A validation record bound as the fit's records are (``fitted``: their ``Replay`` or
+    ``RecordSet``): the same loop and start rule; a record whose replay has another parameter layout
+    than the fit's (other columns) is refused."""
+    replay = Replay.build(get_plant(cfg.plant), cfg, rec, data_path, closed_loop=bool(fitted.loop))
     first = fitted.replays[0] if hasattr(fitted, "replays") else fitted  # several records: a RecordSet
     replay.start = first.start  # the same start rule as the fit (--start)
+    n_fit, n_val = first.nominal_params().size, replay.nominal_params().size
+    if n_fit != n_val:  # same plant, same config, same effects: only another replay structure differs
+        raise ValueError(f"{data_path}: the validation record's replay has {n_val} parameters, the fit's {n_fit} "
+                         "(a record with other columns than the estimation record)")
+    return replay
+
+
+def validate(res: Result, cfg: Any, rec: Recording, data_path: str | Path) -> Validation:
+    """Score the nominal and the augmented model of ``res`` on another record of the same plant."""
+    replay = validation_replay(res.extras["replay"], cfg, rec, data_path)
     P0 = replay.nominal_params()
     P = np.asarray(res.extras["P"], float)
-    if P.shape != P0.shape:  # same plant, same config, same effects: only another replay structure differs
-        raise ValueError(f"{data_path}: the validation record's replay has {P0.size} parameters, the fit's {P.size} "
-                         "(a record with other columns than the estimation record)")
     n = replay.t.size
     sims = {}
     for name, params in (("nominal", P0), ("augmented", P)):

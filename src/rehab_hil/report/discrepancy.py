@@ -74,9 +74,14 @@ def discrepancy_page(res: Any, rep: dict[str, Any]) -> Page:
                        [[c["effect"], c["kind"], c.get("sentence") or effect_params_text(c)
                          + (f" ({c['description']}; {c['seed']})" if c.get("description") else "")]
                         for c in chosen], left=3))
+    for r in (rep.get("held_out_judgement") or {}).get("rejected", []):
+        page.note(f"Not a finding: {r['sentence']} (augmented.toml keeps the given value).")
     for a in rep.get("aliases") or []:
         page.note(a["sentence"])
     _metrics(page, rep)
+    if rep.get("held_out_judgement"):
+        page.text(f"Findings {rep['held_out_judgement']['summary']} (a term that makes these data worse than its "
+                  "given value is rejected, not a finding).")
     _replay(page, rep)
     _validation(page, rep.get("validation"))
     _joint(page, rep.get("joint_identification"))
