@@ -55,7 +55,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--validate", type=Path, action="append", default=[], metavar="DATA",
                    help="another record of the same plant: the nominal and the augmented model are scored on it "
                         "(fit on --data, validate on DATA), and a term that makes the validation records worse "
-                        "than the model as given is rejected, not reported as a finding; may be repeated")
+                        "than its given value is rejected, not reported as a finding (without --validate, the "
+                        "records' held-out parts judge); may be repeated")
     return p
 
 

@@ -15,11 +15,15 @@ term is judged on held-out data before it is reported:
   sentences;
 - **rule** (``judge``, backward elimination, nothing to tune): while some chosen term, set back to its
   given value (a declared parameter to the config's, an effect off), leaves a lower held-out error
-  than with it, the term whose removal lowers it most is rejected and the rest are refitted on the fit
-  parts without it (a term the refit switches off, a rounding of "off" by ``significance.relevant``, goes
-  too, as the search prunes it); if what is left still scores worse than the model as given, it is
-  rejected as a whole. A rejected term is not a finding: the conclusion says the held-out data rejected it, with
-  the figures, and its given value stays (``augmented.toml`` too).
+  than with it, the term whose removal lowers it most is rejected and the rest are refitted on the
+  fit parts without it (a term the refit leaves a rounding of "off", by ``significance.relevant``,
+  goes too, as the search prunes it); if what is left still scores worse than the model as given, it
+  is rejected as a whole. A rejected term is not a finding: the conclusion says the held-out data
+  rejected it, with the figures, and its given value stays (``augmented.toml`` too).
+
+Without validation records the held-out parts rarely reject anything (the search already asked each
+term to cut their error); they differ where the records do (a KUKA joint's record C supports a
+constant load that records A and B reject, ``tests/discrepancy/test_real_kuka.py``).
 """
 
 from __future__ import annotations
@@ -115,8 +119,8 @@ class HeldOut:
 @dataclass(frozen=True)
 class Rejection:
     """Chosen terms the held-out data rejected: with them (``with_terms``) the held-out error is
-    higher than with their given values (``without``: the other terms as refitted, or the model as
-    given when ``together``)."""
+    higher than with their given values (``without``: the same terms but this one as they were
+    fitted; the model as given when ``together``)."""
 
     terms: tuple[str, ...]
     findings: tuple[str, ...]  # each as the conclusion would have named it ("load.inertia_kg_m2 off by +68.0 %")
