@@ -315,7 +315,7 @@ def _print_emps(runs: dict, fit: dict, nominal: dict) -> None:
         v = runs[name]["validation"]
         m = v["metrics"]
         print(f"  validation ({name} config): drive_input_v RMSE {m['nominal']['drive_input_v']['rmse']:.4g} -> "
-              f"{m['augmented']['drive_input_v']['rmse']:.4g} V ({v['error_cut_pct']['drive_input_v']:+.1f} %), "
+              f"{m['augmented']['drive_input_v']['rmse']:.4g} V ({v['error_change']['drive_input_v']}), "
               f"position_m {m['nominal']['position_m']['rmse']:.3g} -> {m['augmented']['position_m']['rmse']:.3g} m")
     for name in ("nominal", "nominal_warm", "reference"):
         r = runs[name]

@@ -24,8 +24,13 @@ def test_validate_scores_the_augmented_model_on_the_pulse_run_and_the_report_say
     assert rc == 0
     printed = capsys.readouterr().out
     assert "validation on" in printed and "closed loop" in printed
+    assert "(cut by " in printed and "% cut)" not in printed  # a change worded as what it is
     rep = json.loads((out / "report.json").read_text())
     assert rep["validation"]["error_cut_pct"]["drive_input_v"] >= 60.0
+    assert rep["validation"]["error_change"]["drive_input_v"].startswith("cut by ")
+    judged = rep["held_out_judgement"]  # the findings were judged on the validation record, which kept them
+    assert judged["on"] == "the validation records" and judged["rejected"] == []
+    assert judged["final"]["rmse"]["drive_input_v"] < judged["given"]["rmse"]["drive_input_v"]
     assert rep["replay"]["loop"].startswith("closed loop")
     coulomb = next(c for c in rep["chosen"] if c["effect"] == "coulomb_friction")  # a linear axis: newtons
     assert coulomb["units"] == {"level_nm": "N"} and "Karnopp" in coulomb["seed"] and "seed 00" not in coulomb["seed"]

@@ -54,7 +54,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "velocities at 0 when the fitted ones would show)")
     p.add_argument("--validate", type=Path, action="append", default=[], metavar="DATA",
                    help="another record of the same plant: the nominal and the augmented model are scored on it "
-                        "(fit on --data, validate on DATA); may be repeated")
+                        "(fit on --data, validate on DATA), and a term that makes the validation records worse "
+                        "than its given value is rejected, not reported as a finding (without --validate, the "
+                        "records' held-out parts judge); may be repeated")
     return p
 
 
@@ -87,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
             opts = Options(holdout_fraction=args.holdout, max_effects=args.max_effects or (3 if sets else 2),
                            search=args.search, start=args.start)
             res = find_missing_effects(cfg, recs if len(recs) > 1 else recs[0],
-                                       sources if len(recs) > 1 else sources[0], progress, opts)
+                                       sources if len(recs) > 1 else sources[0], progress, opts,
+                                       list(zip(val_recs, args.validate, strict=True)))
             _validate(res, cfg, val_recs, args.validate, progress)
             progress.start("writing report", None)
             with staged_folder(out) as tmp:  # every file, or none: Ctrl-C never leaves a folder with one plot

@@ -31,7 +31,7 @@ from rehab_hil.discrepancy.initial_state import estimate_initial_state
 from rehab_hil.discrepancy.replay import NOISY_SPREAD, Replay, channel_metrics
 from rehab_hil.discrepancy.verdict import noise_floor
 
-__all__ = ["GAP_MEASURE", "RecordSet", "gap", "whole_record"]
+__all__ = ["GAP_MEASURE", "RecordSet", "from_own_start", "gap", "whole_record"]
 
 GAP_MEASURE = ("whole-record replay from the record's own start state, never re-anchored to the measurements "
                "(what `replay` prints)")
@@ -43,15 +43,22 @@ def _pool() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)), thread_name_prefix="records")
 
 
+def from_own_start(replay: Replay, P: np.ndarray, n_fit: int, mode: str | None = None) -> dict[str, np.ndarray]:
+    """The model's outputs over the whole record from its own start state estimated under ``P`` on the
+    first ``n_fit`` samples, in ``mode`` (None: the replay's own); the replay's start state, anchoring
+    and fit start are put back (a model is judged from the start it would have, ``judge``)."""
+    x0, xd0, start, gain = replay.x0, replay.xd0, replay.fit_start, replay.anchor_gain
+    try:
+        estimate_initial_state(replay, P, n_fit)
+        return replay.simulate(P, mode=mode)
+    finally:
+        replay.x0, replay.xd0, replay.fit_start, replay.anchor_gain = x0, xd0, start, gain
+
+
 def whole_record(replay: Replay, P: np.ndarray) -> dict[str, np.ndarray]:
     """The model's outputs over the whole record from its own start state estimated under ``P``,
     never re-anchored (``GAP_MEASURE``); the replay's start state, anchoring and fit start are put back."""
-    x0, xd0, start, gain = replay.x0, replay.xd0, replay.fit_start, replay.anchor_gain
-    try:
-        estimate_initial_state(replay, P, replay.t.size)
-        return replay.simulate(P, mode="open")
-    finally:
-        replay.x0, replay.xd0, replay.fit_start, replay.anchor_gain = x0, xd0, start, gain
+    return from_own_start(replay, P, replay.t.size, "open")
 
 
 def gap(replay: Replay, P: np.ndarray) -> dict[str, dict[str, float]]:

@@ -11,11 +11,12 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy import localise
+from rehab_hil.discrepancy.judge import cut_pct
 from rehab_hil.discrepancy.parameters import corrected_config_text
 from rehab_hil.discrepancy.result import Result, parameter_sentence
 from rehab_hil.discrepancy.shooting import SEGMENT_S
 from rehab_hil.discrepancy.verdict import channel_unit
-from rehab_hil.discrepancy.wording import effect_words, is_linear, param_label, param_unit
+from rehab_hil.discrepancy.wording import change_words, effect_words, is_linear, param_label, param_unit
 from rehab_hil.effects import EFFECTS
 from rehab_hil.loading import load_config
 from rehab_hil.plants import get_plant
@@ -47,8 +48,7 @@ def report_dict(res: Result, config_path: Path, data_path: Path | str, figures: 
     before, after = res.metrics("nominal"), res.metrics("augmented")
     r0, r1 = _residual(res, res.nominal), _residual(res, res.augmented)
     combined0 = np.sqrt(np.mean(r0**2, axis=0))
-    gap = {c: 100.0 * (1.0 - after[c]["rmse"] / before[c]["rmse"]) if before[c]["rmse"] > 0 else 0.0
-           for c in res.channels}
+    gap = {c: cut_pct(before[c]["rmse"], after[c]["rmse"]) for c in res.channels}
     init = res.initial_state
     return _clean({
         "schema": SCHEMA,
@@ -82,6 +82,8 @@ def report_dict(res: Result, config_path: Path, data_path: Path | str, figures: 
             "augmented_holdout": res.metrics("augmented", "holdout"),
         },
         "gap_reduction_pct": gap,
+        "gap_change": {c: change_words(v) for c, v in gap.items()},
+        "held_out_judgement": res.judgement.as_dict() if res.judgement is not None else None,
         "rounds": _rounds(res),
         "gaps": res.gaps, "at_bound": res.bounds, "records_lack": res.lacking, "dropped_from_best_set": res.dropped,
         "localisation": {
@@ -140,12 +142,15 @@ def _rounds(res: Result) -> list[dict[str, Any]]:
 
 def augmented_toml(res: Result, config_path: Path) -> str:
     """The input config's text with each parameter found off corrected in place and one
-    ``[[effects]]`` table per chosen effect appended."""
+    ``[[effects]]`` table per chosen effect appended; a term the held-out data rejected (``judge``) is
+    neither, only a comment that says so (the given value stays)."""
     text = config_path.read_text(encoding="utf-8").rstrip("\n") + "\n"
     if res.parameters:
         declared = {fp.name: fp for fp in get_plant(res.plant).fit_parameters}
         fixes = {declared[f.effect]: 1.0 + f.params["error_fraction"] for f in res.parameters}
         text = corrected_config_text(text, load_config(config_path), fixes)
+    for r in res.rejected:  # kept at the given value: said where the next user of the file looks
+        text += f"\n# rehab-hil discrepancy: {r.sentence()}\n"
     for f in res.chosen:
         if f.kind != "effect":
             continue
@@ -218,6 +223,9 @@ def _markdown(rep: dict[str, Any]) -> str:
             L.append(f"- {c['sentence']} (corrected in augmented.toml)")
             continue
         L.append(f"- `{c['effect']}`: {effect_params_text(c)} ({c['description']}; {c['seed']})")
+    judged = rep.get("held_out_judgement") or {}
+    for r in judged.get("rejected", []):
+        L.append(f"- not a finding: {r['sentence']} (augmented.toml keeps the given value)")
     for a in rep["aliases"]:
         L.append(f"- round {a['round']}: {a['sentence']}")
     L += ["", f"Replay: {rep['replay']['loop']}.",
@@ -229,14 +237,17 @@ def _markdown(rep: dict[str, Any]) -> str:
           + ("; every record's fit part then every held-out part" if several else "")
           + "; the gap per record below is the measure a validation record gets, and the validation is always "
           "a whole-record open-loop replay):", "",
-          "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | gap cut | "
+          "| channel | unit | RMSE before | RMSE after | MAE before | MAE after | max before | max after | error | "
           "held-out residual | noise floor |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for ch in rep["channels"]:
         b, a = rep["metrics"]["nominal"][ch], rep["metrics"]["augmented"][ch]
         r = rep["residual"][ch]
         L.append(f"| {ch} | {rep['channel_units'][ch]} | {b['rmse']:.4g} | {a['rmse']:.4g} | {b['mae']:.4g} | "
                  f"{a['mae']:.4g} | {b['max_abs_error']:.4g} | {a['max_abs_error']:.4g} | "
-                 f"{rep['gap_reduction_pct'][ch]:.1f} % | {r['rms']:.3g} | {r['noise_floor']:.3g} |")
+                 f"{change_words(rep['gap_reduction_pct'][ch])} | {r['rms']:.3g} | {r['noise_floor']:.3g} |")
+    if judged:
+        L += ["", f"Findings {judged['summary']} (a term that makes these data worse than its given value is "
+              "rejected, not a finding)."]
     L += _gaps_md(rep.get("gaps")) + _validation_md(rep.get("validation")) + _joint_md(rep.get("joint_identification"))
     if rep.get("records_lack"):
         L += ["", "The records lack: " + "; ".join(rep["records_lack"]) + "."]
@@ -294,10 +305,10 @@ def _validation_md(val: dict[str, Any] | None) -> list[str]:
     if not val:
         return []
     L = ["", f"## Validation on `{val['data']}`", "", f"Replay: {val['replay']}.", "",
-         "| channel | RMSE nominal | RMSE augmented | error cut |", "|---|---|---|---|"]
+         "| channel | RMSE nominal | RMSE augmented | error |", "|---|---|---|---|"]
     for ch in val["channels"]:
         n, a = val["metrics"]["nominal"][ch], val["metrics"]["augmented"][ch]
-        L.append(f"| {ch} | {n['rmse']:.4g} | {a['rmse']:.4g} | {val['error_cut_pct'][ch]:.1f} % |")
+        L.append(f"| {ch} | {n['rmse']:.4g} | {a['rmse']:.4g} | {change_words(val['error_cut_pct'][ch])} |")
     return L
 
 

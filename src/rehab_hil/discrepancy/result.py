@@ -139,6 +139,12 @@ class Result:
     bounds: list[str] = field(default_factory=list)  # sentences: a fitted value that ended on its bound
     lacking: list[str] = field(default_factory=list)  # experiments the records lack (``experiments``)
     dropped: list[str] = field(default_factory=list)  # terms of the best set that did not pay for themselves
+    judgement: Any = None  # judge.Judgement: the chosen terms judged on held-out data, what they rejected
+
+    @property
+    def rejected(self) -> list[Any]:
+        """The chosen terms the held-out data rejected (``judge.Rejection``): not findings."""
+        return list(self.judgement.rejected) if self.judgement is not None else []
 
     @property
     def named(self) -> list[str]:
@@ -151,8 +157,9 @@ class Result:
 
     @property
     def conclusion(self) -> str:
-        """One line: effects, parameters off, near-aliases (each pair once), an unexplained residual with
-        its size beside the noise floor and the spread, or a fit within the noise (with both figures)."""
+        """One line: effects, parameters off, what the held-out data rejected (with the figures; the
+        given value kept), near-aliases (each pair once), an unexplained residual with its size beside
+        the noise floor and the spread, or a fit within the noise (with both figures)."""
         parts = []
         if self.named:
             unit = "N" if "position" in self.kinds.values() else "N m"
@@ -163,6 +170,7 @@ class Result:
         on_bound = {b.split(" ended on")[0] for b in self.bounds}
         parts += [parameter_sentence(f, f.effect in mixed) for f in self.parameters if f.effect not in on_bound]
         parts += self.bounds
+        parts += [self.judgement.summary(), *(r.sentence() for r in self.rejected)] if self.rejected else []
         seen: set[frozenset[str]] = set()
         for a in self.aliases:  # a pair met again in a later round is said once
             if a.pair not in seen:
@@ -172,7 +180,9 @@ class Result:
         if self.joint is not None:  # a chosen term the record cannot separate from another: said so
             parts += [s for g, s in zip(self.joint.inseparable, self.joint.sentences(), strict=True)
                       if any(m.split(".")[0] in chosen or m in chosen for m in g)]
-        parts += self._residual_sentences(bool(parts))
+        rejections = {r.sentence() for r in self.rejected}  # a rejection is no finding: "no missing effect" stays
+        rejections |= {self.judgement.summary()} if self.rejected else set()
+        parts += self._residual_sentences(any(p not in rejections for p in parts))
         return "; ".join(dict.fromkeys(parts))
 
     def residuals(self) -> dict[str, dict[str, float | bool]]:

@@ -7,8 +7,10 @@
 2. The candidate terms (library effects that attach, declared parameters) are searched as sets
    (``subsets.SetSearch``) under one held-out BIC over all records.
 3. The chosen set's start states are estimated again under it, and the set refitted from them;
-   then every declared parameter is fitted with it (``identify``), and a value that ends on its
-   bound is said to be on its bound (``bounds``), not reported as a finding.
+   the set is judged on held-out data (``judge``: the validation records, else the records'
+   held-out parts), a member that makes them worse than its given value rejected and the rest
+   refitted; then every declared parameter is fitted with what was kept (``identify``), and a value
+   that ends on its bound is said to be on its bound (``bounds``), not reported as a finding.
 4. The gap per record (nominal and augmented) is measured as ``records.GAP_MEASURE``, the measure
    a validation record and ``rehab-hil replay`` use.
 """
@@ -25,9 +27,10 @@ import numpy as np
 from rehab_hil.discrepancy.bounds import at_bound
 from rehab_hil.discrepancy.candidates import candidate_terms
 from rehab_hil.discrepancy.experiments import lacking, mend_suggestions
-from rehab_hil.discrepancy.fitting import fit_joint
+from rehab_hil.discrepancy.fitting import Fit, Term, fit_joint
 from rehab_hil.discrepancy.identify import identify_jointly
 from rehab_hil.discrepancy.initial_state import estimate_initial_state
+from rehab_hil.discrepancy.judge import Judgement, judge_findings
 from rehab_hil.discrepancy.records import GAP_MEASURE, RecordSet
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
@@ -43,8 +46,9 @@ __all__ = ["find_in_records"]
 
 
 def find_in_records(cfg: Any, recs: Sequence[Recording], paths: Sequence[str | Path], progress: Any,
-                    options: Any) -> Result:
-    """Run the set workflow on loaded records (module docstring); ``options`` as ``workflow.Options``."""
+                    options: Any, validation: Sequence[tuple[Recording, str | Path]] = ()) -> Result:
+    """Run the set workflow on loaded records (module docstring); ``options`` as ``workflow.Options``,
+    ``validation`` as ``workflow.find_missing_effects`` takes it."""
     t_start = time.perf_counter()
     spec = get_plant(cfg.plant)
     progress.start(f"replay nominal model on {len(recs)} records", len(recs))
@@ -55,12 +59,9 @@ def find_in_records(cfg: Any, recs: Sequence[Recording], paths: Sequence[str | P
     progress.start(f"screening {len(terms)} candidate terms and their sets", None)
     search = SetSearch(records, terms, P0, records.n_train, progress.advance, max_terms=options.max_effects)
     best = search.run()
-    progress.start("refit of the chosen set from each record's new start state", None)
-    starts = records.estimate_starts(best.P)
-    chosen_terms = [t for t in terms if t.name in best.names]
-    fits = (fit_joint(records, P0, chosen_terms, [f.params for f in best.fits], records.n_train, progress.advance)
-            if chosen_terms else [])
-    P = fits[-1].P if fits else P0
+    judgement, starts = _refit_and_judge(records, cfg, P0, [t for t in terms if t.name in best.names], best.fits,
+                                         best.P, validation, progress)
+    chosen_terms, fits, P = judgement.terms, judgement.fits, judgement.P
     current = records.simulate(P)
     joint = None
     if options.joint and options.parameters:
@@ -78,13 +79,29 @@ def find_in_records(cfg: Any, recs: Sequence[Recording], paths: Sequence[str | P
     res = Result(spec.name, records.channels, records.kinds, records.t, records.measured, nominal, current, fits,
                  [_round(search, records)], split_s, dict(zip(records.channels, records.scale.tolist(), strict=True)),
                  time.perf_counter() - t_start, {"replay": records, "P": P}, starts[0], records.mode, {},
-                 _aliases(search), unexpl, where, joint=joint)
+                 _aliases(search, {t for r in judgement.rejected for t in r.terms}), unexpl, where, joint=joint,
+                 judgement=judgement)
     res.gaps = gaps
     res.bounds = at_bound(chosen_terms, fits, joint)
     res.lacking = lacking(records)
     mend_suggestions(res.aliases, records)
     res.dropped = list(search.dropped)
     return res
+
+
+def _refit_and_judge(records: RecordSet, cfg: Any, P0: np.ndarray, chosen: list[Term], best_fits: Sequence[Fit],
+                     best_P: np.ndarray, validation: Sequence[tuple[Recording, str | Path]],
+                     progress: Any) -> tuple[Judgement, list[Any]]:
+    """The chosen set refitted from each record's start state under it, then judged on held-out data
+    (``judge``); returns the judgement and each record's start state under what was kept."""
+    progress.start("refit of the chosen set from each record's new start state", None)
+    starts = records.estimate_starts(best_P)
+    fits = (fit_joint(records, P0, chosen, [f.params for f in best_fits], records.n_train, progress.advance)
+            if chosen else [])
+    judgement = judge_findings(records, cfg, P0, chosen, fits, records.n_trains, validation, progress)
+    if judgement.rejected:  # the start states under what was kept
+        starts = records.estimate_starts(judgement.P)
+    return judgement, starts
 
 
 def _bind(spec: Any, cfg: Any, recs: Sequence[Recording], paths: Sequence[str | Path], options: Any,
@@ -130,12 +147,12 @@ def _round(search: SetSearch, records: RecordSet) -> Round:
     return Round(base.score, cands, name)
 
 
-def _aliases(search: SetSearch) -> list[Alias]:
-    """Near-aliases of the chosen set: each pair once."""
+def _aliases(search: SetSearch, rejected: set[str]) -> list[Alias]:
+    """Near-aliases of the chosen set: each pair once, none of a member the held-out data rejected."""
     descriptions = {e.name: e.description for e in EFFECTS.values()}
     seen, out = set(), []
     for a, b, d in search.near_aliases():
-        if frozenset((a, b)) in seen:
+        if frozenset((a, b)) in seen or a in rejected:
             continue
         seen.add(frozenset((a, b)))
         out.append(Alias(1, a, b, d, experiment(a, b, descriptions)))

@@ -12,7 +12,10 @@
    ``max_effects`` rounds). After each choice the start state is re-estimated and the replay mode
    chosen again, and the joint refit starts from that state. A term must be relevant
    (``Term.relevant``: more than a rounding of "off"); one the joint refit switches off is dropped.
-3. A channel whose final held-out error the noise cannot account for is reported as an
+3. The chosen terms are judged on held-out data (``judge``): the validation records when given,
+   else the record's held-out part; a term that makes them worse than its given value is rejected
+   (said in the conclusion, not a finding, its given value kept) and the rest refitted.
+4. A channel whose final held-out error the noise cannot account for is reported as an
    unexplained residual, with where it sits (``verdict``).
 """
 
@@ -33,6 +36,7 @@ from rehab_hil.discrepancy.experiments import lacking, mend_suggestions
 from rehab_hil.discrepancy.fitting import Fit, Term, fit_joint, fit_term
 from rehab_hil.discrepancy.identify import identify_jointly
 from rehab_hil.discrepancy.initial_state import InitialState, estimate_initial_state
+from rehab_hil.discrepancy.judge import Judgement, judge_findings
 from rehab_hil.discrepancy.records import GAP_MEASURE, gap
 from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.discrepancy.result import Alias, Candidate, Result, Round
@@ -253,10 +257,13 @@ class Search:
 
 
 def find_missing_effects(cfg: Any, rec: Recording | Sequence[Recording], data_path: Any = "<data>",
-                         progress: Progress | None = None, options: Options | None = None) -> Result:
+                         progress: Progress | None = None, options: Options | None = None,
+                         validation: Sequence[tuple[Recording, str | Path]] = ()) -> Result:
     """Run the workflow on a loaded config and recording (or several records, each with its path in
-    ``data_path``: ``set_workflow``); see the module docstring. The result's ``gaps`` give each
-    record's RMSE before and after in one measure (``records.GAP_MEASURE``)."""
+    ``data_path``: ``set_workflow``); see the module docstring. ``validation``: (recording, path) pairs
+    of other records of the plant, on which the chosen terms are judged (``judge``; without any, on the
+    records' held-out parts). The result's ``gaps`` give each record's RMSE before and after in one
+    measure (``records.GAP_MEASURE``)."""
     progress = progress or Progress()
     options = options or Options()
     recs = [rec] if isinstance(rec, Recording) else list(rec)
@@ -264,8 +271,8 @@ def find_missing_effects(cfg: Any, rec: Recording | Sequence[Recording], data_pa
     if options.search == "sets" or (options.search == "auto" and len(recs) > 1):
         from rehab_hil.discrepancy.set_workflow import find_in_records
 
-        return find_in_records(cfg, recs, paths, progress, options)
-    res = _one_record(cfg, recs[0], paths[0], progress, options)
+        return find_in_records(cfg, recs, paths, progress, options, validation)
+    res = _one_record(cfg, recs[0], paths[0], progress, options, validation)
     progress.start("the gap over the whole record", None)
     replay = res.extras["replay"]
     x0, xd0 = replay.x0, replay.xd0
@@ -279,8 +286,9 @@ def find_missing_effects(cfg: Any, rec: Recording | Sequence[Recording], data_pa
     return res
 
 
-def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progress, options: Options) -> Result:
-    """The rounds of ``Search`` on one record."""
+def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progress, options: Options,
+                validation: Sequence[tuple[Recording, str | Path]]) -> Result:
+    """The rounds of ``Search`` on one record, their terms judged on held-out data (``judge``)."""
     t_start = time.perf_counter()
     spec = get_plant(cfg.plant)
     progress.start("replay nominal model", 1)
@@ -302,6 +310,7 @@ def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progr
                     localise.delay_seeds(replay.t, replay.measured, nominal, replay.channels, kinds),
                     remode=options.mode == "auto" and not replay.loop)
     search.run(options.max_effects)
+    judgement = _judge(search, cfg, validation)
     joint = None
     if options.joint and options.parameters:
         progress.start("joint identification of every parameter", None)
@@ -312,4 +321,20 @@ def _one_record(cfg: Any, rec: Recording, data_path: str | Path, progress: Progr
     return Result(spec.name, replay.channels, kinds, replay.t, replay.measured, nominal, search.current,
                   search.chosen, search.rounds, split_s, dict(zip(replay.channels, replay.scale.tolist(), strict=True)),
                   time.perf_counter() - t_start, {"replay": replay, "P": search.P}, search.initial, replay.mode,
-                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexpl, where, joint=joint)
+                  {"open_rms": open_rms, "shooting_rms": shoot_rms}, search.aliases, unexpl, where, joint=joint,
+                  judgement=judgement)
+
+
+def _judge(search: Search, cfg: Any, validation: Sequence[tuple[Recording, str | Path]]) -> Judgement:
+    """The search's chosen terms judged on held-out data (``judge.judge_findings``); the search then
+    holds what was kept (refitted, with its start state and outputs), and no near-alias of a rejected
+    term is said."""
+    j = judge_findings(search.replay, cfg, search.P0, search.chosen_terms, search.chosen, [search.n_train], validation,
+                       search.progress)
+    if j.rejected:
+        out = {t for r in j.rejected for t in r.terms}
+        search.chosen_terms, search.chosen, search.P = j.terms, j.fits, j.P
+        search.aliases = [a for a in search.aliases if a.chosen not in out]
+        search.initial = estimate_initial_state(search.replay, j.P, search.n_train)
+        search.current = search.replay.simulate(j.P)
+    return j

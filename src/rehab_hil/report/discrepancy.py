@@ -15,6 +15,7 @@ from plotly.subplots import make_subplots
 
 from rehab_hil.discrepancy.report import effect_params_text
 from rehab_hil.discrepancy.verdict import channel_unit
+from rehab_hil.discrepancy.wording import change_words
 from rehab_hil.report.figures import SESSION_BUCKETS, envelope
 from rehab_hil.report.page import Page, table
 
@@ -73,9 +74,14 @@ def discrepancy_page(res: Any, rep: dict[str, Any]) -> Page:
                        [[c["effect"], c["kind"], c.get("sentence") or effect_params_text(c)
                          + (f" ({c['description']}; {c['seed']})" if c.get("description") else "")]
                         for c in chosen], left=3))
+    for r in (rep.get("held_out_judgement") or {}).get("rejected", []):
+        page.note(f"Not a finding: {r['sentence']} (augmented.toml keeps the given value).")
     for a in rep.get("aliases") or []:
         page.note(a["sentence"])
     _metrics(page, rep)
+    if rep.get("held_out_judgement"):
+        page.text(f"Findings {rep['held_out_judgement']['summary']} (a term that makes these data worse than its "
+                  "given value is rejected, not a finding).")
     _replay(page, rep)
     _validation(page, rep.get("validation"))
     _joint(page, rep.get("joint_identification"))
@@ -92,10 +98,10 @@ def _metrics(page: Page, rep: dict[str, Any]) -> None:
               "a whole-record open-loop replay); the held-out residual of the final model beside the noise floor "
               "the data show.")
     page.raw(table(["channel", "unit", "RMSE nominal", "RMSE augmented", "held-out RMSE nominal",
-                    "held-out RMSE augmented", "gap closed [%]", "noise floor", "residual / spread [%]"],
+                    "held-out RMSE augmented", "error", "noise floor", "residual / spread [%]"],
                    [[c, units.get(c, ""), m["nominal"][c]["rmse"], m["augmented"][c]["rmse"],
                      m["nominal_holdout"][c]["rmse"], m["augmented_holdout"][c]["rmse"],
-                     rep["gap_reduction_pct"].get(c), (resid.get(c) or {}).get("noise_floor"),
+                     change_words(rep["gap_reduction_pct"][c]), (resid.get(c) or {}).get("noise_floor"),
                      100 * float((resid.get(c) or {}).get("share_of_spread") or float("nan"))]
                     for c in rep["channels"]], left=2))
 
@@ -114,9 +120,9 @@ def _validation(page: Page, val: dict[str, Any] | None) -> None:
         return
     page.heading(f"Validation on {val['data']}")
     page.text(f"Replay: {val['replay']}.")
-    page.raw(table(["channel", "RMSE nominal", "RMSE augmented", "error cut [%]"],
+    page.raw(table(["channel", "RMSE nominal", "RMSE augmented", "error"],
                    [[c, val["metrics"]["nominal"][c]["rmse"], val["metrics"]["augmented"][c]["rmse"],
-                     val["error_cut_pct"][c]] for c in val["channels"]]))
+                     change_words(val["error_cut_pct"][c])] for c in val["channels"]]))
 
 
 def _joint(page: Page, joint: dict[str, Any] | None) -> None:
