@@ -7,8 +7,12 @@ its metadata.json gives the stop reason, every trip with its cause (``loop/trip_
 stalls the device reported of its own process and the silences the host excused because the device
 process could not run. A trip whose cause is not "host stall" counts against the target.
 
+With ``--views`` each session also runs what a lab runs beside it: zenoh telemetry (its own loopback
+port) and the live twin (issue 46's target: no trip, no recorder or telemetry drop). The drops of every
+sink (the recorder, zenoh, the twin, and the loop process's ring) are read from metadata.json.
+
 Prints one line per session, then the counts. Usage:
-  python bench/busy_sessions.py [--sessions 20] [--duration 20] [--parallel 2] [--busy 2]
+  python bench/busy_sessions.py [--sessions 20] [--duration 20] [--parallel 2] [--busy 2] [--views]
                                 [--config configs/finger_extensor.toml] [--devices sim,avr] [--tree DIR]
 """
 
@@ -35,6 +39,8 @@ def start_session(i: int, kind: str, args: argparse.Namespace, out: Path) -> tup
     env = {**os.environ, "PYTHONPATH": str(args.tree / "src")}
     argv = [sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(args.config), "--device", kind,
             "--duration", str(args.duration), "--no-display", "--record", str(folder), "--rig-id", f"s{i}"]
+    if args.views:
+        argv += ["--twin", "--telemetry", f"s{i}", "--telemetry-port", str(7600 + i)]
     log = (folder / "stdout.txt").open("w")
     proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env,
                             cwd=str(args.tree))
@@ -59,6 +65,7 @@ def read_session(i: int, kind: str, folder: Path, rc: int) -> dict[str, Any]:
             "device_stall_max_ms": rep.get("not_scheduled_max_ms", 0.0),
             "excused_silences": len(stalls.get("device_silences_not_scheduled") or []),
             "reaction_p99_us": (m.get("timing") or {}).get("lateness_p99_us", float("nan")),
+            "drops": {k: int(v.get("dropped", 0)) for k, v in (m.get("sinks") or {}).items()},
             "pwm_off_at_end": m.get("pwm_off_at_end")}
 
 
@@ -73,7 +80,7 @@ def line(r: dict[str, Any]) -> str:
                      for e in r["events"][:1]) or "no trip"
     return (f"{r['i']:2d} {r['device']:4s} {trip} | device stalls {r['device_stalls']} (longest "
             f"{r['device_stall_max_ms']:.0f} ms), silences excused {r['excused_silences']}, reaction p99 "
-            f"{r['reaction_p99_us']:.0f} us, PWM off {r['pwm_off_at_end']}")
+            f"{r['reaction_p99_us']:.0f} us, drops {r['drops']}, PWM off {r['pwm_off_at_end']}")
 
 
 def run_all(args: argparse.Namespace, out: Path) -> tuple[list[dict[str, Any]], list[float]]:
@@ -101,6 +108,7 @@ def main() -> int:
     ap.add_argument("--busy", type=int, default=2, help="busy loops beside the sessions")
     ap.add_argument("--config", type=Path, default=ROOT / "configs" / "finger_extensor.toml")
     ap.add_argument("--devices", default="sim,avr", help="device kinds, alternating")
+    ap.add_argument("--views", action="store_true", help="zenoh telemetry and the live twin in every session")
     ap.add_argument("--tree", type=Path, default=ROOT, help="the checkout whose src/ runs the sessions (the "
                     "alternative: an older tree, e.g. before issue 41; its trips carry no cause)")
     args = ap.parse_args()
@@ -121,6 +129,8 @@ def main() -> int:
           f"{len(host)} caused by the host, {len(trips) - len(host)} not caused by the host (target: 0)")
     for r, e in trips:
         print(f"  session {r['i']} ({r['device']}): {e['reason']} {e['detail']}: {e['cause'] or 'no cause given'}")
+    drops = sum(sum(r.get("drops", {}).values()) for r in results)
+    print(f"records dropped by any sink (recorder, zenoh, twin, ring): {drops} (target: 0)")
     print(f"device stalls reported (not faults): {sum(r.get('device_stalls', 0) for r in results)}, longest "
           f"{max((r.get('device_stall_max_ms', 0.0) for r in results), default=0.0):.0f} ms; link silences "
           f"excused as device stalls: {sum(r.get('excused_silences', 0) for r in results)}")

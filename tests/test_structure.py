@@ -117,3 +117,36 @@ def long_functions() -> list[tuple[str, int]]:
 
 def test_at_most_three_functions_are_longer_than_sixty_lines():
     assert len(long_functions()) <= LONG_FUNCTIONS_ALLOWED, long_functions()
+
+
+LAYERS = {  # a package and the packages above it, which it never imports (function-local imports included)
+    "rehab_hil.loop": ("rehab_hil.service", "rehab_hil.telemetry", "rehab_hil.twin", "rehab_hil.cli",
+                       "rehab_hil.report"),
+    "rehab_hil.telemetry": ("rehab_hil.service", "rehab_hil.cli"),
+    "rehab_hil.twin": ("rehab_hil.service", "rehab_hil.cli"),
+    "rehab_hil.service": ("rehab_hil.cli",),
+}
+MAX_CLASS_LINES = 200
+
+
+def upward_imports() -> list[str]:
+    trees = modules()
+    known = set(trees)
+    out = []
+    for name, tree in trees.items():
+        for low, above in LAYERS.items():
+            if name == low or name.startswith(low + "."):
+                out += [f"{name} -> {m}" for m in sorted(imports_of(name, tree, known))
+                        if any(m == a or m.startswith(a + ".") for a in above)]
+    return out
+
+
+def test_the_loop_is_below_the_views_and_the_views_below_the_session():
+    assert upward_imports() == []
+
+
+def test_the_layer_check_finds_an_upward_import_inside_a_function():
+    tree = ast.parse("def f():\n    from rehab_hil.service import session\n")
+    known = {"rehab_hil", "rehab_hil.loop", "rehab_hil.loop.x", "rehab_hil.service", "rehab_hil.service.session"}
+    assert "rehab_hil.service.session" in imports_of("rehab_hil.loop.x", tree, known)
+
