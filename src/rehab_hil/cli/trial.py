@@ -104,11 +104,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _pct(v: float | None) -> str:
-    return "–" if v is None else f"{v:.0%}"
+    return "–" if v is None or not math.isfinite(v) else f"{v:.0%}"
 
 
 def _g(v: float | None) -> str:
-    return "–" if v is None else f"{v:.2f}"
+    return "–" if v is None or not math.isfinite(v) else f"{v:.2f}"
 
 
 def _check_scheduler(address: str) -> None:
@@ -162,6 +162,6 @@ class _Bar:
             last = last_session(entry) or {}
             v = last.get("success_assisted")
             what = (f"error: {entry['error']['type']}: {entry['error']['message']}" if entry.get("error")
-                    else f"success (driven) {'–' if v is None else f'{v:.0%}'}")
+                    else f"success (driven) {_pct(v)}")
             print(f"rehab-hil trial: {self.n}/{self.total} {entry['id']} ({entry['stratum']}): {what}",
                   file=sys.stderr, flush=True)

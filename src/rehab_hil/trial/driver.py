@@ -17,13 +17,13 @@ from pathlib import Path
 from typing import Any
 
 from rehab_hil.trial.cohort import Cohort
+from rehab_hil.trial.patient_run import INTERRUPTED_MARK
 from rehab_hil.trial.results import TRIAL_FILE, summary, write_trial_json
 from rehab_hil.trial.run import TrialSpec, patient_task, run_tasks
 
 __all__ = ["INTERRUPTED_MARK", "TRIAL_PAGE", "run_trial"]
 
 TRIAL_PAGE = "trial.html"
-INTERRUPTED_MARK = ".interrupted"
 
 
 def _now() -> str:

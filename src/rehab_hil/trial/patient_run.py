@@ -17,7 +17,9 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-__all__ = ["profile_toml", "run_patient"]
+__all__ = ["INTERRUPTED_MARK", "profile_toml", "run_patient"]
+
+INTERRUPTED_MARK = ".interrupted"  # in the out folder: the trial was stopped (trial.driver)
 
 
 def profile_toml(profile: dict[str, Any], header: str) -> str:
@@ -39,36 +41,48 @@ def _toml_value(v: Any) -> str:
 
 
 def run_patient(task: dict[str, Any]) -> dict[str, Any]:
-    """Run one patient's sessions (``task``: ``trial.run.patient_task``); its entry of ``trial.json``."""
+    """Run one patient's sessions (``task``: ``trial.run.patient_task``); its entry of ``trial.json``.
+    Whatever fails (a session, the patient's folder) is the entry's ``error``, never an exception: a
+    pool or a cluster goes on with the other patients."""
     t0 = time.perf_counter()
-    folder = Path(task["out"]) / "patients" / task["id"]
-    folder.mkdir(parents=True, exist_ok=True)
+    out = Path(task["out"])
+    folder = out / "patients" / task["id"]
     entry: dict[str, Any] = {k: task[k] for k in ("id", "patient_id", "stratum", "fugl_meyer_ue", "seed", "traits",
                                                  "parameters")}
     entry.update(folder=f"patients/{task['id']}", sessions=[], error=None)
-    profile = dict(task["profile"])
-    for k in range(task["sessions"]):
-        if (Path(task["out"]) / ".interrupted").exists():  # the trial was stopped (Ctrl-C) while this waited or ran
-            shutil.rmtree(folder, ignore_errors=True)
-            entry["error"] = {"session": k + 1, "type": "Interrupted", "message": "the trial was interrupted",
-                              "traceback": ""}
-            break
-        if "recovery" in profile:  # a patient who recovers: one more session done each time
-            rec = dict(profile["recovery"])
-            rec["sessions_done"] = int(task["profile"]["recovery"].get("sessions_done", 0)) + k
-            profile["recovery"] = rec
-        path = folder / ("patient.toml" if k == 0 or "recovery" not in profile else f"patient-session{k + 1}.toml")
-        path.write_text(profile_toml(profile, task["header"]), encoding="utf-8")
-        try:
-            entry["sessions"].append(_session(task, folder, path, k))
-        except Exception as e:  # the patient's failure, recorded; the trial goes on
-            entry["error"] = {"session": k + 1, "type": type(e).__name__, "message": str(e),
-                              "traceback": traceback.format_exc(limit=-8)}
-            break
-    if (Path(task["out"]) / ".interrupted").exists():  # stopped while the last session ran: not in trial.json
+    k = 0
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for k in range(task["sessions"]):
+            if (out / INTERRUPTED_MARK).exists():  # the trial was stopped (Ctrl-C) while this waited or ran
+                raise _Interrupted("the trial was interrupted")
+            entry["sessions"].append(_session(task, folder, _profile_file(task, folder, k), k))
+    except Exception as e:  # the patient's failure, recorded; the trial goes on
+        entry["error"] = {"session": k + 1, "type": type(e).__name__, "message": str(e),
+                          "traceback": traceback.format_exc(limit=-8)}
+    if (out / INTERRUPTED_MARK).exists():  # stopped while this ran: not in trial.json, and no half folder
         shutil.rmtree(folder, ignore_errors=True)
     entry["wall_s"] = time.perf_counter() - t0
     return entry
+
+
+class _Interrupted(Exception):
+    """The trial's Ctrl-C, seen by a patient still queued or running (on a Dask worker)."""
+
+
+def _profile_file(task: dict[str, Any], folder: Path, k: int) -> Path:
+    """The patient's file for session ``k`` (from 0): ``patient.toml``; a patient who recovers
+    (``[recovery]``) has one more session done each time, in ``patient-session<k+1>.toml``."""
+    profile = dict(task["profile"])
+    name = "patient.toml"
+    if "recovery" in profile and k > 0:
+        rec = dict(profile["recovery"])
+        rec["sessions_done"] = int(rec.get("sessions_done", 0)) + k
+        profile["recovery"] = rec
+        name = f"patient-session{k + 1}.toml"
+    path = folder / name
+    path.write_text(profile_toml(profile, task["header"]), encoding="utf-8")
+    return path
 
 
 def _session(task: dict[str, Any], folder: Path, patient: Path, k: int) -> dict[str, Any]:

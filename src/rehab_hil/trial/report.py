@@ -50,6 +50,7 @@ def _ecdf_figure(patients: list[dict[str, Any]], target: float) -> go.Figure:
                                      line={"shape": "hv", "color": colour, "width": width}, name=name,
                                      legendgroup=name, showlegend=i == 0), row=row, col=col)
         if key.startswith("success"):
+            fig.update_xaxes(range=[-0.02, 1.02], row=row, col=col)
             fig.add_trace(go.Scatter(x=[target, target], y=[0, 1], mode="lines", name=f"target {target:g}",
                                      line={"dash": "dot", "color": "crimson"}, legendgroup="target",
                                      showlegend=i == 0), row=row, col=col)
@@ -122,7 +123,7 @@ def _links(p: dict[str, Any]) -> str:
     return " ".join(parts)
 
 
-def _patient_rows(patients: list[dict[str, Any]]) -> str:
+def _patient_rows(patients: list[dict[str, Any]], target: float) -> str:
     """One row per patient: its outcome, and links."""
     def f(v: Any, digits: int = 3) -> str:
         x = _num(v)
@@ -134,7 +135,8 @@ def _patient_rows(patients: list[dict[str, Any]]) -> str:
         events = sum(len(x["safety_events"]) for x in p["sessions"])
         err = p.get("error") or {}
         why = f"{err.get('type')}: {err.get('message')}" if err else (
-            "; ".join(e["reason"] for x in p["sessions"] for e in x["safety_events"]) or "")
+            "; ".join(e["reason"] for x in p["sessions"] for e in x["safety_events"])
+            or ("below the target" if not meets_target(p, target) else ""))
         cells = [p["id"], p["stratum"], f(s.get("success_assisted")), f(s.get("success_last5")), f(s.get("success")),
                  f"{f(s.get('assistance_ratio_first'))} → {f(s.get('assistance_ratio_last'))}",
                  f(s.get("peak_temperature_c"), 4), str(events), why]
@@ -173,7 +175,7 @@ def trial_page(doc: dict[str, Any]) -> Page:
                 page.figure(fig)
     failed = [p for p in patients if not meets_target(p, target)]
     page.heading(f"The patients the controller failed ({len(failed)})")
-    page.raw(_patient_rows(failed) if failed else "<p>none</p>")
+    page.raw(_patient_rows(failed, target) if failed else "<p>none</p>")
     page.heading(f"Every patient ({len(patients)})")
-    page.raw(_patient_rows(patients))
+    page.raw(_patient_rows(patients, target))
     return page
