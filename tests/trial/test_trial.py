@@ -29,7 +29,7 @@ CONFIG = ROOT / "configs" / "finger_extensor.toml"
 COHORT = ROOT / "profiles" / "sim" / "cohort.toml"
 DURATION_S = "15.5"  # the first open at 3 s and one whole 12 s cycle of the Finger Extensor's session
 ARGS = ["trial", "--config", str(CONFIG), "--controller", "assist_as_needed", "--cohort", str(COHORT),
-        "--patients", "3", "--sessions", "1", "--duration", DURATION_S, "--seed", "11"]
+        "--patients", "3", "--sessions", "1", "--duration", DURATION_S, "--seed", "15"]  # p0002 misses
 MEASURES = {"success", "success_assisted", "success_last5", "assistance_ratio", "assistance_ratio_first",
             "assistance_ratio_last", "active_rom_deg", "sparc", "patient_torque_open_nm", "patient_torque_close_nm",
             "peak_temperature_c", "safety_events", "run_dir", "stop_reason"}
@@ -65,6 +65,21 @@ def test_a_trial_runs_each_patient_on_the_local_pool_and_writes_its_outcomes(loc
         assert (local_trial / p["folder"] / "patient.toml").exists()
         assert list((local_trial / p["folder"] / "assistance").rglob("*.json"))  # the kept assistance
     assert doc["summary"]["patients"] == 3 and (local_trial / "trial.html").exists()
+
+
+def test_record_failed_records_only_the_patients_who_miss_the_target_with_the_same_outcomes(local_trial, tmp_path):
+    out = tmp_path / "failed-only"
+    assert main([*ARGS, "--out", str(out), "--workers", "2", "--record", "failed"]) == 0
+    doc = json.loads((out / "trial.json").read_text())
+    recorded = json.loads((local_trial / "trial.json").read_text())
+    assert _outcomes(doc) == [{**p, "replay_identical": True} if p["sessions"][0]["success_assisted"] < 0.8 else p
+                              for p in _outcomes(recorded)]  # unrecorded sessions measure the same
+    for p in doc["patients"]:
+        (s,) = p["sessions"]
+        missed = s["success_assisted"] < 0.8
+        assert (s["run_dir"] is not None) == missed and p.get("replay_identical", missed) is missed
+        assert (out / p["folder"] / "patient.toml").exists()
+    assert any(p.get("replay_identical") for p in doc["patients"]), "no patient missed: the test shows nothing"
 
 
 def test_the_same_seed_gives_the_same_outcomes_on_a_dask_cluster(local_trial, tmp_path):

@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="the local pool's processes (default: the machine's cores)")
     p.add_argument("--twin", action="store_true",
                    help="run the live twin beside each session (its model-based patient torque; slower)")
+    p.add_argument("--record", choices=("all", "failed"), default="all",
+                   help="run folders of every session (default), or only of the patients who miss the target: "
+                        "their sessions run again, recorded (lockstep sessions repeat exactly); faster")
     p.add_argument("--target-success", type=float, default=0.8, metavar="SHARE",
                    help="success of the moves the rig drives a patient must reach (default 0.8)")
     return p
@@ -88,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     writable_folder(args.out, "--out", "the trial writes trial.json, trial.html and patients/ inside it")
     spec = TrialSpec(config=str(args.config.resolve()), controller=name, cohort=str(args.cohort.resolve()),
                      patients=args.patients, sessions=args.sessions, duration_s=args.duration, seed=args.seed,
-                     out=str(args.out.resolve()), twin=args.twin, scheduler=args.scheduler, workers=args.workers)
+                     out=str(args.out.resolve()), twin=args.twin, scheduler=args.scheduler, workers=args.workers,
+                     record=args.record, target_success=args.target_success)
     with _Bar(args.patients, args.target_success) as bar:
         doc = run_trial(spec, cohort, args.target_success, on_entry=bar.done)
     s = doc["summary"]

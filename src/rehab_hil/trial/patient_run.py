@@ -17,6 +17,8 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from rehab_hil.trial.results import meets_target
+
 __all__ = ["INTERRUPTED_MARK", "profile_toml", "run_patient"]
 
 INTERRUPTED_MARK = ".interrupted"  # in the out folder: the trial was stopped (trial.driver)
@@ -43,27 +45,50 @@ def _toml_value(v: Any) -> str:
 def run_patient(task: dict[str, Any]) -> dict[str, Any]:
     """Run one patient's sessions (``task``: ``trial.run.patient_task``); its entry of ``trial.json``.
     Whatever fails (a session, the patient's folder) is the entry's ``error``, never an exception: a
-    pool or a cluster goes on with the other patients."""
+    pool or a cluster goes on with the other patients. ``task["record"]`` "failed": the sessions run
+    unrecorded, and a patient who misses the target runs them again, recorded, from the same start
+    (lockstep sessions repeat exactly: ``replay_identical`` says whether they did)."""
     t0 = time.perf_counter()
     out = Path(task["out"])
     folder = out / "patients" / task["id"]
     entry: dict[str, Any] = {k: task[k] for k in ("id", "patient_id", "stratum", "fugl_meyer_ue", "seed", "traits",
                                                  "parameters")}
     entry.update(folder=f"patients/{task['id']}", sessions=[], error=None)
-    k = 0
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        for k in range(task["sessions"]):
-            if (out / INTERRUPTED_MARK).exists():  # the trial was stopped (Ctrl-C) while this waited or ran
-                raise _Interrupted("the trial was interrupted")
-            entry["sessions"].append(_session(task, folder, _profile_file(task, folder, k), k))
-    except Exception as e:  # the patient's failure, recorded; the trial goes on
-        entry["error"] = {"session": k + 1, "type": type(e).__name__, "message": str(e),
-                          "traceback": traceback.format_exc(limit=-8)}
+    record_all = task.get("record", "all") == "all"
+    entry["error"] = _sessions(task, folder, entry["sessions"], record_all)
+    if not record_all and not (out / INTERRUPTED_MARK).exists() and not meets_target(entry, task["target_success"]):
+        first = entry["sessions"]
+        for store in ("assistance", "learning"):  # the replay starts where the first pass started
+            shutil.rmtree(folder / store, ignore_errors=True)
+        entry["sessions"] = []
+        entry["error"] = _sessions(task, folder, entry["sessions"], True)
+        entry["replay_identical"] = _outcomes(first) == _outcomes(entry["sessions"])
     if (out / INTERRUPTED_MARK).exists():  # stopped while this ran: not in trial.json, and no half folder
         shutil.rmtree(folder, ignore_errors=True)
     entry["wall_s"] = time.perf_counter() - t0
     return entry
+
+
+def _sessions(task: dict[str, Any], folder: Path, into: list[dict[str, Any]], record: bool) -> dict[str, Any] | None:
+    """The patient's sessions in order, each one's measures appended to ``into``; the error that
+    stopped them (None: all ran)."""
+    k = 0
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for k in range(task["sessions"]):
+            if (Path(task["out"]) / INTERRUPTED_MARK).exists():  # the trial was stopped (Ctrl-C) meanwhile
+                raise _Interrupted("the trial was interrupted")
+            into.append(_session(task, folder, _profile_file(task, folder, k), k, record))
+    except Exception as e:  # the patient's failure, recorded; the trial goes on
+        return {"session": k + 1, "type": type(e).__name__, "message": str(e),
+                "traceback": traceback.format_exc(limit=-8)}
+    return None
+
+
+def _outcomes(sessions: list[dict[str, Any]]) -> str:
+    """The sessions' measures without what may differ between two runs (wall time, folder, notes)."""
+    return json.dumps([{k: v for k, v in s.items() if k not in ("wall_s", "run_dir", "notes")} for s in sessions],
+                      sort_keys=True, default=str)
 
 
 class _Interrupted(Exception):
@@ -85,7 +110,7 @@ def _profile_file(task: dict[str, Any], folder: Path, k: int) -> Path:
     return path
 
 
-def _session(task: dict[str, Any], folder: Path, patient: Path, k: int) -> dict[str, Any]:
+def _session(task: dict[str, Any], folder: Path, patient: Path, k: int, record: bool) -> dict[str, Any]:
     """One session of the patient; the device line and any warning the session prints are kept as notes."""
     from rehab_hil.service.session import open_session
     from rehab_hil.trial.measures import session_measures
@@ -93,7 +118,8 @@ def _session(task: dict[str, Any], folder: Path, patient: Path, k: int) -> dict[
     t0 = time.perf_counter()
     said = io.StringIO()
     with contextlib.redirect_stderr(said), contextlib.redirect_stdout(said), open_session(
-            task["config"], "inprocess", controller=task["controller"], sim_patient=patient, record=folder,
+            task["config"], "inprocess", controller=task["controller"], sim_patient=patient,
+            record=folder if record else None,
             assistance_store=folder / "assistance", learning_store=folder / "learning", twin=task["twin"]) as s:
         s.run(task["duration_s"])
         measures = session_measures(s)

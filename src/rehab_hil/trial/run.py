@@ -38,6 +38,8 @@ class TrialSpec:
     twin: bool = False
     scheduler: str | None = None
     workers: int | None = None  # the local pool's processes (None: the machine's cores)
+    record: str = "all"  # "all": every session's run folder; "failed": only the patients who miss the target
+    target_success: float = 0.8  # success of the driven moves a patient must reach (trial.results.meets_target)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -52,7 +54,8 @@ def patient_task(spec: TrialSpec, cohort: Cohort, patient: SampledPatient) -> di
             "fugl_meyer_ue": patient.fugl_meyer_ue, "seed": patient.seed, "index": patient.index,
             "traits": list(patient.traits), "parameters": patient.parameters, "profile": patient.profile,
             "header": header, "config": spec.config, "controller": spec.controller, "sessions": spec.sessions,
-            "duration_s": spec.duration_s, "out": spec.out, "twin": spec.twin}
+            "duration_s": spec.duration_s, "out": spec.out, "twin": spec.twin, "record": spec.record,
+            "target_success": spec.target_success}
 
 
 def _quiet_worker() -> None:
