@@ -8,8 +8,8 @@
    ``--patients 100 --sessions 3`` to measure it whole instead.
 3. ``--profile S``: one in-process session of S seconds (Finger Extensor, the shipped weak patient,
    assist_as_needed), recorded and not: its CPU time per loop cycle (no profiler), then cProfile's own
-   time per cycle grouped by where the code lives (cProfile slows Python calls about twofold: read the
-   shares, not the absolute figures).
+   self time per cycle while the session runs, grouped by where the code lives (cProfile slows every
+   Python call several-fold, the small ones most: read the shares, not the absolute figures).
 
 Not a test: prints and writes ``bench/results/trial.json``.
 
@@ -38,25 +38,27 @@ AREAS = (("service/", "host loop (service/)"), ("hardware/", "device side (hardw
          ("engines/", "compiled engines (numba calls)"), ("models/", "model framework (models/)"),
          ("session_metrics", "session figures"), ("therapy_measures", "session figures"),
          ("control/", "controllers' parts (control/)"), ("threading", "threads (recorder wake-ups)"),
-         ("mcap", "recorder (mcap)"), ("{method", "builtins"), ("{built-in", "builtins"))
+         ("mcap", "recorder (mcap)"), ("~:", "C calls (numba dispatch, locks, builtins)"))
 
 
-def trial(plant: str, patients: int, sessions: int, duration_s: float, seed: int, out: Path) -> dict[str, Any]:
+def trial(plant: str, patients: int, sessions: int, duration_s: float, seed: int, out: Path,
+          record: str = "all") -> dict[str, Any]:
     """One trial through the command (as a user runs it); its summary and timing."""
     from rehab_hil.cli import main
 
-    folder = out / f"{plant}-{patients}x{sessions}x{duration_s:g}"
+    folder = out / f"{plant}-{patients}x{sessions}x{duration_s:g}-{record}"
     t0 = time.perf_counter()
     code = main(["trial", "--config", str(ROOT / "configs" / f"{plant}.toml"), "--controller", "assist_as_needed",
                  "--patients", str(patients), "--sessions", str(sessions), "--duration", str(duration_s),
-                 "--seed", str(seed), "--out", str(folder)])
+                 "--seed", str(seed), "--out", str(folder), "--record", record])
     wall = time.perf_counter() - t0
     doc = json.loads((folder / "trial.json").read_text())
     s = doc["summary"]
     simulated = sum(x["ran_s"] or 0.0 for p in doc["patients"] for x in p["sessions"])
     events = sum(len(x["safety_events"]) for p in doc["patients"] for x in p["sessions"])
-    row = {"plant": plant, "exit": code, "patients": patients, "sessions": sessions, "duration_s": duration_s,
-           "seed": seed, "wall_s": wall, "simulated_s": simulated, "speed_x": simulated / wall, "met": s["met"],
+    row = {"plant": plant, "record": record, "exit": code, "patients": patients, "sessions": sessions,
+           "duration_s": duration_s, "seed": seed, "wall_s": wall, "simulated_s": simulated,
+           "speed_x": simulated / wall, "met": s["met"],
            "met_share": s["met_share"], "errors": s["errors"], "safety_events": events,
            "strata": {k: {"met": g["met"], "patients": g["patients"], "median_success_assisted":
                           g["median_success_assisted"], "hottest_c": g["max_peak_temperature_c"]}
@@ -67,8 +69,8 @@ def trial(plant: str, patients: int, sessions: int, duration_s: float, seed: int
                        "error": p["error"]} for p in doc["patients"] if not _met(p, s["target_success"])]}
     full = 100 * 3 * 120.0
     row["extrapolated_100x3x120_s"] = full / row["speed_x"]
-    print(f"\n{plant}: {s['met']} of {patients} patients met the target ({s['met_share']:.0%}; issue: >= 90 %), "
-          f"safety events {events}, errors {s['errors']}")
+    print(f"\n{plant} (--record {record}): {s['met']} of {patients} patients met the target "
+          f"({s['met_share']:.0%}; issue: >= 90 %), safety events {events}, errors {s['errors']}")
     for k, g in row["strata"].items():
         print(f"  {k:9s} {g['met']} of {g['patients']}, median success (driven) {g['median_success_assisted']}, "
               f"hottest {g['hottest_c']} C")
@@ -86,15 +88,20 @@ def _met(p: dict[str, Any], target: float) -> bool:
     return meets_target(p, target)
 
 
-def _session(duration_s: float, record: Path | None) -> tuple[float, float, int]:
-    """(CPU s, wall s, loop cycles) of one session of the profile's kind."""
+def _session(duration_s: float, record: Path | None,
+             profiler: cProfile.Profile | None = None) -> tuple[float, float, int]:
+    """(CPU s, wall s, loop cycles) of one session of the profile's kind; ``profiler`` on while it runs."""
     from rehab_hil.service.session import open_session
 
     with open_session(ROOT / "configs/finger_extensor.toml", "inprocess", controller="assist_as_needed",
                       sim_patient=ROOT / "profiles/sim/weak.toml", record=record, fresh_assistance=True,
                       assistance_store=Path(tempfile.mkdtemp())) as s:
         c0, t0 = time.process_time(), time.perf_counter()
+        if profiler is not None:
+            profiler.enable()
         result = s.run(duration_s)
+        if profiler is not None:
+            profiler.disable()
         return time.process_time() - c0, time.perf_counter() - t0, result.cycles
 
 
@@ -110,9 +117,7 @@ def profile(duration_s: float, out: Path) -> dict[str, Any]:
               f"on one core's CPU), wall {wall:.1f} s")
     for name, record in (("not recorded", None), ("recorded", out)):
         pr = cProfile.Profile()
-        pr.enable()
-        _, _, cycles = _session(duration_s, record)
-        pr.disable()
+        _, _, cycles = _session(duration_s, record, pr)
         areas: dict[str, float] = defaultdict(float)
         for (file, _, func), (_, _, tottime, _, _) in pstats.Stats(pr).stats.items():  # type: ignore[attr-defined]
             where = f"{file}:{func}"
@@ -132,6 +137,7 @@ def main() -> None:
     ap.add_argument("--sessions", type=int, default=1)
     ap.add_argument("--duration", type=float, default=120.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--record", default="all", help="all, failed, or both (each trial twice)")
     ap.add_argument("--out", type=Path, default=None, help="keep the trials here (default: a temporary folder)")
     ap.add_argument("--profile", type=float, default=0.0, metavar="S", help="also profile an S s session")
     ap.add_argument("--json", type=Path, default=RESULTS)
@@ -140,7 +146,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
         for plant in [p for p in args.plants.split(",") if p and p != "none"]:
-            result["trials"].append(trial(plant, args.patients, args.sessions, args.duration, args.seed, out))
+            for record in (("all", "failed") if args.record == "both" else (args.record,)):
+                result["trials"].append(trial(plant, args.patients, args.sessions, args.duration, args.seed, out,
+                                              record))
         if args.profile:
             result["profile"] = profile(args.profile, out / "profiled")
     args.json.parent.mkdir(parents=True, exist_ok=True)
