@@ -7,9 +7,10 @@ other program line (a Python module, a bench script, mkdir/cp/printf, make) name
 
 ``--run`` (minutes): clones the repository (``git clone``, the committed tree) into a temporary
 folder and runs every command there in document order, shell lines included, with sessions cut to
-``--max-duration`` seconds (12); ``<run>`` placeholders become the newest run directory. Commands that
-need a board, a lab network or a second live process are listed with the reason and the test that
-covers them. Prints one line per command and exits 1 if any failed.
+``--max-duration`` seconds (12) and trials to two patients of one session; ``<run>`` placeholders
+become the newest run directory. Commands that need a board, a lab network or a second live process
+are listed with the reason and the test that covers them. Prints one line per command and exits 1 if
+any failed.
 """
 
 from __future__ import annotations
@@ -45,7 +46,9 @@ NOT_RUN = (
     ("make ", "make test is the suite itself; make run is the README's `run ... --duration 30 --record out/`"),
     ("bench/", "a benchmark, not a check (make bench)"),
     ("python_device", "waits on stdin for the host (tests/devices/test_conformance.py)"),
+    ("--scheduler", "a Dask cluster started beside it (tests/trial/test_trial.py starts one on 127.0.0.1)"),
 )
+TRIAL_CUT = {"--patients": 2, "--sessions": 1}  # --run: a trial's size cut to this (and its sessions' duration)
 
 
 @dataclass
@@ -210,6 +213,13 @@ def _runnable(cmd: DocCommand, work: Path, max_duration_s: float) -> list[str]:
             if "--no-display" not in argv:
                 argv.append("--no-display")
             argv += ["--home", "none"] if "--home" not in argv else []
+        if argv[3] == "trial":
+            for flag, most in {**TRIAL_CUT, "--duration": max_duration_s}.items():
+                if flag in argv:
+                    k = argv.index(flag) + 1
+                    argv[k] = str(min(type(most)(argv[k]), most))
+                else:
+                    argv += [flag, str(most)]
     elif argv[0].endswith("python"):
         argv = [sys.executable, *argv[1:]]
     return argv

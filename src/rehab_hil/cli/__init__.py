@@ -26,7 +26,7 @@ __all__ = ["SUBCOMMANDS", "UserError", "config_file", "device_arg", "interrupted
 
 # module names under rehab_hil.cli; each defines add_parser(subparsers) and run(args) -> int
 SUBCOMMANDS = ["simulate", "run", "tune", "identify", "sensitivity", "discrepancy", "replay", "monitor", "record",
-               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report", "import_data", "twin"]
+               "ports", "flash", "router", "foxglove", "doctor", "calibrate", "report", "import_data", "twin", "trial"]
 
 
 class UserError(Exception):

@@ -75,6 +75,11 @@ class PlantIO:
         self.sensor_load = [0.0, 0.0]  # a known load on each ADC sensor (its unit), on top of the plant's
         # a rig with direction -1 has its encoder wired the other way: its counts fall as the angle rises
         self._counts_per_rad = binding.encoder_direction * binding.encoder_counts_per_rev / (2.0 * math.pi)
+        # what each tick reads, resolved once (the tick is the in-process session's hottest Python)
+        self._duty = [(self._index[name], d.channel, d.signed, name) for name, d in binding.duty_inputs.items()]
+        outs = iter(range(self._enc, self._enc + len(binding.adc)))  # the outputs after the encoder, in order
+        self._adc = [(k, i, -1 if i >= 0 else next(outs), ch.offset_counts, ch.counts_per_unit)
+                     for k, (ch, i) in enumerate(zip(binding.adc, self._adc_input, strict=True))]
 
     def set_input(self, name: str, value: float) -> None:
         """Set a constant plant input (e.g. the patient's torque); unknown names raise KeyError."""
@@ -140,32 +145,37 @@ class PlantIO:
 
     def tick(self, duty: tuple[int, int] | list[int], direction: int) -> tuple[int, int, int]:
         """Readings (encoder count, adc0, adc1) at this instant, then advance one tick."""
-        if self.session_ticks >= self._next_change:
+        ticks = self.session_ticks
+        if ticks >= self._next_change:
             self._apply_schedule()
+        u = self._u
         if self._clock >= 0:
-            self._u[self._clock] = self.session_ticks / BASE_RATE_HZ
-        self.session_ticks += 1
-        for name, d in self.binding.duty_inputs.items():
-            # the input's own sign; its full-duty value may move mid-session (a sagging supply)
-            self._u[self._index[name]] = d.direction_sign(direction) * self._scale[name] * duty[d.channel] / DUTY_FULL
-        y = self.stepper.step(self._u)
-        for _ in range(self.steps_per_tick - 1):
-            self.stepper.step(self._u)
+            u[self._clock] = ticks / BASE_RATE_HZ
+        self.session_ticks = ticks + 1
+        scale = self._scale
+        for index, channel, signed, name in self._duty:
+            # the input's own sign (DutyInput.direction_sign); its full-duty value may move mid-session (a sagging
+            # supply)
+            sign = -1.0 if signed and direction >> channel & 1 else 1.0
+            u[index] = sign * scale[name] * duty[channel] / DUTY_FULL
+        stepper = self.stepper
+        y = stepper.advance(u)  # the stepper's own buffer: read before the next step
+        if self.steps_per_tick > 1:
+            y = y.copy()
+            for _ in range(self.steps_per_tick - 1):
+                stepper.advance(u)
         if self.truth_sink is not None and self._n_truth:
-            self.truth_sink((self.session_ticks - 1) / BASE_RATE_HZ, y[-self._n_truth:])
-        return self._counts(y)
+            self.truth_sink(ticks / BASE_RATE_HZ, y[-self._n_truth:])
+        return self._counts(y.tolist())
 
-    def _counts(self, y: np.ndarray) -> tuple[int, int, int]:
+    def _counts(self, y: list[float]) -> tuple[int, int, int]:
         enc = math.floor(y[0] * self._counts_per_rad) if self._enc else 0
         adc = [0, 0]
-        k_out = self._enc
-        for k, ch in enumerate(self.binding.adc):
-            if self._adc_input[k] >= 0:
-                value = self._u[self._adc_input[k]]
-            else:
-                value, k_out = y[k_out], k_out + 1
-            v = ch.offset_counts + ch.counts_per_unit * (value + self.sensor_load[k])
-            if self.noise:
-                v += self._rng.normal(0.0, self.noise)
+        u, load, noise = self._u, self.sensor_load, self.noise
+        for k, i_input, i_out, offset, per_unit in self._adc:
+            value = float(u[i_input]) if i_input >= 0 else y[i_out]
+            v = offset + per_unit * (value + load[k])
+            if noise:
+                v += self._rng.normal(0.0, noise)
             adc[k] = int(min(max(round(v), 0), ADC_MAX)) if math.isfinite(v) else ADC_MAX
         return enc, adc[0], adc[1]

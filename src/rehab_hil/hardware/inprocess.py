@@ -102,17 +102,23 @@ class InProcessHardware(HardwareInterface):
         self._tx_seq = (seq + 1) & 0xFFFF
         self.stats.frames_tx += 1
         core = self.core
-        if isinstance(msg, CommandFrame):
+        command = isinstance(msg, CommandFrame)
+        if command:
             self._sent = (seq, time.perf_counter())
         self._receive(core.on_frame(Frame(seq, msg)))
-        if isinstance(msg, Configure) and core.config is msg:  # accepted: a session starts (scheduled changes)
-            self.plant.start_session()
-        if isinstance(msg, CommandFrame) and core.streaming:
+        if not command:
+            if isinstance(msg, Configure) and core.config is msg:  # accepted: a session starts (scheduled changes)
+                self.plant.start_session()
+            return seq
+        if core.streaming:
             periods = self._bursts[self._burst_i % len(self._bursts)]
             self._burst_i += 1
-            for _ in range(core.divider * periods):
-                enc, a0, a1 = self.plant.tick(core.duty, core.direction)
-                self._receive(core.tick(Readings(enc, a0, a1, self.estop_pin)))
+            plant_tick, core_tick, receive = self.plant.tick, core.tick, self._receive
+            for _ in range(core.divider * periods):  # most ticks send nothing: no call to take it
+                enc, a0, a1 = plant_tick(core.duty, core.direction)
+                out = core_tick(Readings(enc, a0, a1, self.estop_pin))
+                if out:
+                    receive(out)
         return seq
 
     def _request(self, msg: Message, timeout: float) -> int:

@@ -382,3 +382,11 @@ class Stepper:
                       self._slots, self._y, *self._ws)
         self.t += s.dt
         return self._y.copy()
+
+    def advance(self, uext: np.ndarray) -> np.ndarray:
+        """``step`` for a caller in a hot loop (a simulated device's tick): ``uext`` already a float
+        array, and the outputs returned in the stepper's own buffer, overwritten by the next call."""
+        s = self.system
+        s.engine.step(self.t, self.x, self.xd, uext, self.params, s.dt, s.substeps, self._slots, self._y, *self._ws)
+        self.t += s.dt
+        return self._y
