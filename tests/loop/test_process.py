@@ -176,3 +176,36 @@ def _gone(pid: int, timeout_s: float) -> None:
             return
         time.sleep(0.05)
     raise AssertionError(f"process {pid} still runs")
+
+
+def test_a_controller_the_loop_process_cannot_import_runs_in_the_sessions_process_said_so(slow_watchdog) -> None:
+    import sys
+    import types
+
+    from rehab_hil.controllers import build_controller
+    from rehab_hil.loading import load_config
+    from rehab_hil.loop.controllers import SAFE_COMMAND
+
+    ghost = types.ModuleType("ghost_controllers")  # importable here only: no file on any path
+
+    class Quiet:
+        def __init__(self, claims) -> None:
+            self.claims = claims
+
+        def reset(self) -> None:
+            pass
+
+        def __call__(self, t_s, state):
+            return SAFE_COMMAND
+
+    Quiet.__module__, Quiet.__qualname__ = ghost.__name__, "Quiet"
+    ghost.Quiet = Quiet
+    sys.modules[ghost.__name__] = ghost
+    try:
+        with open_session(slow_watchdog, "sim", controller=Quiet(build_controller(load_config(FE), "pid").claims)) as s:
+            result = s.run(1.0)
+    finally:
+        del sys.modules[ghost.__name__]
+    assert result.events == [] and result.samples > 500
+    assert result.realtime.process.startswith("the session's process (the loop process could not load its job: ")
+    assert "ghost_controllers" in result.realtime.process

@@ -139,7 +139,12 @@ def main(argv: list[str] | None = None) -> int:
     from rehab_hil.hardware.serial_hw import SerialHardware
 
     result_fd = int((argv or sys.argv[1:])[0])
-    job: LoopJob = pickle.load(sys.stdin.buffer)
+    try:
+        job: LoopJob = pickle.load(sys.stdin.buffer)
+    except Exception as e:  # a class this interpreter cannot import (a test's own controller): the session's
+        with os.fdopen(result_fd, "wb") as out:  # process runs the loop itself; the link was not touched
+            pickle.dump(("unloadable", f"{type(e).__name__}: {e}"), out)
+        return 3
     hw = SerialHardware.handed_over(job.link, job.fd)
     hw.device_process = job.device
     report = _run(job, hw)
@@ -209,6 +214,7 @@ class LoopProcess:
         self.trip_on_overflow = trip_on_overflow
         self.link = RingLink(self.ring, hw)
         self.pid: int | None = None
+        self.local_service: LoopService | None = None  # the loop run here after all (``_here``)
         self._stop: tuple[str, str] | None = None
         self._done = threading.Event()
 
@@ -224,6 +230,9 @@ class LoopProcess:
     def request_stop(self, reason: str, kind: str = "stop_request") -> None:
         """Stop at the loop's next cycle through the safe state (any thread; before ``run``: at its start)."""
         self._stop = (reason, kind)
+        if self.local_service is not None:
+            self.local_service.request_stop(reason, kind)
+            return
         try:
             self.mailbox.post(("stop", reason, kind), timeout_s=0.5, stop=True)
         except (MailboxFull, ValueError, TypeError):
@@ -232,6 +241,9 @@ class LoopProcess:
     def offer_table(self, table: Any, retune: Any = None) -> bool:
         """A learned table for the controller's next swap window; False if the loop has not taken the
         ones before it (counted by the caller as late)."""
+        if self.local_service is not None:
+            self.controller.swap_table(table, retune)
+            return True
         try:
             self.mailbox.post(("table", table, retune), timeout_s=0.5)
         except MailboxFull:
@@ -243,9 +255,10 @@ class LoopProcess:
                       self.estimator, self.supervisor, self.period_s, self.ring.name, self.mailbox.name, os.getpid(),
                       run, self.trip_on_overflow)
         result_r, result_w = os.pipe()
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # what this process imports
         try:
             proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.loop.process", str(result_w)],
-                                    stdin=subprocess.PIPE, pass_fds=(self.hw.fd, result_w))
+                                    stdin=subprocess.PIPE, pass_fds=(self.hw.fd, result_w), env=env)
         finally:
             os.close(result_w)
         self.pid = proc.pid
@@ -271,14 +284,32 @@ class LoopProcess:
             except subprocess.TimeoutExpired:
                 pass
         try:
-            report, link, controller = pickle.loads(data)
+            got = pickle.loads(data)
         except Exception:  # nothing, or half a report: it died
             return self._lost(proc, run)
+        if got[0] == "unloadable":
+            return self._here(got[1], run)
+        report, link, controller = got
         self.hw.adopt_link_state(link)
         if hasattr(self.controller, "adopt"):
             self.controller.adopt(controller)
         self.overflow = getattr(report, "ring_overflow", 0)
         self._device_said(report)
+        return report
+
+    def _here(self, why: str, run: dict[str, Any]) -> LoopReport:
+        """The loop process could not load its job: the loop runs in this process instead, said so."""
+        self.pid = None
+        self._done.set()
+        service = LoopService(self.hw, self.configure, self.controller, self.estimator, self.supervisor,
+                              self.period_s, self.dispatch)
+        self.local_service = service
+        if self._stop is not None:
+            service.request_stop(*self._stop)
+        report = service.run(**run)
+        if report.realtime is not None:
+            report.realtime = dataclasses.replace(report.realtime, process=f"the session's process (the loop "
+                                                  f"process could not load its job: {why})")
         return report
 
     def _device_said(self, report: LoopReport) -> None:

@@ -23,22 +23,16 @@ import time
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState
+from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface
 from rehab_hil.loop.controllers import SAFE_COMMAND, Command, LoopController
 from rehab_hil.loop.estimation import Estimator, State
+from rehab_hil.loop.pacing import PACINGS, DevicePacing, HostPacing, RunState
 from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
+from rehab_hil.loop.shutdown import shut_down, stall_facts
 from rehab_hil.loop.supervisor import SafetyEvent, Supervisor
-from rehab_hil.loop.timing import (
-    HELPER_NICE,
-    DeadlineTimer,
-    RealtimeReport,
-    TimingStats,
-    realtime_setup,
-    realtime_teardown,
-    run_queue_wait_s,
-)
-from rehab_hil.loop.trip_cause import StallFacts, pwm_unconfirmed_text
-from rehab_hil.protocol import Configure, Sample, Status
+from rehab_hil.loop.timing import HELPER_NICE, RealtimeReport, realtime_setup, realtime_teardown, run_queue_wait_s
+from rehab_hil.loop.trip_cause import StallFacts
+from rehab_hil.protocol import Configure, Sample
 
 __all__ = ["PACINGS", "LoopReport", "LoopService", "Outlet", "RunState"]
 
@@ -47,10 +41,7 @@ log = logging.getLogger(__name__)
 # does): half the cost, once per sample and per command on the loop thread
 _new_record = tuple.__new__
 
-CONFIRM_CYCLES = 20  # cycles spent after a trip confirming the device reports PWM 0
-CONFIRM_S = 0.5  # ... and at least this long (host clock) while no sample shows it
 STALL_MARK_EVERY = 50  # cycles between marks of the loop thread's run-queue wait (a host stall's baseline)
-RECENT_GAP_S = 1.0  # a gap between two commands this recent can explain a watchdog trip (trip_cause.py)
 CONFIGURE_TIMEOUT_S = 1.0  # a board answers CONFIGURE within milliseconds; 1 s is a dead or wrong port
 # a simulated device spawned here is a process that may wait seconds for a CPU on a busy machine (two
 # busy loops, load 15: "no ACK for Configure within 1.00 s" at session open); nothing heats before it
@@ -94,116 +85,6 @@ class LoopReport:
     stall_facts: StallFacts | None = None  # the causes of a stall trip are explained from these (trip_cause.py)
     pwm_unconfirmed: str = ""  # why no sample after the trip shows the PWM state ("" = confirmed or not needed)
     ring_overflow: int = 0  # a loop process's records written over unread ones (loop.ring)
-
-
-class RunState:
-    """One run's state, in one place: the device-time axis, the counts, what is in force, the
-    records waiting for the write and the per-cycle figures (preallocated)."""
-
-    def __init__(self, period_s: float, n_max: int, reboots_seen: int) -> None:
-        self.period_s, self.n_max = period_s, n_max
-        self.index = -1  # continued sample index of the newest sample taken (gaps included): device time
-        self.samples = 0  # samples taken: estimated, supervised, recorded
-        self.sample_gaps = 0  # samples missing before those taken (as the hardware interface judged them)
-        self.reboots = 0  # device restarts in this session (the interface's count)
-        self.reboots_seen = reboots_seen  # the interface's count when last looked at
-        self.cycles = 0  # control cycles: a command computed from a sample and written
-        self.coalesced = 0  # samples taken in a cycle that controlled a newer one
-        self.state: State | None = None  # estimate of the newest sample
-        self.final: Sample | None = None  # the newest sample
-        self.command: Command = SAFE_COMMAND  # the last command written
-        self.command_seq = -1  # its COMMAND seq
-        self.pending: list[SampleRecord] = []  # records of the samples taken, handed over after the write
-        self.reaction = TimingStats(n_max)  # sample arrival -> command written
-        self.arrival_s = 0.0  # host clock when the newest sample arrived (perf_counter)
-        self.last_write_s = 0.0  # host clock of the last command written
-        self.write_gap_s = self.write_gap_end_s = 0.0  # the longest gap between two writes lately, and its end
-        self.trip_gap_s = 0.0  # host clock from the last command written to the trip (a host stall shows here)
-        self.trip_cpu_wait_s = 0.0  # of it, the loop thread runnable but waiting for a CPU
-        self.wait_mark = (0.0, 0.0)  # (host clock, the loop thread's run-queue wait) at the last progress update
-        self.pwm_unconfirmed = ""  # why no sample after a trip shows the PWM state
-        self.wall_s = 0.0  # host time the cycles took (a lockstep run's speed: device time / this)
-        self.ran_s = 0.0  # device time covered when the loop stopped (before the shutdown's samples)
-
-    @property
-    def t_s(self) -> float:
-        """Device time of the newest sample (0 before the first)."""
-        return max(self.index, 0) * self.period_s
-
-
-class DevicePacing:
-    """The device's sample stream is the clock: a cycle starts when a sample arrives (waiting up to
-    ``timeout_s``), takes every sample that came with it and controls the newest; its time is that
-    sample's device time. An empty wait counts as one period towards the session's length."""
-
-    name = "device"
-
-    def __init__(self, run_state: RunState, timeout_s: float) -> None:
-        self.run_state, self.timeout_s = run_state, timeout_s
-        self.k = 0  # cycles of the session's length used up
-
-    def start(self) -> None:
-        pass
-
-    def wait(self) -> float | None:
-        """How long this cycle may wait for its first sample, or None when the session's length is reached."""
-        return self.timeout_s if self.k < self.run_state.n_max else None
-
-    def t_s(self) -> float:
-        s = self.run_state
-        return (s.index if s.index >= 0 else self.k) * s.period_s
-
-    def controlled(self, taken: int) -> None:
-        self.run_state.coalesced += taken - 1
-        self.k = self.run_state.index + 1
-
-    def empty(self) -> None:
-        self.k += 1
-
-    def timing(self) -> dict[str, float]:
-        """Reaction percentiles; missed cycles are the samples not controlled: coalesced or lost."""
-        s = self.run_state
-        out = s.reaction.summary()
-        missed = s.coalesced + s.sample_gaps
-        out["missed_cycles"] = float(missed)
-        out["coalesced_samples"] = float(s.coalesced)
-        out["missed_pct"] = 100.0 * missed / (s.cycles + missed) if s.cycles + missed else 0.0
-        return out
-
-
-class HostPacing:
-    """The host's clock: a cycle wakes on the deadline t0 + k x period (``DeadlineTimer``) and takes
-    whatever arrived, without waiting; its time is k x period. Missed cycles are skipped deadlines."""
-
-    name = "host"
-
-    def __init__(self, run_state: RunState) -> None:
-        self.run_state = run_state
-        self.timer = DeadlineTimer(run_state.period_s, run_state.n_max)
-        self.k = 0
-
-    def start(self) -> None:
-        self.timer.start()
-
-    def wait(self) -> float | None:
-        """Sleep to this cycle's deadline; then take what arrived without waiting (0), or None at the end."""
-        self.k = self.timer.wait()
-        return 0.0 if self.k < self.run_state.n_max else None
-
-    def t_s(self) -> float:
-        return self.k * self.run_state.period_s
-
-    def controlled(self, taken: int) -> None:
-        self.run_state.coalesced += taken - 1
-
-    def empty(self) -> None:
-        pass
-
-    def timing(self) -> dict[str, float]:
-        return self.timer.stats.summary()
-
-
-PACINGS = ("device", "host")
 
 
 class LoopService:
@@ -258,7 +139,7 @@ class LoopService:
             try:
                 self._cycles(pace)
                 if self.supervisor.tripped:
-                    self._note_trip_gap()
+                    s.note_trip_gap()
             except Exception as e:  # a controller, estimator or sink bug: the safe state and ESTOP, said so
                 log.exception("the loop failed at t=%.3f s", s.t_s)
                 self.supervisor.trip(s.t_s, "software_fault", f"{type(e).__name__}: {e}")
@@ -303,16 +184,6 @@ class LoopService:
             pace.controlled(taken)
 
     # ---- before the write: the samples ---------------------------------------------------------
-    def _note_trip_gap(self) -> None:
-        """The loop returns at once after a trip: its longest gap between commands lately, and how
-        much of it the loop thread waited for a CPU (the rest it was blocked: the GIL, I/O)."""
-        s = self.run_state
-        now = time.perf_counter()
-        recent = s.write_gap_s if now - s.write_gap_end_s <= RECENT_GAP_S else 0.0
-        s.trip_gap_s = max(now - s.last_write_s, recent)
-        if s.wait_mark[0] and now - s.wait_mark[0] <= RECENT_GAP_S + s.trip_gap_s:
-            s.trip_cpu_wait_s = min(run_queue_wait_s() - s.wait_mark[1], s.trip_gap_s)
-
     def _take_arrived(self, first_timeout: float) -> int:
         """Take every sample that has arrived (waiting up to ``first_timeout`` for the first one);
         each is estimated and supervised, its record waits for the write. Returns how many."""
@@ -360,11 +231,7 @@ class LoopService:
         d0, d1 = cmd.duty
         try:
             s.command_seq = self.hw.write_command(d0, d1, cmd.direction, cmd.enable)
-            now = time.perf_counter()
-            gap = now - s.last_write_s if s.last_write_s else 0.0
-            if gap > s.write_gap_s or now - s.write_gap_end_s > RECENT_GAP_S:  # a host stall shows here
-                s.write_gap_s, s.write_gap_end_s = gap, now
-            s.last_write_s = now
+            s.wrote(time.perf_counter())
         except HardwareError as e:
             self.supervisor.trip(s.t_s, "link_loss", f"write failed: {e}")
         s.command = cmd
@@ -394,72 +261,15 @@ class LoopService:
 
     # ---- the end -------------------------------------------------------------------------------
     def _shutdown(self) -> None:
-        """PWM 0 now; after a trip also ESTOP, then watch a few samples confirm PWM off. Nothing to
-        do on a device that was never configured (its CONFIGURE failed): it is not driving."""
-        s, sup = self.run_state, self.supervisor
-        self._hand_over()  # samples taken in a cycle that ended before its write
-        s.command = SAFE_COMMAND
-        if self.hw.state is not LifecycleState.ACTIVE:
-            return
-        self._write(SAFE_COMMAND)
-        if sup.tripped:  # to every sink: recorded, published on zenoh's .../safety, shown
-            self.outlet.events([EventRecord(ev.t_s, ev.reason, ev.detail) for ev in sup.events])
-            if sup.events[0].reason not in ("link_loss",):
-                try:
-                    self.hw.estop(timeout=0.5)
-                except HardwareError as e:
-                    sup.trip(s.t_s, "estop_unanswered", str(e))
-        self._confirm_pwm_off()
-
-    def _confirm_pwm_off(self) -> None:
-        """Watch the samples until one shows every PWM off, writing PWM 0 each time (a lockstep
-        device answers each COMMAND with a SAMPLE), for ``CONFIRM_CYCLES`` and at least ``CONFIRM_S``
-        of host time (on a busy machine a simulated device's echo takes tens of ms). None showing
-        it: "NO" only if the device echoed the PWM-0 command and still drives; else unconfirmed, and why."""
-        s, sup = self.run_state, self.supervisor
-        watchdog_ms = float(self.configure_msg.watchdog_ms)
-        if sup.events and sup.events[0].reason == "link_loss":
-            s.pwm_unconfirmed = pwm_unconfirmed_text("the link was lost: no sample came after the trip", watchdog_ms)
-            return
-        end, n = time.perf_counter() + CONFIRM_S, 0
-        while n < CONFIRM_CYCLES or time.perf_counter() < end:
-            n += 1
-            self._write(SAFE_COMMAND)
-            try:
-                arrival = self.hw.read(timeout=2 * self.period_s)
-            except HardwareError:
-                break
-            if arrival is not None:
-                self._take_quiet(arrival)
-            f = s.final
-            if f is not None and ((f.duty0 == 0 and f.duty1 == 0 and not f.status & Status.PWM_ENABLED)
-                                  or (arrival is not None and f.cmd_seq_echo == s.command_seq)):
-                return  # off, or the PWM-0 command applied and still driving: a real NO
-        waited = time.perf_counter() - end + CONFIRM_S
-        s.pwm_unconfirmed = pwm_unconfirmed_text(f"no sample within {waited:.2f} s showed the PWM-0 command applied",
-                                                 watchdog_ms)
-
-    def _take_quiet(self, arrival: Arrival) -> None:
-        """A sample during shutdown: recorded and counted, no more trips judged."""
-        n_events = len(self.supervisor.events)
-        self._take(arrival)
-        self.supervisor.forget_events(n_events)
-        self._hand_over()
-
-    def _stall_facts(self) -> StallFacts:
-        """What the loop knows of stalls at the end (the device asked for its own count once)."""
-        s, sup, proc = self.run_state, self.supervisor, getattr(self.hw, "device_process", None)
-        reported = proc.reported_stalls() if proc is not None and self._host_clock and proc.alive() else {}
-        return StallFacts(float(self.configure_msg.watchdog_ms), s.trip_gap_s, list(sup.device_stalls), reported,
-                          simulated=proc is not None, host_cpu_wait_s=s.trip_cpu_wait_s)
+        shut_down(self)
 
     def _result(self, pace: DevicePacing | HostPacing, rt: RealtimeReport | None, duration_s: float) -> LoopReport:
         s, sup = self.run_state, self.supervisor
         return LoopReport(
             pacing=pace.name, realtime=rt, duration_s=duration_s, cycles=s.cycles, samples=s.samples,
-            sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **_speed(s)},
+            sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **s.speed()},
             reaction=s.reaction.summary(), ran_s=s.ran_s, link=self.hw.stats.as_dict(), events=list(sup.events),
-            stall_facts=self._stall_facts(), pwm_unconfirmed=s.pwm_unconfirmed, final_sample=s.final,
+            stall_facts=stall_facts(self, self._host_clock), pwm_unconfirmed=s.pwm_unconfirmed, final_sample=s.final,
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached")
 
 
@@ -469,10 +279,3 @@ def _configure_timeout_s(lockstep: bool, sample_timeout_s: float | None, device_
     if lockstep:
         return max(CONFIGURE_TIMEOUT_S, sample_timeout_s or 0.0)
     return LOCAL_DEVICE_CONFIGURE_TIMEOUT_S if device_process is not None else CONFIGURE_TIMEOUT_S
-
-
-def _speed(s: RunState) -> dict[str, float]:
-    """Device time the samples covered against the host time the cycles took: 1x in real time, the
-    speed-up of a lockstep run (issue 25: at least 5x over a pty)."""
-    device_s = (s.samples + s.sample_gaps) * s.period_s
-    return {"wall_s": s.wall_s, "device_s": device_s, "speed_x": device_s / s.wall_s if s.wall_s > 0 else 0.0}
