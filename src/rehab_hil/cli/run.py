@@ -109,19 +109,12 @@ def _progress_table(p: Progress) -> Table:
     return t
 
 
-def assistance_line(a: dict[str, Any]) -> str:
-    """Where assist-as-needed started and what it saved for the patient's next session."""
-    how = "fresh" if a["fresh"] else "resumed" if a["resumed"] else "from the config" + (
-        " (the store was not usable)" if a["problem"] else "")
-    moves = ", ".join(f"{d} {a['start'][d]:.2f} -> {a['end'][d]:.2f}" for d in a["end"])
-    saved = a["error"] or f"saved (session {a['sessions']}): {a['store']}"
-    return f"{moves}; {how}; {saved}"
-
-
 def summary_table(r: RunResult) -> Table:
     """The final summary: tracking, loop timing, link and safety."""
     t = Table(title=f"rehab-hil run: {r.stop_reason}", show_header=False)
     t.add_row("pacing / scheduler", f"{r.pacing} / {r.realtime.scheduler if r.realtime else 'not real-time'}")
+    if r.realtime is not None and r.realtime.process:
+        t.add_row("loop runs in", r.realtime.process)
     t.add_row("ran", f"{r.ran_s:.2f} s of {r.duration_s:g} s asked")
     t.add_row("cycles / samples / gaps / reboots", f"{r.cycles} / {r.samples} / {r.sample_gaps} / {r.reboots}")
     for k, v in r.tracking.items():
@@ -140,13 +133,6 @@ def summary_table(r: RunResult) -> Table:
         t.add_row("peak est. temperature / energy per cycle",
                   f"{s['peak_temperature_c']:.4g} C / {s['energy_per_cycle_j']:.4g} J")
         _therapy_rows(t, r)
-        if r.learning:
-            rl, cyc = r.learning, r.session_cycles
-            t.add_row("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "
-                      f"deg; {rl['updates']} updates ({rl['trials']} in all, "
-                      f"{'resumed' if rl['resumed'] else 'from the model'}); {rl['store']}")
-    if r.assistance:
-        t.add_row("assistance kept", assistance_line(r.assistance))
     tm = r.timing
     label = "lateness" if r.pacing == "host" else "reaction (sample in -> command out)"
     t.add_row(f"{label} p50/p99/p99.9/max",
@@ -176,7 +162,9 @@ def summary_table(r: RunResult) -> Table:
     _stall_rows(t, r.stalls)
     off = r.pwm_off_at_end
     t.add_row("device PWM off at end", "yes" if off else (f"[yellow]{r.pwm_unconfirmed}" if off is None else "[red]NO"))
-    _twin_rows(t, r.twin)
+    for feature in r.features.values():  # each feature's own lines (the twin, the learning, a kept assistance)
+        for label, text in feature.lines:
+            t.add_row(label, text)
     return t
 
 
@@ -211,38 +199,6 @@ def _therapy_rows(t: Table, r: RunResult) -> None:
         src = cyc[0].get("patient_torque_model_source", "model")
         t.add_row(f"per cycle: patient torque ({src})", f"opening {s['patient_torque_open_model_nm']:+.3g}, "
                   f"closing {s.get('patient_torque_close_model_nm', float('nan')):+.3g} N m toward the target")
-
-
-def _twin_rows(t: Table, meta: dict[str, Any]) -> None:
-    """The live twin's lines: its normal residual, the model events and the patient's estimate."""
-    from rehab_hil.twin.live import normal_residual_text
-    from rehab_hil.twin.thermal import thermal_event_text
-
-    if not meta:
-        return
-    tw = meta["twin"]
-    normal = normal_residual_text(tw.get("normal_residual", {}))
-    t.add_row("twin: normal residual / CPU per sample", f"{normal} / {tw.get('cpu_per_sample_us', 0):.1f} us")
-    if tw.get("error"):
-        t.add_row("[red]twin stopped", tw["error"])
-    for ev in meta.get("model_events", []):
-        t.add_row(f"[yellow]model_mismatch {ev['channel']}",
-                  f"t={ev['t_s']:.2f} s (seen {ev['detected_s']:.2f} s), {ev['size_counts']:.1f} counts; "
-                  f"{ev['cause'] or 'no cause named'}")
-    if not meta.get("model_events"):
-        t.add_row("model events", "none")
-    thermal = tw.get("thermal") or {}
-    for ev in thermal.get("events", []):  # the thermal quantities first: they move the bend, the contact barely
-        t.add_row(f"[yellow]thermal_change {ev['label']}", thermal_event_text(ev, label=False))
-    for key, est in thermal.get("estimates", {}).items():
-        t.add_row(f"thermal {est['label']}", f"{key} = {est['value']:.4g} +/- {est['ci95']:.2g} "
-                  f"(config {est['config']:.4g})")
-    for name, est in meta.get("patient", {}).get("session", {}).items():
-        since = f"; fitted from {est['since_s']:.2f} s, after a change" if est.get("since_s") else ""
-        if est["ci95"] > 0.5 * abs(est["value"]):
-            since += "; not determined by this session"
-        t.add_row(f"patient {name.split('.')[-1]}", f"{est['value']:.4g} +/- {est['ci95']:.2g} "
-                  f"(config {est['nominal']:.4g}; at the end {est['final']:.4g}{since})")
 
 
 def recorded_line(r: RunResult) -> str | None:

@@ -11,7 +11,7 @@ from rehab_hil.loop.result import FeatureResult, RunResult
 from rehab_hil.service.assist_store import AssistanceStore, KeptAssistance, default_assistance_dir
 from rehab_hil.service.features.base import Feature, SessionParts
 
-__all__ = ["KeptAssistanceFeature", "assistance_directions"]
+__all__ = ["KeptAssistanceFeature", "assistance_directions", "assistance_line"]
 
 
 def assistance_directions(controller: Any) -> dict[str, str]:
@@ -20,6 +20,15 @@ def assistance_directions(controller: Any) -> dict[str, str]:
     if declared is None or controller.reference.kind != "session":
         return {}
     return learned_directions(declared)
+
+
+def assistance_line(a: dict[str, Any]) -> str:
+    """Where assist-as-needed started and what it saved for the patient's next session."""
+    how = "fresh" if a["fresh"] else "resumed" if a["resumed"] else "from the config" + (
+        " (the store was not usable)" if a["problem"] else "")
+    moves = ", ".join(f"{d} {a['start'][d]:.2f} -> {a['end'][d]:.2f}" for d in a["end"])
+    saved = a["error"] or f"saved (session {a['sessions']}): {a['store']}"
+    return f"{moves}; {how}; {saved}"
 
 
 class KeptAssistanceFeature(Feature):
@@ -48,7 +57,8 @@ class KeptAssistanceFeature(Feature):
         assert self.kept is not None
         ended = f"{result.events[0].reason}: {result.stop_reason}" if result.events else result.stop_reason
         summary = self.kept.finish(ended)
-        return FeatureResult(self.name, summary, {"assistance_store": summary})
+        return FeatureResult(self.name, summary, {"assistance_store": summary},
+                             (("assistance kept", assistance_line(summary)),))
 
     def failed(self, error: BaseException) -> None:
         """The loop raised: what was learned so far is kept."""

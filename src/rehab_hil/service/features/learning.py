@@ -86,9 +86,14 @@ class RigLearningFeature(Feature):
         swapped = getattr(self.runtime, "swapped_at", [])
         if swapped:  # a loop process took the tables at its own swap windows
             summary["swapped_at_s"] = [round(t, 4) for t in swapped]
-        result.session_cycles = per_cycle_learning(result.session_cycles, learning.log,
-                                                   self.runtime.reference.period_s)
-        return FeatureResult(self.name, summary, {"rig_learning": summary})
+        cyc = result.session_cycles = per_cycle_learning(result.session_cycles, learning.log,
+                                                         self.runtime.reference.period_s)
+        lines = ()
+        if cyc:
+            lines = (("learning on the rig", f"per-cycle RMSE {cyc[0]['rmse_deg']:.2f} -> {cyc[-1]['rmse_deg']:.2f} "
+                      f"deg; {summary['updates']} updates ({summary['trials']} in all, "
+                      f"{'resumed' if summary['resumed'] else 'from the model'}); {summary['store']}"),)
+        return FeatureResult(self.name, summary, {"rig_learning": summary}, lines)
 
     def close(self) -> None:
         if self.replan is not None:

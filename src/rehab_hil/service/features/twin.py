@@ -12,7 +12,7 @@ from rehab_hil.loop.sinks import Sink
 from rehab_hil.service.errors import SessionError
 from rehab_hil.service.features.base import Feature, LoopHandle, SessionParts
 
-__all__ = ["PatientTorque", "Twin"]
+__all__ = ["PatientTorque", "Twin", "twin_lines"]
 
 
 class Twin(Feature):
@@ -47,11 +47,44 @@ class Twin(Feature):
     def finish(self, result: RunResult) -> FeatureResult | None:
         meta = self.run.close()
         csv = self.run.twin.csv_path
-        return FeatureResult(self.name, meta, meta, files=(str(csv),) if csv is not None else ())
+        return FeatureResult(self.name, meta, meta, twin_lines(meta), (str(csv),) if csv is not None else ())
 
     def close(self) -> None:
         if self.run is not None:
             self.run.live.close()  # the twin's thread, if the session never ran (idempotent)
+
+
+def twin_lines(meta: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+    """The live twin's lines of the run summary: its normal residual, the model events, the thermal
+    estimates and the patient's estimate."""
+    from rehab_hil.twin.live import normal_residual_text
+    from rehab_hil.twin.thermal import thermal_event_text
+
+    out: list[tuple[str, str]] = []
+    tw = meta["twin"]
+    normal = normal_residual_text(tw.get("normal_residual", {}))
+    out.append(("twin: normal residual / CPU per sample", f"{normal} / {tw.get('cpu_per_sample_us', 0):.1f} us"))
+    if tw.get("error"):
+        out.append(("[red]twin stopped", tw["error"]))
+    for ev in meta.get("model_events", []):
+        out.append((f"[yellow]model_mismatch {ev['channel']}",
+                    f"t={ev['t_s']:.2f} s (seen {ev['detected_s']:.2f} s), {ev['size_counts']:.1f} counts; "
+                    f"{ev['cause'] or 'no cause named'}"))
+    if not meta.get("model_events"):
+        out.append(("model events", "none"))
+    thermal = tw.get("thermal") or {}
+    for ev in thermal.get("events", []):  # the thermal quantities first: they move the bend, the contact barely
+        out.append((f"[yellow]thermal_change {ev['label']}", thermal_event_text(ev, label=False)))
+    for key, est in thermal.get("estimates", {}).items():
+        out.append((f"thermal {est['label']}", f"{key} = {est['value']:.4g} +/- {est['ci95']:.2g} "
+                    f"(config {est['config']:.4g})"))
+    for name, est in meta.get("patient", {}).get("session", {}).items():
+        since = f"; fitted from {est['since_s']:.2f} s, after a change" if est.get("since_s") else ""
+        if est["ci95"] > 0.5 * abs(est["value"]):
+            since += "; not determined by this session"
+        out.append((f"patient {name.split('.')[-1]}", f"{est['value']:.4g} +/- {est['ci95']:.2g} "
+                    f"(config {est['nominal']:.4g}; at the end {est['final']:.4g}{since})"))
+    return tuple(out)
 
 
 class PatientTorque(Feature):
