@@ -108,7 +108,7 @@ def test_the_options_are_grouped_and_an_unknown_one_names_them_all() -> None:
     assert opts.views.record == Path("out") and opts.views.twin and opts.learning.rig_learning is False
     assert opts.sim.sim_plant == FE and opts.rig.rig_id == "bench"
     assert len([f for f in SessionOptions.__dataclass_fields__]) <= 12
-    with pytest.raises(TypeError, match="'recrod'.*the options are: controller, reference"):
+    with pytest.raises(TypeError, match=r"'recrod'.*the options are: controller, reference"):
         SessionOptions.of(recrod="out")
 
 
