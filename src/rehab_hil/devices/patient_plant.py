@@ -16,14 +16,14 @@ from rehab_hil.plants.registry import get_plant
 __all__ = ["patient_plant"]
 
 
-def patient_plant(cfg: Any, binding: DeviceBinding, patient: str | Path | None, truth: str | Path | None = None,
+def patient_plant(cfg: Any, binding: DeviceBinding, patient: Any, truth: str | Path | None = None,
                   **plant_io: Any) -> PlantIO:
-    """``PlantIO`` on ``binding``, with the patient of the file ``patient`` on its plant (None: none)
-    and its true state written to ``truth`` (``sim_truth.csv``; None: not written). The writer is
-    ``plant.truth_sink`` (close it with the device)."""
+    """``PlantIO`` on ``binding``, with the patient ``patient`` on its plant (a file, or a profile a session
+    has loaded already; None: none) and its true state written to ``truth`` (``sim_truth.csv``; None: not
+    written). The writer is ``plant.truth_sink`` (close it with the device)."""
     if patient is None:
         return PlantIO(binding, **plant_io)
-    profile = load_patient(patient)
+    profile = load_patient(patient) if isinstance(patient, str | Path) else patient
     axis = get_plant(cfg.plant).ports(cfg).axes[0]
     names = (axis.angle, axis.velocity, *TRUTH_SIGNALS)
     sink = TruthWriter(truth, names) if truth is not None else None

@@ -37,14 +37,16 @@ def inprocess_hardware(binding: Any, *, adc_noise_counts: float = 0.0, seed: int
 def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, baud: int | None = None,
              connect_timeout_s: float = 3.0, write_timeout_s: float = 0.2,
              spawn_args: list[str] | None = None, sim_patient: str | Path | None = None,
-             sim_truth: str | Path | None = None, cfg: Any = None) -> Iterator[HardwareInterface]:
+             sim_truth: str | Path | None = None, cfg: Any = None,
+             loaded_patient: Any = None) -> Iterator[HardwareInterface]:
     """Open ``device`` (see the module docstring) on the plant of ``config_path`` and connect (HELLO);
     closes the hardware and stops a spawned device process on exit. ``lockstep``: the simulated
     device runs in virtual time, one sample period per COMMAND (deterministic; "inprocess" always
     does; "avr": the harness stops simulated time once the firmware has answered the host).
     ``baud``: a serial path's rate (default ``[rig].baud``). ``sim_patient``: a simulated patient
     (``profiles/sim/*.toml``) on a simulated device's plant, its true state written to ``sim_truth``.
-    ``cfg``: ``config_path`` already loaded (a session loads it once). Failures raise ``HardwareError``."""
+    ``cfg``, ``loaded_patient``: ``config_path`` and ``sim_patient`` already loaded (a session loads each once; the
+    in-process device takes them as they are). Failures raise ``HardwareError``."""
     cfg = cfg if cfg is not None else _config(config_path)
     device = resolve_device(device)  # "auto": the one Arduino-like USB serial port (hardware/discovery.py)
     announce_device(device, config_path, cfg.rig.port)  # which device, on stderr
@@ -54,7 +56,7 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
         if sim_patient is not None and sim_truth is not None:
             patient += ["--sim-truth", str(sim_truth)]
         if device == "inprocess":
-            hw = _inprocess(stack, cfg, sim_patient, sim_truth)
+            hw = _inprocess(stack, cfg, loaded_patient if loaded_patient is not None else sim_patient, sim_truth)
         else:
             from rehab_hil.hardware.serial_hw import SerialHardware
 
@@ -72,7 +74,7 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
         yield hw
 
 
-def _inprocess(stack: ExitStack, cfg: Any, sim_patient: str | Path | None,
+def _inprocess(stack: ExitStack, cfg: Any, sim_patient: Any,
                sim_truth: str | Path | None) -> InProcessHardware:
     """The in-process rig, with a simulated patient on its plant when one is given."""
     from rehab_hil.plants import get_plant

@@ -51,6 +51,7 @@ class Loaded:
     device_config: Path
     identity: SessionIdentity
     rig_id: str
+    patient: Any = None  # the simulated patient, loaded (``patient.profile``), or None
     truth: SimTruth | None = None
 
 
@@ -72,7 +73,7 @@ def load_session(config: Path, device: str | None, opts: SessionOptions) -> Load
                                                                       profile_rig_keys(profile))
     return Loaded(config, device, opts, cfg, binding, _controller(cfg, config, opts, sources),
                   opts.test.configure or assembly.firmware_configure(cfg, binding), device_cfg, device_config,
-                  identity, rig_id)
+                  identity, rig_id, patient)
 
 
 def _controller(cfg: Any, config: Path, opts: SessionOptions, sources: Sources) -> Any:
@@ -127,7 +128,7 @@ def open_hardware(stack: ExitStack, loaded: Loaded) -> SessionParts:
             hw = stack.enter_context(open_rig(
                 loaded.device, loaded.device_config, lockstep=opts.lockstep, baud=loaded.cfg.rig.baud,
                 write_timeout_s=loaded.cfg.rig.write_timeout_ms / 1000.0, sim_patient=opts.sim.sim_patient,
-                sim_truth=truth, cfg=loaded.device_cfg))
+                sim_truth=truth, cfg=loaded.device_cfg, loaded_patient=loaded.patient))
         except HardwareError as e:
             raise SessionError("device", f"{loaded.device}: {e}") from None
     return SessionParts(loaded.cfg, loaded.config, loaded.binding, assembly.period_s(loaded.cfg), loaded.device, hw,
