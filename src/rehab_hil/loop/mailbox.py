@@ -14,8 +14,9 @@ import pickle
 import struct
 import threading
 import time
-from multiprocessing import shared_memory
 from typing import Any
+
+from rehab_hil.loop.shm import SharedBlock
 
 __all__ = ["Mailbox", "MailboxFull"]
 
@@ -34,28 +35,19 @@ class Mailbox:
     """The shared block; created by the session's process, attached by name in the loop process
     (mapped directly, as ``loop.ring`` does, so no resource tracker unlinks it)."""
 
-    def __init__(self, name: str, buf: Any, shm: shared_memory.SharedMemory | None = None, mapped: Any = None) -> None:
-        self.name, self.buf, self.shm, self._mapped = name, buf, shm, mapped
+    def __init__(self, block: SharedBlock) -> None:
+        self.block, self.name, self.buf = block, block.name, block.buf
         self._lock = threading.Lock()
-        self.taken_seen = 0
 
     @classmethod
     def create(cls) -> Mailbox:
-        shm = shared_memory.SharedMemory(create=True, size=HEADER_BYTES + SLOTS * SLOT_BYTES)
-        _COUNTS.pack_into(shm.buf, 0, 0, 0)
-        return cls(shm.name, shm.buf, shm=shm)
+        block = SharedBlock.create(HEADER_BYTES + SLOTS * SLOT_BYTES)
+        _COUNTS.pack_into(block.buf, 0, 0, 0)
+        return cls(block)
 
     @classmethod
     def attach(cls, name: str) -> Mailbox:
-        import mmap
-        import os
-
-        fd = os.open(f"/dev/shm/{name.lstrip('/')}", os.O_RDWR)
-        try:
-            mapped = mmap.mmap(fd, os.fstat(fd).st_size)
-        finally:
-            os.close(fd)
-        return cls(name, memoryview(mapped), mapped=mapped)
+        return cls(SharedBlock.attach(name))
 
     def counts(self) -> tuple[int, int]:
         """(posted, taken)."""
@@ -102,18 +94,5 @@ class Mailbox:
 
     def close(self) -> None:
         """Unmap (and, from the creator, unlink) the block; idempotent."""
-        if self.buf is None:
-            return
-        if self._mapped is not None:
-            self.buf.release()
-            self._mapped.close()
         self.buf = None
-        if self.shm is not None:
-            try:
-                self.shm.close()
-            except BufferError:
-                pass
-            try:
-                self.shm.unlink()
-            except FileNotFoundError:
-                pass
+        self.block.close()

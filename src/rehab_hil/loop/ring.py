@@ -17,17 +17,15 @@ session's readers (the recorder, zenoh, the twin) may stall without losing anyth
 from __future__ import annotations
 
 import math
-import mmap
 import operator
-import os
 import struct
 from collections.abc import Sequence
-from multiprocessing import shared_memory
 from typing import Any
 
 from rehab_hil.loop.controllers import Command
 from rehab_hil.loop.estimation import State
 from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
+from rehab_hil.loop.shm import SharedBlock
 from rehab_hil.protocol import Sample, _sample_of
 
 __all__ = ["RING_S", "SLOT_BYTES", "RecordRing", "RingReader", "RingWriter", "records_per_s"]
@@ -72,14 +70,12 @@ def records_per_s(rate_hz: float) -> float:
 class RecordRing:
     """The shared block; ``create`` in the session's process, ``attach`` by name in the loop process."""
 
-    def __init__(self, name: str, buf: Any, shm: shared_memory.SharedMemory | None = None,
-                 mapped: mmap.mmap | None = None) -> None:
-        self.name, self.shm, self._mapped = name, shm, mapped
-        self.owner = shm is not None
-        self.buf = buf
-        magic, slot, cap = struct.unpack_from("<IIQ", buf, 0)
+    def __init__(self, block: SharedBlock) -> None:
+        self.block, self.name, self.owner = block, block.name, block.owner
+        self.buf = block.buf
+        magic, slot, cap = struct.unpack_from("<IIQ", self.buf, 0)
         if magic != MAGIC or slot != SLOT_BYTES:
-            raise ValueError(f"shared memory {name} is not a record ring")
+            raise ValueError(f"shared memory {self.name} is not a record ring")
         self.capacity = int(cap)
 
     @classmethod
@@ -87,10 +83,10 @@ class RecordRing:
         """A new ring of ``capacity`` slots, every page touched now (no page fault in the loop)."""
         if capacity < 16:
             raise ValueError(f"a ring needs at least 16 slots, got {capacity}")
-        shm = shared_memory.SharedMemory(create=True, size=HEADER_BYTES + capacity * SLOT_BYTES)
-        shm.buf[:] = bytes(len(shm.buf))
-        _HEADER.pack_into(shm.buf, 0, MAGIC, SLOT_BYTES, capacity, 0, 0, 0, 0, 0.0)
-        return cls(shm.name, shm.buf, shm=shm)
+        block = SharedBlock.create(HEADER_BYTES + capacity * SLOT_BYTES)
+        block.buf[:] = bytes(len(block.buf))
+        _HEADER.pack_into(block.buf, 0, MAGIC, SLOT_BYTES, capacity, 0, 0, 0, 0, 0.0)
+        return cls(block)
 
     @classmethod
     def for_session(cls, rate_hz: float, ring_s: float = RING_S) -> RecordRing:
@@ -98,14 +94,8 @@ class RecordRing:
 
     @classmethod
     def attach(cls, name: str) -> RecordRing:
-        """The ring ``name`` mapped in this process (the loop process): mapped directly, not through
-        ``SharedMemory``, whose resource tracker would unlink the block when this process ends."""
-        fd = os.open(f"/dev/shm/{name.lstrip('/')}", os.O_RDWR)
-        try:
-            mapped = mmap.mmap(fd, os.fstat(fd).st_size)
-        finally:
-            os.close(fd)
-        return cls(name, memoryview(mapped), mapped=mapped)
+        """The ring ``name`` mapped in this process (the loop process)."""
+        return cls(SharedBlock.attach(name))
 
     @property
     def seconds(self) -> float:
@@ -142,21 +132,8 @@ class RecordRing:
 
     def close(self) -> None:
         """Unmap (and, from the creator, unlink) the block; idempotent."""
-        if self.buf is None:
-            return
-        if self._mapped is not None:
-            self.buf.release()
-            self._mapped.close()
         self.buf = None
-        if self.shm is not None:
-            try:
-                self.shm.close()
-            except BufferError:  # a view still exported: unlinked all the same
-                pass
-            try:
-                self.shm.unlink()
-            except FileNotFoundError:
-                pass
+        self.block.close()
 
 
 class RingWriter:
