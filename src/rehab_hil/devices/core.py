@@ -2,8 +2,8 @@
 
 ``DeviceCore`` takes decoded frames and 1 kHz base ticks with sensor readings and returns the
 messages the device sends; it owns the applied PWM outputs and every safety rule (watchdog,
-max duty, heating time, force limit, range of motion, e-stop). The Python simulated device
-wraps it with a pty, a clock and a plant model.
+max duty, heating time, force limit, range of motion, e-stop; the checks of a tick and the trip in
+devices/safety.py). The Python simulated device wraps it with a pty, a clock and a plant model.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from rehab_hil.devices.safety import SafetyRules
 from rehab_hil.protocol import (
     BASE_RATE_HZ,
     DUTY_FULL,
@@ -23,7 +24,6 @@ from rehab_hil.protocol import (
     DeviceHeartbeat,
     EStop,
     Fault,
-    FaultReport,
     Frame,
     Heartbeat,
     Hello,
@@ -40,8 +40,6 @@ __all__ = ["FIRMWARE_VERSION", "DeviceCore", "Readings"]
 
 FIRMWARE_VERSION = (1, 1, 0)
 TICK_US = 1_000_000 // BASE_RATE_HZ
-# faults CLEAR cannot remove while their cause is present
-_CONDITIONAL = Fault.FORCE_LIMIT | Fault.RANGE_OF_MOTION | Fault.ESTOP_INPUT
 
 
 @dataclass
@@ -63,8 +61,9 @@ class Readings:
         return self.estop_pin if normally_closed else not self.estop_pin
 
 
-class DeviceCore:
-    """Protocol v1 device behaviour; ``duty`` / ``direction`` are the applied outputs."""
+class DeviceCore(SafetyRules):
+    """Protocol v1 device behaviour; ``duty`` / ``direction`` are the applied outputs. The safety
+    checks of a tick, ``estop_active`` and the trip are ``SafetyRules`` (devices/safety.py)."""
 
     def __init__(self, encoder_counts_per_rev: int = 0, reset_cause: int = ResetCause.POWER_ON,
                  estop_normally_closed: bool | None = None) -> None:
@@ -199,30 +198,8 @@ class DeviceCore:
             count = (readings.encoder_count + self.encoder_offset + (1 << 31)) % (1 << 32) - (1 << 31)
             readings = dataclasses.replace(readings, encoder_count=count)
         self.readings = readings
-        out: list[Message] = []
         c = self.config
-        if c is not None:
-            if self.armed and watch_host:
-                self.since_cmd += 1
-                if self.since_cmd >= c.watchdog_ms:
-                    self.armed = False
-                    out += self._trip(Fault.WATCHDOG)
-            if self.enabled and (self.duty[0] > 0 or self.duty[1] > 0):
-                self.heating += 1
-                if self.heating >= c.max_heating_ms:
-                    out += self._trip(Fault.HEATING_TIME)
-            else:
-                self.heating = 0
-            present = self._present_causes()
-            if present & Fault.FORCE_LIMIT:  # debounced: N consecutive ticks above the limit
-                self.force_ticks += 1
-                if self.force_ticks < c.force_debounce_ms:
-                    present &= ~Fault.FORCE_LIMIT
-            else:
-                self.force_ticks = 0
-            present &= ~self.faults
-            if present:
-                out += self._trip(present)
+        out = [] if c is None else self._check_limits(c, watch_host)  # safety first (devices/safety.py)
         if self.divider and self.ticks % self.divider == 0:
             out.append(self.sample())
         return out
@@ -252,40 +229,3 @@ class DeviceCore:
         if self.armed:
             bits |= Status.WATCHDOG_ARMED
         return bits
-
-    # ---- safety -------------------------------------------------------------------------------
-
-    @property
-    def estop_active(self) -> bool:
-        """The e-stop input per the configured polarity (before CONFIGURE: active low, as the firmware)."""
-        nc = bool(self.config and self.config.flags & Configure.FLAG_ESTOP_NORMALLY_CLOSED)
-        wiring = nc if self.estop_wiring_nc is None else self.estop_wiring_nc
-        high = self.readings.pin_high(wiring)
-        return high if nc else not high
-
-    def _present_causes(self) -> int:
-        """Conditional faults whose condition holds now."""
-        c, r = self.config, self.readings
-        bits = 0
-        if c is None:
-            return bits
-        if r.adc0 > c.force_limit_counts:
-            bits |= Fault.FORCE_LIMIT
-        if r.encoder_count < c.enc_min or r.encoder_count > c.enc_max:
-            bits |= Fault.RANGE_OF_MOTION
-        if c.flags & Configure.FLAG_ESTOP_INPUT and self.estop_active:
-            bits |= Fault.ESTOP_INPUT
-        return bits & _CONDITIONAL
-
-    def _trip(self, bits: int) -> list[Message]:
-        """PWM off at once; latch ``bits``; one FAULT frame if any bit is new."""
-        self._outputs_off()
-        self.heating = 0
-        new = bits & ~self.faults
-        self.faults |= bits
-        return [FaultReport(new, self.faults)] if new else []
-
-    def _outputs_off(self) -> None:
-        self.duty = [0, 0]
-        self.direction = 0
-        self.enabled = False

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import errno
-import heapq
 import os
 import random
 import select
@@ -51,7 +50,8 @@ from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import DeviceCore, Readings
 from rehab_hil.devices.plant_io import PlantIO
 from rehab_hil.devices.stall import StallMeter
-from rehab_hil.protocol import BASE_RATE_HZ, CommandFrame, Configure, FrameDecoder, Message, ResetCause, encode_frame
+from rehab_hil.devices.tx_line import TxLine
+from rehab_hil.protocol import BASE_RATE_HZ, CommandFrame, Configure, FrameDecoder, Message, ResetCause
 
 __all__ = ["SimDevice", "build_parser", "main"]
 
@@ -61,7 +61,8 @@ MAX_TICKS_PER_WAKE = 20  # catch-up ticks between two looks at the pty and the c
 
 
 class SimDevice(ControlChannel):
-    """One simulated device: the firmware core, the plant, a pty master and the fault knobs.
+    """One simulated device: the firmware core, the plant, a pty master and the fault knobs (its
+    outgoing frames and the faults on them: ``tx``, a ``TxLine``).
 
     ``counts_per_rev`` plays the firmware build's ENCODER_COUNTS_PER_REV (0: adopts CONFIGURE's)."""
 
@@ -70,86 +71,30 @@ class SimDevice(ControlChannel):
         if clock not in ("realtime", "lockstep"):
             raise ValueError(f"clock must be 'realtime' or 'lockstep', got {clock!r}")
         self.plant, self.counts_per_rev, self.clock = plant, counts_per_rev, clock
-        self.rng = random.Random(seed)
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave, termios.TCSANOW)
         tty.setraw(self.master, termios.TCSANOW)
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
+        self.tx = TxLine(self.master, random.Random(seed))  # what the device sends, and the link faults on it
         self.estop_pin = False
         self.estop_wire_broken = False
         self.estop_nc = estop_normally_closed
-        self.drop = self.corrupt = 0.0
-        self.delay_s = 0.0
-        self.truncate_next = False
-        self.stall_until_tick = -1  # the last base tick of a stall: device time, whatever the clock or the load
-        self.tx_frames = self.tx_dropped = self.tx_overrun = 0
         self.stalls = StallMeter()  # this process not scheduled: measured, reported, never a fault
         self.commands_seen = 0  # valid COMMAND frames received (evidence the host was alive during a stall)
         self._unwatched = 0  # ticks still to catch up that the watchdog does not count (a stall of this process)
         self._woke = 0.0  # when the loop last woke (perf_counter)
-        self._delayed: list[tuple[float, int, bytes]] = []
-        self._delayed_n = 0
-        self._last_due = 0.0  # when the newest held frame goes out
         self.running = True
         self._boot(ResetCause.POWER_ON)
 
     def _boot(self, cause: int) -> None:
         self.core = DeviceCore(self.counts_per_rev, reset_cause=cause, estop_normally_closed=self.estop_nc)
-        self.stall_until_tick = -1  # a reset ends a stall
+        self.tx.restart()  # seq 0; a reset ends a stall
         self.decoder = FrameDecoder()
-        self._tx_seq = 0
         self._send(self.core.boot())
 
-    # ---- outgoing -----------------------------------------------------------------------------
-
     def _send(self, msgs: Sequence[Message]) -> None:
-        for msg in msgs:
-            frame = encode_frame(msg, self._tx_seq)
-            self._tx_seq = (self._tx_seq + 1) & 0xFFFF
-            self.tx_frames += 1
-            now = time.perf_counter()
-            if self.core.ticks <= self.stall_until_tick or (self.drop and self.rng.random() < self.drop):
-                self.tx_dropped += 1
-                continue
-            if self.corrupt and self.rng.random() < self.corrupt:
-                buf = bytearray(frame)
-                i = self.rng.randrange(len(buf) - 1)
-                buf[i] ^= self.rng.randrange(1, 256)
-                frame = bytes(buf)
-            if self.truncate_next:
-                self.truncate_next = False
-                frame = frame[: max(1, (len(frame) - 1) // 2)] + b"\x00"
-            if self.delay_s > 0 or self._delayed:  # a wire never reorders: after a delay is lifted,
-                self._delayed_n += 1                # frames wait behind the ones still held
-                self._last_due = max(now + self.delay_s, self._last_due if self._delayed else 0.0)
-                heapq.heappush(self._delayed, (self._last_due, self._delayed_n, frame))
-            else:
-                self._write(frame)
-
-    def _flush_delayed(self) -> None:
-        now = time.perf_counter()
-        while self._delayed and self._delayed[0][0] <= now:
-            self._write(heapq.heappop(self._delayed)[2])
-
-    def _write(self, data: bytes) -> None:
-        """Non-blocking write; when nobody reads the pty and its buffer is full, the frame is lost."""
-        try:
-            n = os.write(self.master, data)
-        except BlockingIOError:
-            n = 0
-        except OSError as e:
-            if e.errno in (errno.EIO, errno.EAGAIN):
-                n = 0
-            else:
-                raise
-        if n < len(data):
-            self.tx_overrun += 1
-            if n:  # a partial frame: terminate it so the host resyncs (it counts one bad frame)
-                try:
-                    os.write(self.master, b"\x00")
-                except OSError:
-                    pass
+        self.tx.send(msgs, self.core.ticks)
 
     # ---- incoming -----------------------------------------------------------------------------
 
@@ -184,16 +129,16 @@ class SimDevice(ControlChannel):
             p = float(args[0])
             if not 0.0 <= p <= 1.0:
                 return f"error {cmd} probability must be in 0..1"
-            setattr(self, cmd, p)
+            setattr(self.tx, cmd, p)
         elif cmd == "delay" and len(args) == 1:
-            self.delay_s = _non_negative(args[0]) / 1000.0
+            self.tx.delay_s = _non_negative(args[0]) / 1000.0
         elif cmd == "garbage" and len(args) == 1:
-            self._write(self.rng.randbytes(int(_non_negative(args[0]))))
+            self.tx.garbage(int(_non_negative(args[0])))
         elif cmd == "truncate" and not args:
-            self.truncate_next = True
+            self.tx.truncate_next = True
         elif cmd == "stall" and len(args) == 1:
             ticks = round(_non_negative(args[0]) * BASE_RATE_HZ / 1000.0)
-            self.stall_until_tick = self.core.ticks + ticks if ticks else -1
+            self.tx.stall_until_tick = self.core.ticks + ticks if ticks else -1
         elif cmd == "disconnect" and not args:
             self.running = False
         elif cmd == "reboot" and len(args) <= 1:
@@ -205,8 +150,7 @@ class SimDevice(ControlChannel):
         elif cmd == "status" and not args:
             c = self.core
             return (f"ok ticks={c.ticks} samples={c.sample_index} faults={c.faults} rx_bad={c.rx_bad_frames} "
-                    f"tx_frames={self.tx_frames} tx_dropped={self.tx_dropped} tx_overrun={self.tx_overrun} "
-                    f"{self.stalls.status()}")
+                    f"{self.tx.status()} {self.stalls.status()}")
         else:
             return UNKNOWN
         return None
@@ -221,8 +165,7 @@ class SimDevice(ControlChannel):
         while self.running:
             now = time.perf_counter()
             deadline = next_tick if self.clock == "realtime" else now + 0.05
-            if self._delayed:
-                deadline = min(deadline, self._delayed[0][0])
+            deadline = min(deadline, self.tx.next_due())
             fds = [self.master] + ([stdin_fd] if stdin_fd is not None else [])
             readable, _, _ = select.select(fds, [], [], max(0.0, deadline - now))
             woke, commands_before = time.perf_counter(), self.commands_seen
@@ -251,7 +194,7 @@ class SimDevice(ControlChannel):
                     print(self.control(line.decode(errors="replace")), file=out, flush=True)
             if self.clock == "realtime":
                 next_tick = self._catch_up(next_tick, lost, self.commands_seen > commands_before)
-            self._flush_delayed()
+            self.tx.flush_delayed()
         self.close()
 
     def _catch_up(self, next_tick: float, lost: float, host_spoke: bool) -> float:

@@ -3,7 +3,8 @@
 The measured inputs are resampled (linear interpolation) onto the model's fixed step; model
 outputs are interpolated back onto the measured time stamps, so a recording at any rate can be
 compared. The diagram carries every applicable library effect, disabled, so fitting an effect is
-an edit of the parameter vector of one compiled system (``with_effects``), never a recompile.
+an edit of the parameter vector of one compiled system (``with_effects``), never a recompile
+(binding.py builds it, and scales and weighs each channel).
 """
 
 from __future__ import annotations
@@ -17,25 +18,27 @@ from typing import Any
 import numpy as np
 
 from rehab_hil import metrics
-from rehab_hil.control.cascade import loop_parts
-from rehab_hil.discrepancy.closed_loop import describe_loop, recorded_loop
-from rehab_hil.discrepancy.verdict import noise_floor
-from rehab_hil.effects import Effect, applicable, attach
+from rehab_hil.discrepancy.binding import (
+    ADC_FULL_SCALE_COUNTS,
+    CANDIDATE_PREFIX,
+    NOISY_SPREAD,
+    augmented,
+    channel_weights,
+    on_adc_grid,
+)
+from rehab_hil.effects import Effect
 from rehab_hil.interchange import CsvError, Recording
 from rehab_hil.models.ports import Ports
-from rehab_hil.models.system import CompiledSystem, Diagram
-from rehab_hil.plants.registry import Plant, compose, plants
+from rehab_hil.models.system import CompiledSystem
+from rehab_hil.plants.registry import Plant, plants
 
-__all__ = ["CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "NOISY_SPREAD", "Replay", "check_recording",
-           "on_adc_grid"]
+__all__ = ["ADC_FULL_SCALE_COUNTS", "CANDIDATE_PREFIX", "MIN_DURATION_S", "MIN_SAMPLES", "NOISY_SPREAD", "Replay",
+           "check_recording", "on_adc_grid"]
 
-CANDIDATE_PREFIX = "candidate"
-ADC_FULL_SCALE_COUNTS = 1023  # the Uno's 10-bit ADC (docs/protocol.md)
 MIN_DURATION_S = 2.0  # shorter records cannot be split into a fit part and a held-out part
 MIN_SAMPLES = 100
 SIM_CACHE = 64  # replays kept for a repeated request (``Replay.simulate_grid``) ...
 SIM_CACHE_BYTES = 32 << 20  # ... and at most this many bytes of them
-NOISY_SPREAD = 10.0  # a channel whose spread is under this many noise floors weighs less in the fits
 
 
 def check_recording(spec: type[Plant], rec: Recording, path: str | Path, cfg: Any = None) -> list[str]:
@@ -63,6 +66,29 @@ def check_recording(spec: type[Plant], rec: Recording, path: str | Path, cfg: An
         raise CsvError(path, None, f"the input columns {list(inputs)} are constant: the recording does not "
                                    "excite the plant, so no effect can be identified")
     return channels
+
+
+class RunCache:
+    """The last runs of a replay (``Replay.simulate_grid``), newest last: at most ``SIM_CACHE`` of them
+    and ``SIM_CACHE_BYTES``. Each is kept and handed out as a copy, so no caller can change it."""
+
+    def __init__(self) -> None:
+        self._runs: OrderedDict[tuple[Any, ...], np.ndarray] = OrderedDict()
+
+    def get(self, key: tuple[Any, ...]) -> np.ndarray | None:
+        """A copy of the run kept under ``key`` (now the newest), or None."""
+        hit = self._runs.get(key)
+        if hit is None:
+            return None
+        self._runs.move_to_end(key)
+        return hit.copy()
+
+    def put(self, key: tuple[Any, ...], Y: np.ndarray) -> None:
+        """Keep a copy of ``Y``; the oldest runs go beyond the count or the bytes allowed."""
+        runs = self._runs
+        runs[key] = Y.copy()
+        while runs and (len(runs) > SIM_CACHE or sum(v.nbytes for v in runs.values()) > SIM_CACHE_BYTES):
+            runs.popitem(last=False)
 
 
 @dataclass
@@ -101,12 +127,8 @@ class Replay:
     # 10-bit ADC shows neither a negative force nor steps finer than a count), so its quantisation
     # and clipping are not mistaken for a missing effect
     adc_range: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    # per channel, what the fits and the BIC weigh the scaled residual by: 1, or less for a channel whose
-    # noise floor is more than 1/NOISY_SPREAD of its spread (the residual is divided by ten noise
-    # floors instead). A force of a few ADC counts with a count's scatter would otherwise weigh as
-    # much as an encoder angle 300 times sharper: a hidden 15 % Flexiforce gain bent a fitted driver
-    # dead zone 4 % (an independent SMA record). Weighing every channel by its noise alone silences
-    # a motor current with 0.01 A noise, which tells a 13 ms delay from a larger rotor inertia.
+    # per channel, what the fits and the BIC weigh the scaled residual by: 1, or less for a noisy channel
+    # (``binding.channel_weights`` says how and why)
     fit_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
     loop: str = ""  # the closed-loop replay used (the recorded controller), "" when the effort was replayed
     start: str = "estimate"  # "estimate", "rest" or "auto" (rest when the data show it): ``initial_state``
@@ -119,22 +141,8 @@ class Replay:
         from the reference: the controller's parts drive the plant input, and the recorded effort is
         compared as an output channel (``closed_loop.py``)."""
         channels = check_recording(spec, rec, path, cfg)
-        step_s, substeps = spec.step(cfg)
-        ports = spec.ports(cfg)
-        candidates = applicable(ports)
-        parts = attach(spec.name, ports, step_s, compose(spec, cfg), [(e.name, e.disabled()) for e in candidates],
-                       prefix=CANDIDATE_PREFIX)
-        signals = dict(rec.signals)
-        ext, sums, loop_text = spec.external_inputs(cfg), ports.sums, ""
-        loop = recorded_loop(cfg, rec) if closed_loop else None
-        if loop is not None:
-            for d in loop.disturbances:  # a record without the disturbance had none
-                signals.setdefault(d, np.zeros(rec.t.size))
-            parts = [*parts, *loop_parts(loop, float(signals[loop.feedback][0]))]
-            ext, sums = (*ext, loop.reference, *loop.disturbances), (*sums, loop.effort)
-            channels = [*channels, loop.effort]
-            loop_text = describe_loop(loop)
-        system = Diagram(parts, inputs=ext, sums=sums).compile(step_s, substeps)
+        aug = augmented(spec, cfg, rec, channels, closed_loop)
+        system, signals, channels, step_s = aug.system, aug.signals, aug.channels, aug.step_s
         t = rec.t - rec.t[0]
         n = int(np.floor(t[-1] / step_s + 1e-9)) + 2
         grid = np.arange(n) * step_s
@@ -142,18 +150,11 @@ class Replay:
         pos = t / step_s
         idx = np.minimum(np.floor(pos).astype(np.int64), n - 2)
         measured = {c: np.asarray(signals[c], float) for c in channels}
-        scale = np.array([max(float(np.std(measured[c])), 1e-9) for c in channels])
         U = system.input_matrix(n, inputs)
         mgrid = np.vstack([np.interp(grid, t, measured[c]) for c in channels])
-        adc = {m.signal: (m.offset_counts, m.counts_per_unit, float(ADC_FULL_SCALE_COUNTS)) for m in ports.measured
-               if m.sensor == "adc" and m.signal in channels and m.counts_per_unit > 0
-               and (rec.rig or on_adc_grid(measured[m.signal], m.offset_counts, m.counts_per_unit))}
-        for k, c in enumerate(channels):  # a channel resolved in fewer counts than its spread weighs less
-            if c in adc:
-                scale[k] = max(scale[k], 1.0 / adc[c][1])
-        weight = scale / np.maximum(scale, NOISY_SPREAD * np.array([noise_floor(measured[c]) for c in channels]))
-        return cls(spec, cfg, ports, system, candidates, t, measured, channels, inputs, scale, idx, pos - idx,
-                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc, fit_weight=weight, loop=loop_text)
+        scale, adc, weight = channel_weights(aug.ports, measured, channels, rec.rig)
+        return cls(spec, cfg, aug.ports, system, aug.candidates, t, measured, channels, inputs, scale, idx, pos - idx,
+                   U, mgrid, system.x0.copy(), system.xd0.copy(), adc_range=adc, fit_weight=weight, loop=aug.loop)
 
     @property
     def n_steps(self) -> int:
@@ -240,15 +241,11 @@ class Replay:
         P = np.asarray(P, float)
         key = (n, shooting, P.tobytes(), x.tobytes(), xd.tobytes(),
                (self.segment_steps, np.asarray(self.anchor_gain, float).tobytes()) if shooting else None)
-        cache = self.__dict__.setdefault("_sim_cache", OrderedDict())
-        hit = cache.get(key)
-        if hit is not None:
-            cache.move_to_end(key)
-            return hit.copy()
-        Y = self.shoot(P, n, x, xd) if shooting else self.run(P, 0, n, x, xd)
-        cache[key] = Y.copy()
-        while cache and (len(cache) > SIM_CACHE or sum(v.nbytes for v in cache.values()) > SIM_CACHE_BYTES):
-            cache.popitem(last=False)
+        cache = self.__dict__.setdefault("_sim_cache", RunCache())
+        Y = cache.get(key)
+        if Y is None:
+            Y = self.shoot(P, n, x, xd) if shooting else self.run(P, 0, n, x, xd)
+            cache.put(key, Y)
         return Y
 
     def drop_cache(self) -> None:
@@ -294,15 +291,6 @@ class Replay:
     def nominal_params(self) -> np.ndarray:
         """The diagram's parameters followed by the input scales (all 1)."""
         return np.concatenate([self.system.params, np.ones(len(self.system.input_names))])
-
-
-def on_adc_grid(y: np.ndarray, offset_counts: float, counts_per_unit: float,
-                full_counts: float = float(ADC_FULL_SCALE_COUNTS)) -> bool:
-    """Was ``y`` read through this ADC calibration? Every value a whole count within the converter's
-    range: a lab's own logger writes a CSV without the rig flag, and its force column still shows
-    neither a negative force nor steps finer than a count."""
-    c = offset_counts + counts_per_unit * np.asarray(y, float)
-    return bool(c.size and np.all(np.abs(c - np.round(c)) < 1e-3) and c.min() > -1e-3 and c.max() < full_counts + 1e-3)
 
 
 def channel_metrics(measured: Sequence[float] | np.ndarray, model: Sequence[float] | np.ndarray) -> dict[str, float]:

@@ -1,27 +1,26 @@
 """``SerialHardware``: the rig over a serial port (a USB port, or the pty of a simulated device).
 
-pyserial finds, opens and configures the port (baud, raw mode, non-blocking) and flushes it; the
-bytes themselves go through the port's file descriptor: one ``poll`` and one ``os.read`` to take
-what arrived, one ``os.write`` per frame (pyserial's read and write wrap each in a ``select`` and a
-``Timeout`` object, and ``in_waiting`` is an ioctl). Synchronous and single-threaded on the read
-side (the loop calls ``read`` each cycle); writes are serialised by a lock so a supervisor
-thread may call ``estop``. Frames other than SAMPLE (ACK, FAULT, HELLO, HEARTBEAT) are consumed
-as they arrive and kept as state.
+The port's bytes go through ``SerialPort`` (serial_port.py: its file descriptor, poll, read and
+write); requests and the handshake are asked again by ``asking.py``; the link crosses to a loop
+process by ``LinkHandover`` (handover.py). Synchronous and single-threaded on the read side (the loop
+calls ``read`` each cycle); writes are serialised by a lock so a supervisor thread may call
+``estop``. Frames other than SAMPLE (ACK, FAULT, HELLO, HEARTBEAT) are consumed as they arrive and
+kept as state.
 """
 
 from __future__ import annotations
 
 import math
-import os
-import select
 import threading
 import time
 from collections import deque
-from typing import Any
 
 import serial
 
+from rehab_hil.hardware import asking
+from rehab_hil.hardware.handover import LinkHandover
 from rehab_hil.hardware.interface import Arrival, HardwareError, HardwareInterface, LifecycleState, duty_units
+from rehab_hil.hardware.serial_port import SerialPort
 from rehab_hil.protocol import (
     CommandFrame,
     DeviceHeartbeat,
@@ -38,39 +37,15 @@ from rehab_hil.protocol import (
 
 __all__ = ["SerialHardware"]
 
-
-class _OpenPort:
-    """A port opened by another process and handed over as a file descriptor: what ``SerialHardware``
-    needs of its pyserial object (the marker that it is open, and ``close``)."""
-
-    def __init__(self, fd: int) -> None:
-        self.fd = fd
-
-    def close(self) -> None:
-        os.close(self.fd)
-
-    def fileno(self) -> int:
-        return self.fd
-
 _ACTIVE = LifecycleState.ACTIVE  # read tests against a module global: ~15 ns; the enum class attribute ~100 ns
 
-_READ_SIZE = 4096  # bytes per read: a burst of ~110 SAMPLEs
-# A request (CONFIGURE, CLEAR, ESTOP, SET_ENCODER) not acknowledged this long is sent again, with
-# a new seq: a byte lost in the 328P's 2-byte receive buffer (the firmware busy for two byte times;
-# tests/firmware/test_bootloader.py) loses the frame, and with it the ACK, for good. The last copy's
-# ACK is waited for (until the caller's timeout) before the request returns: the link keeps order,
-# so by then every earlier copy was applied or lost, and no late copy can restart the device's
-# stream after the caller went on. All four are idempotent.
-_RESEND_S = 0.5
-_HELLO_RESEND_S = 0.25  # HELLO_REQ is asked again sooner: nothing else can start before it
-_POLLIN = select.POLLIN | select.POLLPRI
 
-
-class SerialHardware(HardwareInterface):
-    """A device speaking protocol v1 on a serial path; see ``HardwareInterface`` for the lifecycle."""
+class SerialHardware(HardwareInterface, LinkHandover):
+    """A device speaking protocol v1 on a serial path; see ``HardwareInterface`` for the lifecycle, and
+    ``LinkHandover`` for how the link crosses to a loop process (``handed_over``, ``link_state``)."""
 
     def __init__(self, port: str, baud: int = 1_000_000, write_timeout_s: float = 0.2,
-                 resend_s: float | None = _RESEND_S) -> None:
+                 resend_s: float | None = asking.RESEND_S) -> None:
         """``resend_s``: a request not acknowledged this long is sent again (HELLO_REQ: every 0.25 s);
         None: never (a device in virtual time: its pty loses nothing, and a copy sent again enters
         the UART as one more host frame that costs device time, so what the device does would depend
@@ -78,9 +53,7 @@ class SerialHardware(HardwareInterface):
         super().__init__()
         self.port, self.baud, self.write_timeout_s = port, baud, write_timeout_s
         self.resend_s = math.inf if resend_s is None else resend_s
-        self._ser: serial.Serial | None = None
-        self._fd = -1  # the port's file descriptor while open
-        self._poll = select.poll()
+        self._port: SerialPort | None = None  # while open
         self._decoder = FrameDecoder()
         self.stats.bad_frames = self._decoder.bad  # the decoder's own counter (never a zero count): no copy
         self._heartbeats: deque[DeviceHeartbeat] = deque(maxlen=16)
@@ -97,29 +70,17 @@ class SerialHardware(HardwareInterface):
         until a HELLO arrives."""
         if self.state is LifecycleState.FINALIZED:
             self._require_connected("connect")
-        if self._ser is None:
-            try:
-                self._ser = serial.Serial(self.port, self.baud, timeout=0, write_timeout=self.write_timeout_s)
-            except (serial.SerialException, OSError) as e:
-                raise HardwareError(f"cannot open {self.port}: {e}") from e
-            self._ser.reset_input_buffer()
-            self._fd = self._ser.fileno()  # opened O_NONBLOCK by pyserial
-            self._poll.register(self._fd, _POLLIN)
+        if self._port is None:
+            self._port = SerialPort.open(self.port, self.baud, self.write_timeout_s)
         self._hellos.clear()
-        deadline = time.perf_counter() + timeout
-        while time.perf_counter() < deadline:
-            self._send(HelloReq())
-            again_s = _HELLO_RESEND_S if math.isfinite(self.resend_s) else math.inf
-            resend = min(deadline, time.perf_counter() + again_s)
-            while time.perf_counter() < resend:
-                self._pump(resend - time.perf_counter())
-                if self._hellos:
-                    self.info = self._hellos[-1]
-                    self._hellos.clear()
-                    if self.state is LifecycleState.UNCONFIGURED:
-                        self.state = LifecycleState.INACTIVE
-                    return self.info
-        raise HardwareError(f"no HELLO from {self.port} within {timeout:.2f} s")
+        info = asking.hello(lambda: self._send(HelloReq()), self._pump, self._hellos, timeout, self.resend_s)
+        if info is None:
+            raise HardwareError(f"no HELLO from {self.port} within {timeout:.2f} s")
+        self.info = info
+        self._hellos.clear()
+        if self.state is LifecycleState.UNCONFIGURED:
+            self.state = LifecycleState.INACTIVE
+        return info
 
     def read(self, timeout: float | None = None) -> Arrival | None:
         """A queued sample at once (one state test and a popleft: the loop's path); else the link is
@@ -144,11 +105,10 @@ class SerialHardware(HardwareInterface):
     def flush_input(self) -> None:
         """Forget everything received and not yet read: the OS buffer, a partial frame, queued
         samples (after a pause in reading, to start again from fresh data)."""
-        ser = self._require()
-        try:
-            ser.reset_input_buffer()
-        except (serial.SerialException, OSError) as e:
-            raise HardwareError(f"link to {self.port} lost: {e}") from e
+        port = self._port
+        if port is None:
+            raise HardwareError("not connected")
+        port.flush_input()
         self._decoder.reset()
         self._samples.clear()
         self._last_index = None
@@ -189,72 +149,22 @@ class SerialHardware(HardwareInterface):
 
     def close(self) -> None:
         self.state = LifecycleState.FINALIZED
-        if self._ser is None:
+        if self._port is None:
             return
         try:
             self._send(CommandFrame(0, 0, 0, 0))
         except HardwareError:
             pass
-        ser, self._ser = self._ser, None
-        try:
-            self._poll.unregister(self._fd)
-        except (KeyError, ValueError, OSError):
-            pass
-        self._fd = -1
-        try:
-            ser.close()
-        except (serial.SerialException, OSError):
-            pass
-
-    # ---- crossing to a loop process ------------------------------------------------------------
-
-    @classmethod
-    def handed_over(cls, state: dict[str, Any], fd: int) -> SerialHardware:
-        """The link a session's process handed to a loop process (``loop.process``): its state
-        (``link_state``) and the port's file descriptor, passed to the process as it was started, so the
-        port is neither opened again (an Arduino's reset) nor closed; the session's copy stays open beside
-        it, idle while the loop process runs."""
-        hw = cls.__new__(cls)
-        hw.__dict__.update(state)
-        hw._fd = fd
-        hw._ser = _OpenPort(fd)
-        hw._poll = select.poll()
-        hw._poll.register(fd, _POLLIN)
-        hw._wlock = threading.Lock()
-        hw.stats.bad_frames = hw._decoder.bad
-        return hw
-
-    @property
-    def fd(self) -> int:
-        """The open port's file descriptor (-1 when closed)."""
-        return self._fd
-
-    def link_state(self) -> dict[str, Any]:
-        """What the link knows besides its OS handles: counters, sequence numbers, the lifecycle state,
-        queued samples and a partly decoded frame (``adopt_link_state`` takes it back after a run)."""
-        skip = ("_ser", "_fd", "_poll", "_wlock", "device_process")
-        return {k: v for k, v in self.__dict__.items() if k not in skip}
-
-    def close_handed(self) -> None:
-        """A loop process's end: release its copy of the handed-over port, sending nothing (the session's
-        copy goes on)."""
-        ser, self._ser = self._ser, None
-        if ser is not None:
-            ser.close()
-        self._fd = -1
-        self.state = LifecycleState.FINALIZED
-
-    def adopt_link_state(self, state: dict[str, Any]) -> None:
-        """Go on where a loop process's copy of this link stopped (its bytes were read there)."""
-        self.__dict__.update({k: v for k, v in state.items() if k not in ("_ser", "_fd", "_poll", "_wlock")})
-        self.stats.bad_frames = self._decoder.bad
+        port, self._port = self._port, None
+        port.close()
 
     # ---- internals ----------------------------------------------------------------------------
 
     def _require(self) -> serial.Serial:
-        if self._ser is None:
+        """The open port's pyserial object (tests read the raw link through it)."""
+        if self._port is None:
             raise HardwareError("not connected")
-        return self._ser
+        return self._port.ser
 
     def _send(self, msg: Message) -> int:
         with self._wlock:
@@ -269,83 +179,28 @@ class SerialHardware(HardwareInterface):
             self._write_locked(data)
 
     def _write_locked(self, data: bytes) -> None:
-        """Write all of ``data``: at once when the port takes it (always, at the loop's rate), else
-        waiting for room up to the write timeout."""
-        if self._ser is None:
+        port = self._port
+        if port is None:
             raise HardwareError("not connected")
-        try:
-            n = os.write(self._fd, data)
-        except BlockingIOError:
-            n = 0
-        except OSError as e:
-            raise HardwareError(f"link to {self.port} lost: {e}") from e
-        if n < len(data):
-            self._write_rest(memoryview(data)[n:])
-
-    def _write_rest(self, data: memoryview) -> None:
-        deadline = time.perf_counter() + self.write_timeout_s
-        while data:
-            remaining = deadline - time.perf_counter()
-            try:
-                if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
-                    raise HardwareError(f"write to {self.port} timed out (device not reading)")
-                data = data[os.write(self._fd, data):]
-            except BlockingIOError:
-                continue
-            except (OSError, ValueError) as e:
-                raise HardwareError(f"link to {self.port} lost: {e}") from e
+        port.write(data)
 
     def _request(self, msg: Message, timeout: float) -> int:
-        """Send ``msg`` and return its first ACK's result: sent again every ``resend_s`` while no
-        copy is acknowledged. The link keeps order, so the last copy's ACK says every copy has been
-        applied or lost; until it comes (or ``timeout``), a copy may still be on its way to restart
-        what the caller goes on to do."""
-        deadline = time.perf_counter() + timeout
-        seqs: list[int] = []
-        result: int | None = None
-        last_answered = False
-        resend_at = 0.0
-        while True:
-            now = time.perf_counter()
-            for seq in seqs:
-                got = self._acks.pop((msg.TYPE, seq), None)
-                if got is not None:
-                    result = got if result is None else result
-                    last_answered = last_answered or seq == seqs[-1]
-            if result is not None and (last_answered or now >= deadline):
-                self.stats.request_resends += len(seqs) - 1
-                return result
-            if now >= deadline:
-                raise HardwareError(f"no ACK for {type(msg).__name__} (seq {', '.join(map(str, seqs))}) "
-                                    f"within {timeout:.2f} s")
-            if result is None and now >= resend_at:
-                seqs.append(self._send(msg))
-                resend_at = now + self.resend_s
-            self._pump(min(deadline, resend_at if result is None else deadline) - now)
+        """Send ``msg`` and return its first ACK's result, sent again every ``resend_s`` while no copy
+        is acknowledged (``asking.acked``)."""
+        result, copies = asking.acked(msg, timeout, self.resend_s, self._send, self._pump, self._acks)
+        self.stats.request_resends += copies - 1
+        return result
 
     def _pump(self, timeout: float) -> None:
         """Wait up to ``timeout`` s for bytes, then decode everything available."""
-        if self._ser is None:
+        port = self._port
+        if port is None:
             raise HardwareError("not connected")
-        try:
-            if timeout >= 0.001:
-                ready = bool(self._poll.poll(math.ceil(timeout * 1000.0)))  # ms, rounded up
-            else:
-                ready = timeout > 0.0 and bool(select.select((self._fd,), (), (), timeout)[0])
-            if timeout > 0.0 and not ready:
-                return
-            data = os.read(self._fd, _READ_SIZE)
-        except BlockingIOError:  # nothing there
-            return
-        except OSError as e:
-            raise HardwareError(f"link to {self.port} lost: {e}") from e
-        if not data:  # a raw tty (VMIN 0) reads b"" when empty: only after readiness is it the end
-            if ready:
-                raise HardwareError(f"link to {self.port} lost: the device end closed")
-            return
-        now = time.perf_counter()
-        for frame in self._decoder.feed(data):
-            self._handle(frame, now)
+        data = port.take(timeout)
+        if data:
+            now = time.perf_counter()
+            for frame in self._decoder.feed(data):
+                self._handle(frame, now)
 
     def _handle(self, frame: Frame, now: float) -> None:
         st, msg = self.stats, frame.msg

@@ -9,12 +9,13 @@ rig's liveliness token and answers ``info`` queries.
 
 The state batches go through zenoh's ``AdvancedPublisher``: it keeps the last ``cache_batches`` puts
 for subscribers that join late or miss one in transit (history and recovery) and numbers its puts
-so that a subscriber detects and names a miss (``telemetry.history``).
+so that a subscriber detects and names a miss (``telemetry.history``). The zenoh entities are
+declared and undeclared by ``RigDeclarations`` (declarations.py); the JSON messages beside the
+batches (safety, twin, stats) are put by ``SideMessages`` (side_messages.py).
 """
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import math
 import time
@@ -22,14 +23,15 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import zenoh
-from zenoh import ext
 
 from rehab_hil.loop.records import CycleRecord, EventRecord, MessageRecord, SampleRecord
 from rehab_hil.loop.sinks import ThreadedSink
 from rehab_hil.protocol import Sample
 from rehab_hil.telemetry.codec import PayloadError, StateSample, decode_json, encode_json, join_records, pack_record
+from rehab_hil.telemetry.declarations import RigDeclarations
 from rehab_hil.telemetry.history import BATCH_ATTACHMENT
 from rehab_hil.telemetry.keys import RigKeys
+from rehab_hil.telemetry.side_messages import SideMessages
 
 __all__ = ["CACHE_BATCHES", "COMMAND_OPS", "CommandHandler", "TelemetryPublisher"]
 
@@ -52,7 +54,6 @@ COMMAND_OPS = ("setpoint", "start", "stop")
 # cycle, 10 records per batch: 200 batches/s), about 16 MB of 1.3 kB puts. A recorder that joins up to
 # a minute late still gets the session from its first sample (docs/telemetry.md, "History").
 CACHE_BATCHES = 12_000
-HEARTBEAT_S = 0.1  # the last put's number, sent when it changed: a subscriber recovers a lost tail
 LINGER_S = 0.5  # the cache stays this long after the last batch while anyone subscribes (a lost tail)
 
 
@@ -87,39 +88,23 @@ class TelemetryPublisher(ThreadedSink):
         self._batch, self._max_delay = batch, max_delay_s
         self._stats_period = stats_period_s
         self._info = dict(info or {})
-        # (key, kind, JSON body) for the worker to put beside the records: ``offer_safety``, the twin's
-        # predictions and events (never counted with the samples' drops: those go into the batches)
-        self._events: collections.deque[tuple[str, str, dict[str, Any]]] = collections.deque(maxlen=4096)
-        self._loop_stats: dict[str, Any] = {}
+        self._side = SideMessages(session, self.keys, stats_source)  # safety, twin and stats messages
         self._on_command = on_command
-        self._stats_source = stats_source
         self._samples_taken = 0  # records with a device SAMPLE the worker took from the queue
         self._samples_refused = 0  # records with a device SAMPLE dropped at the full queue
         self.samples_dropped = 0  # of the dropped records, those that carry a device SAMPLE
         self.published_samples = 0
         self._published_device_samples = 0  # of those, records with a device SAMPLE
         self.published_batches = 0
-        self.publish_errors = 0
+        self._batch_errors = 0  # records that could not be packed, batches that could not be put
         self.commands_accepted = 0
         self.commands_rejected = 0
         self._pending: list[bytes] = []  # packed records of the batch being filled
         self._pending_samples = 0  # of those, records with a device SAMPLE
         self._first_at = 0.0
         self._next_stats = time.monotonic() + stats_period_s
-        self._pub = self._matching = self._token = self._queryable = self._cmd_sub = None
-        try:
-            # reliable and blocking: a subscriber (a recording) that falls behind slows the worker
-            # down, which the bounded queue absorbs (and counts, if it ever overflows)
-            self._pub = _advanced_publisher(session, self.keys.state, cache_batches)
-            # never put on: only asked whether anyone subscribes (an AdvancedPublisher cannot say)
-            self._matching = session.declare_publisher(self.keys.state)
-            self._token = session.liveliness().declare_token(self.keys.alive)
-            self._queryable = session.declare_queryable(self.keys.info, self._answer_info)
-            if commands_enabled:
-                self._cmd_sub = session.declare_subscriber(self.keys.command, self._command)
-        except zenoh.ZError:
-            self._undeclare()
-            raise
+        self._zenoh = RigDeclarations(session, self.keys, cache_batches, self._answer_info,
+                                      self._command if commands_enabled else None)
         self._thread.name = f"telemetry-{rig_id}"
         self.start()
 
@@ -129,6 +114,11 @@ class TelemetryPublisher(ThreadedSink):
         dropped at the queue (exact once the queue is empty, as in the final stats)."""
         return self._samples_taken + self._samples_refused
 
+    @property
+    def publish_errors(self) -> int:
+        """Records that could not be packed, and puts that failed (batches and side messages)."""
+        return self._batch_errors + self._side.errors
+
     def refused(self, record: Any) -> None:
         if _carries_sample(record):
             self._samples_refused += 1
@@ -136,19 +126,19 @@ class TelemetryPublisher(ThreadedSink):
 
     def offer_safety(self, event: Mapping[str, Any]) -> None:
         """Queue a safety event (e.g. ``{"state": "tripped", "reason": "force"}``) for ``.../safety``."""
-        self._events.append((self.keys.safety, "safety", {"rig": self.keys.rig_id, "time_s": time.time(), **event}))
+        self._side.queue(self.keys.safety, "safety", {"rig": self.keys.rig_id, "time_s": time.time(), **event})
 
     def offer_twin(self, kind: str, body: Mapping[str, Any]) -> None:
         """Queue a live twin message (``prediction`` or ``model_mismatch``) for ``.../twin``."""
-        self._events.append((self.keys.twin, kind, {"rig": self.keys.rig_id, **body}))
+        self._side.queue(self.keys.twin, kind, {"rig": self.keys.rig_id, **body})
 
     def update_stats(self, stats: Mapping[str, Any]) -> None:
         """Replace the loop and link figures merged into the next 1 Hz ``.../stats`` message."""
-        self._loop_stats = dict(stats)
+        self._side.loop_stats = dict(stats)
 
     def set_stats_source(self, source: Callable[[], Mapping[str, Any]] | None) -> None:
         """Replace the callable the worker asks for loop and link figures once per stats period."""
-        self._stats_source = source
+        self._side.stats_source = source
 
     def set_info(self, info: Mapping[str, Any]) -> None:
         """Replace what ``.../info`` queries are answered with."""
@@ -160,13 +150,7 @@ class TelemetryPublisher(ThreadedSink):
         super().close(timeout_s)
 
     def release(self) -> None:
-        self._undeclare()
-
-    def _undeclare(self) -> None:
-        for entity in (self._cmd_sub, self._queryable, self._matching, self._pub, self._token):  # the token last
-            if entity is not None:
-                with contextlib.suppress(zenoh.ZError):
-                    entity.undeclare()
+        self._zenoh.undeclare()  # the liveliness token last
 
     def __enter__(self) -> TelemetryPublisher:
         return self
@@ -176,8 +160,7 @@ class TelemetryPublisher(ThreadedSink):
 
     def has_subscribers(self) -> bool:
         """Whether any subscriber currently matches ``rehab/<rig>/state`` (zenoh matching status)."""
-        status = self._matching.matching_status
-        return bool(getattr(status, "matching", status))
+        return self._zenoh.has_subscribers()
 
     def counters(self) -> dict[str, int]:
         """Publisher counters as they appear under ``telemetry`` in the stats message."""
@@ -194,7 +177,7 @@ class TelemetryPublisher(ThreadedSink):
         if isinstance(item, _NOT_STATE):
             if type(item) is EventRecord:  # the loop's safety events (``RigTelemetry.on_trip``'s body)
                 t = item.time_s if math.isfinite(item.time_s) else None
-                self._put_json(self.keys.safety, "safety", {"rig": self.keys.rig_id, "time_s": time.time(),
+                self._side.put(self.keys.safety, "safety", {"rig": self.keys.rig_id, "time_s": time.time(),
                                "state": "tripped", "t_s": t, "reason": item.kind, "detail": item.detail})
             return  # cycles reach zenoh in the stats; the twin's messages through ``offer_twin``
         has_sample = _carries_sample(item)
@@ -202,7 +185,7 @@ class TelemetryPublisher(ThreadedSink):
         try:
             rec = pack_record(item)
         except PayloadError:
-            self.publish_errors += 1
+            self._batch_errors += 1
             self.dropped += 1
             self.samples_dropped += has_sample
             return
@@ -219,18 +202,18 @@ class TelemetryPublisher(ThreadedSink):
         now = time.monotonic()
         if self._pending and now - self._first_at >= self._max_delay:
             self._put_pending()
-        self._put_events()
+        self._side.put_queued()
         if now >= self._next_stats:
             self._next_stats = now + self._stats_period
-            self._put_stats(final=False)
+            self._side.put_stats(self.counters, final=False)
 
     def finish(self) -> None:
         """The last batch, the side messages, then the final stats (a recording's last word); the
         history is kept ``LINGER_S`` longer while anyone subscribes."""
         if self._pending:
             self._put_pending()
-        self._put_events()
-        self._put_stats(final=True)
+        self._side.put_queued()
+        self._side.put_stats(self.counters, final=True)
         if self.published_batches and self.has_subscribers():
             time.sleep(LINGER_S)  # a heartbeat or two: a subscriber that missed the last batches recovers them
 
@@ -238,46 +221,20 @@ class TelemetryPublisher(ThreadedSink):
         self._put_batch(self._pending, self._pending_samples)
         self._pending, self._pending_samples = [], 0
 
-    def _put_events(self) -> None:
-        while self._events:
-            key, kind, body = self._events.popleft()
-            self._put_json(key, kind, body)
-
-    def _put_stats(self, final: bool) -> None:
-        if self._stats_source is not None:
-            try:
-                self._loop_stats = dict(self._stats_source())
-            except Exception as e:  # a stats bug must not stop telemetry
-                self._loop_stats = {"error": f"{type(e).__name__}: {e}"}
-        body = {"rig": self.keys.rig_id, "time_s": time.time(), "loop": self._loop_stats,
-                "telemetry": self.counters()}
-        if final:  # the last word, after the last batch on the same path: a recording
-            body["final"] = True  # knows from it how many samples it should have received
-        self._put_json(self.keys.stats, "stats", body, final=final)
-
     def _put_batch(self, records: list[bytes], n_samples: int = 0) -> None:
         try:
             payload = join_records(records, self.published_batches, self.dropped)
             # what the earlier batches held: a subscriber counts the samples of a batch it lacks
             att = BATCH_ATTACHMENT.pack(self.published_samples, self._published_device_samples)
-            self._pub.put(payload, attachment=att)
+            self._zenoh.state.put(payload, attachment=att)
         except (PayloadError, zenoh.ZError):
-            self.publish_errors += 1
+            self._batch_errors += 1
             self.dropped += len(records)  # lost here: counted with the queue's drops, never silent
             self.samples_dropped += n_samples
             return
         self.published_batches += 1
         self.published_samples += len(records)
         self._published_device_samples += n_samples
-
-    def _put_json(self, key: str, kind: str, body: dict[str, Any], final: bool = False) -> None:
-        try:
-            if final:  # reliable and blocking like the state batches, so it arrives, and after them
-                self._session.put(key, encode_json(kind, body), congestion_control=zenoh.CongestionControl.BLOCK)
-            else:
-                self._session.put(key, encode_json(kind, body))
-        except (PayloadError, zenoh.ZError):
-            self.publish_errors += 1
 
     # -- zenoh threads -----------------------------------------------------------------------------
     def _answer_info(self, query: zenoh.Query) -> None:
@@ -287,11 +244,7 @@ class TelemetryPublisher(ThreadedSink):
 
     def _command(self, sample: zenoh.Sample) -> None:
         try:
-            msg = decode_json(sample.payload.to_bytes(), expect="command")
-            if msg.get("op") not in COMMAND_OPS:
-                raise PayloadError(f"unknown command op {msg.get('op')!r}; known: {COMMAND_OPS}")
-            if msg["op"] == "setpoint" and not isinstance(msg.get("value"), (int, float)):
-                raise PayloadError("a setpoint command needs a numeric 'value'")
+            msg = _decode_command(sample.payload.to_bytes())
         except PayloadError:
             self.commands_rejected += 1
             return
@@ -303,12 +256,12 @@ class TelemetryPublisher(ThreadedSink):
             self.commands_rejected += 1
 
 
-def _advanced_publisher(session: zenoh.Session, key: str, cache_batches: int) -> ext.AdvancedPublisher:
-    """The state publisher: reliable, blocking, its last ``cache_batches`` puts kept for history and
-    recovery (replies blocking too), its puts numbered and announced (miss detection, heartbeat)."""
-    block = zenoh.CongestionControl.BLOCK
-    return ext.declare_advanced_publisher(
-        session, key, reliability=zenoh.Reliability.RELIABLE, congestion_control=block,
-        cache=ext.CacheConfig(cache_batches, replies_config=ext.RepliesConfig(congestion_control=block)),
-        sample_miss_detection=ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
-        publisher_detection=True)
+def _decode_command(payload: bytes) -> dict[str, Any]:
+    """A message on ``rehab/<rig>/command``, checked: JSON of kind ``command`` whose ``op`` is one of
+    ``COMMAND_OPS`` (a ``setpoint`` with a numeric ``value``); ``PayloadError`` otherwise."""
+    msg = decode_json(payload, expect="command")
+    if msg.get("op") not in COMMAND_OPS:
+        raise PayloadError(f"unknown command op {msg.get('op')!r}; known: {COMMAND_OPS}")
+    if msg["op"] == "setpoint" and not isinstance(msg.get("value"), (int, float)):
+        raise PayloadError("a setpoint command needs a numeric 'value'")
+    return msg

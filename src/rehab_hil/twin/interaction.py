@@ -25,13 +25,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rehab_hil.discrepancy.replay import CANDIDATE_PREFIX
 from rehab_hil.twin.model import TwinModel, TwinSetupError
 
-__all__ = ["Estimate", "InteractionEstimator", "default_estimates", "resolve_parameters"]
+__all__ = ["Estimate", "InteractionEstimator", "default_estimates", "estimate_report", "resolve_parameters"]
 
 NUDGE = 0.05  # finite-difference step: this share of the parameter's config value
 SUBSAMPLE = 5  # every this many samples of a segment enter the regression (neighbours are correlated)
@@ -289,3 +290,25 @@ class InteractionEstimator:
         sd = np.sqrt(np.maximum(np.diag(self.cov), 0.0) * max(self.sigma2, 1e-12))
         return [Estimate(n, float(v0 * th), float(1.96 * v0 * s), float(v0))
                 for n, v0, th, s in zip(self.names, self.nominal, self.theta, sd, strict=True)]
+
+
+
+def estimate_report(estimator: InteractionEstimator, history: Sequence[tuple[float, list[Estimate]]],
+                    cycle_s: float) -> dict[str, Any]:
+    """The estimate per cycle (the running estimate in ``history``, (segment end, estimates), at each
+    cycle's end, ``cycle_s`` apart) and per session (``estimator.session_estimates``: least squares over
+    every segment since the session began, or since an abrupt change it restarted at; the last running
+    value and its interval beside it). ``history`` is not empty."""
+    last = history[-1][1]
+    cycles: list[dict[str, float]] = []
+    k = 1
+    for t, ests in history:
+        if t + 1e-9 >= k * cycle_s:
+            cycles.append({"index": k - 1, "t_end_s": round(t, 4), **{e.name: e.value for e in ests},
+                           **{f"{e.name}_ci95": e.ci95 for e in ests}})
+            k += 1
+    since = estimator.session_start_s
+    session = {s.name: {"value": s.value, "ci95": s.ci95, "final": e.value, "final_ci95": e.ci95,
+                        "nominal": e.nominal, "since_s": since}
+               for s, e in zip(estimator.session_estimates(), last, strict=True)}
+    return {"session": session, "cycles": cycles, "cycle_s": cycle_s}

@@ -13,15 +13,14 @@ and the session goes on.
 
 Outputs go to listeners (``TwinListener``, ``twin.outputs``): ``twin.csv`` beside ``run.csv``, and
 the other sinks (MCAP and Foxglove ``/twin/prediction``, events on ``/rig/event``; zenoh
-``rehab/<rig>/twin``).
+``rehab/<rig>/twin``); ``twin.writing`` writes the CSV's rows and the prediction messages. The recent
+session a diagnosis replays, and the mismatches waiting for it, are ``twin.history``.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -33,23 +32,18 @@ from rehab_hil.interchange import Recording
 from rehab_hil.interfaces import DeviceBinding
 from rehab_hil.loop.records import SampleRecord
 from rehab_hil.loop.sinks import Overflow, ThreadedSink
-from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates
+from rehab_hil.twin.history import SessionHistory, Window
+from rehab_hil.twin.interaction import Estimate, InteractionEstimator, default_estimates, estimate_report
 from rehab_hil.twin.model import TwinModel, TwinSetupError, check_rate
 from rehab_hil.twin.monitor import MismatchEvent, ResidualMonitor
 from rehab_hil.twin.patient_torque import TORQUE_RUNS, patient_torque_estimator
 from rehab_hil.twin.thermal import ThermalEstimator, ThermalEvent, thermal_quantities
+from rehab_hil.twin.writing import PREDICTION_EVERY, YIELD_EVERY, TwinCsv, patient_column, prediction_messages
 
 __all__ = ["PREDICTION_EVERY", "LiveTwin", "Twin", "TwinListener", "patient_column"]
 
-PREDICTION_EVERY = 10  # one prediction message per this many samples (100 Hz at 1 kHz): plots, not data
 DEFAULT_THERMAL_WINDOW_S = 12.0  # the thermal estimate's window without a session cycle (the SMA's) [s]
 HISTORY_S = 30.0  # how much of the session the twin keeps for a diagnosis
-YIELD_EVERY = 32  # records taken between two releases of the interpreter
-
-
-def patient_column(name: str) -> str:
-    """The recorded column of an estimated parameter (``part.param`` -> ``patient_part_param``)."""
-    return "patient_" + name.replace(".", "_")
 
 
 class TwinListener(Protocol):
@@ -103,23 +97,17 @@ class Twin:
         self._sq_n = 0
         self._seg_start = 0.0
         keep = round(HISTORY_S / period_s)
-        self.history: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=max(2, keep // cap + 2))
-        self.anchors: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=max(2, keep // cap + 2))
+        self.recent = SessionHistory(period_s, self.model.system.input_names, self.channels, max(2, keep // cap + 2),
+                                     self.settings.diagnose_window_s)  # kept for the diagnosis
+        self.history, self.anchors = self.recent.blocks, self.recent.anchors  # the blocks and anchors it keeps
         self.samples = 0
         self.segments = 0
         self.busy_s = 0.0  # CPU time spent in the model, the test and the estimate
         self.diagnoses: list[MismatchEvent] = []
-        self._to_diagnose: list[MismatchEvent] = []
         self.diagnose_fn: Callable[[MismatchEvent, Recording, np.ndarray, np.ndarray], None] | None = None
-        self._csv_fd = -1
-        self.csv_path: Path | None = None
-        if out_dir is not None:
-            self.csv_path = Path(out_dir) / "twin.csv"
-            self._csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            cols = ["time_s", *(f"{c}_predicted" for c in self.channels), *(f"{c}_residual" for c in self.channels),
-                    *(f"{c}_cusum_counts" for c in self.channels),
-                    *(patient_column(n) for n in (self.estimator.names if self.estimator else ()))]
-            os.write(self._csv_fd, (",".join(cols) + "\n").encode())
+        self._csv = (TwinCsv(out_dir, self.channels, self.estimator.names if self.estimator else ())
+                     if out_dir is not None else None)
+        self.csv_path: Path | None = self._csv.path if self._csv is not None else None
 
     # -- in ------------------------------------------------------------------------------------
     def feed(self, record: Any) -> None:
@@ -186,40 +174,18 @@ class Twin:
             for lst in self.listeners:
                 lst.mismatch(ev, final=not self.settings.diagnose)
             if self.settings.diagnose:
-                self._to_diagnose.append(ev)
+                self.recent.waiting.append(ev)
         self._diagnose_due(float(block.t_s[-1]))
 
     # -- out -----------------------------------------------------------------------------------
     def _write(self, block: Any) -> None:
+        """The block's rows of ``twin.csv`` and its prediction messages to the listeners (``writing.py``)."""
         g = self.monitor.statistic
-        if self._csv_fd >= 0:
-            est = np.array([e.value for e in self.estimate_history[-1][1]]) if self.estimate_history else np.zeros(0)
-            cols = np.column_stack([block.t_s, block.predicted, block.residual,
-                                    np.broadcast_to(g, (block.t_s.size, g.size)),
-                                    np.broadcast_to(est, (block.t_s.size, est.size))])
-            lines = []
-            for k, row in enumerate(cols):
-                lines.append(",".join(f"{v:.8g}" for v in row))
-                if k % YIELD_EVERY == YIELD_EVERY - 1:
-                    time.sleep(0)
-            os.write(self._csv_fd, ("\n".join(lines) + "\n").encode())
+        ests = self.estimate_history[-1][1] if self.estimate_history else []
+        if self._csv is not None:
+            self._csv.write(block, g, np.array([e.value for e in ests]) if self.estimate_history else np.zeros(0))
         if self.listeners:
-            ests = self.estimate_history[-1][1] if self.estimate_history else []
-            for k in range(0, block.t_s.size, PREDICTION_EVERY):
-                msg = {"time_s": float(block.t_s[k])}
-                for j, c in enumerate(self.channels):
-                    msg[f"{c}_measured"] = float(block.measured[k, j])
-                    msg[f"{c}_predicted"] = float(block.predicted[k, j])
-                    msg[f"{c}_residual"] = float(block.residual[k, j])
-                    msg[f"{c}_cusum_counts"] = float(g[j])
-                for e in ests:
-                    msg[patient_column(e.name)] = e.value
-                a = self._angle
-                if a >= 0:  # outputs.GENERIC_TWIN_FIELDS
-                    msg["angle_measured_deg"] = float(block.measured[k, a])
-                    msg["angle_predicted_deg"] = float(block.predicted[k, a])
-                    msg["angle_residual_deg"] = float(block.residual[k, a])
-                msg["cusum_max_counts"] = float(g.max())
+            for msg in prediction_messages(block, self.channels, g, ests, self._angle):
                 for lst in self.listeners:
                     lst.prediction(msg)
             time.sleep(0)
@@ -235,62 +201,28 @@ class Twin:
     # -- diagnosis -----------------------------------------------------------------------------
     def _diagnose_due(self, now_s: float) -> None:
         """Hand a mismatch to the diagnosis once ``diagnose_window_s`` of data after its start is in."""
-        if not self._to_diagnose or self.diagnose_fn is None:
+        if not self.recent.waiting or self.diagnose_fn is None:
             return
-        for ev in list(self._to_diagnose):
-            if now_s < ev.t_s + self.settings.diagnose_window_s:
-                continue
-            self._to_diagnose.remove(ev)
-            window = self._event_window(ev)
-            if window is not None:
-                self.diagnose_fn(ev, *window)
+        for ev, window in self.recent.due(now_s):
+            self.diagnose_fn(ev, *window)
 
-    def take_pending(self, min_s: float) -> list[tuple[MismatchEvent, tuple[Recording, np.ndarray, np.ndarray]]]:
+    def take_pending(self, min_s: float) -> list[tuple[MismatchEvent, Window]]:
         """The mismatches still waiting for their full window (the session ended first), each with the
         window it has, when that is at least ``min_s`` long; they are no longer waited for."""
-        out = []
-        for ev in self._to_diagnose:
-            window = self._event_window(ev)
-            if window is not None and window[0].t[-1] - window[0].t[0] >= min_s:
-                out.append((ev, window))
-        self._to_diagnose = []
-        return out
+        return self.recent.take_pending(min_s)
 
-    def _event_window(self, ev: MismatchEvent) -> tuple[Recording, np.ndarray, np.ndarray] | None:
-        """The diagnosis window of a mismatch: ``diagnose_window_s`` from its start, or what there is."""
-        return self.window(ev.t_s, ev.t_s + self.settings.diagnose_window_s)
-
-    def window(self, start_s: float, end_s: float) -> tuple[Recording, np.ndarray, np.ndarray] | None:
+    def window(self, start_s: float, end_s: float) -> Window | None:
         """The session from the last anchor at or before ``start_s`` to ``end_s`` on the model's
         signals, and the model's state at its start (None when the history no longer has it)."""
-        # a segment's anchor is taken after its last sample (index + 1), and an event's start is that
-        # sample's time: the anchor at the start is the one at k0 + 1 (was k0: the window began a
-        # segment early, and the change fitted over it was in force 0.25 s before it was)
-        k0 = round(start_s / self.period_s) + 1
-        start = [a for a in self.anchors if a[0] <= k0]
-        if not start:
-            return None
-        i0, x0, xd0 = start[-1]
-        i1 = round(end_s / self.period_s)
-        idx = np.concatenate([h[0] for h in self.history])
-        keep = (idx >= i0) & (idx <= i1)
-        if keep.sum() < 10:
-            return None
-        U = np.concatenate([h[1] for h in self.history])[keep]
-        Y = np.concatenate([h[2] for h in self.history])[keep]
-        t = (idx[keep] - i0) * self.period_s
-        signals = {n: U[:, j] for j, n in enumerate(self.model.system.input_names)}
-        signals.update({c: Y[:, j] for j, c in enumerate(self.channels)})
-        return Recording(t, signals, rig=True), x0, xd0
+        return self.recent.window(start_s, end_s)
 
     def finish(self) -> None:
         """Process what is buffered (the thermal estimate's last part of a window too) and close the CSV."""
         self.process()
         if self.thermal is not None:
             self._tell_thermal(self.thermal.finish())
-        if self._csv_fd >= 0:
-            os.close(self._csv_fd)
-            self._csv_fd = -1
+        if self._csv is not None:
+            self._csv.close()
 
     def patient(self, cycle_s: float | None = None) -> dict[str, Any]:
         """The interaction estimate per cycle (the running estimate at each cycle's end, ``cycle_s``
@@ -298,20 +230,8 @@ class Twin:
         abrupt change the estimate restarted at; the last running value and its interval beside it)."""
         if not self.estimate_history or self.estimator is None:
             return {}
-        last_t, last = self.estimate_history[-1]
-        T = cycle_s if cycle_s and cycle_s > 0 else max(last_t, self.period_s)
-        cycles: list[dict[str, float]] = []
-        k = 1
-        for t, ests in self.estimate_history:
-            if t + 1e-9 >= k * T:
-                cycles.append({"index": k - 1, "t_end_s": round(t, 4), **{e.name: e.value for e in ests},
-                               **{f"{e.name}_ci95": e.ci95 for e in ests}})
-                k += 1
-        since = self.estimator.session_start_s
-        session = {s.name: {"value": s.value, "ci95": s.ci95, "final": e.value, "final_ci95": e.ci95,
-                            "nominal": e.nominal, "since_s": since}
-                   for s, e in zip(self.estimator.session_estimates(), last, strict=True)}
-        return {"session": session, "cycles": cycles, "cycle_s": T, "forgetting_s": self.settings.forgetting_s}
+        T = cycle_s if cycle_s and cycle_s > 0 else max(self.estimate_history[-1][0], self.period_s)
+        return {**estimate_report(self.estimator, self.estimate_history, T), "forgetting_s": self.settings.forgetting_s}
 
     def summary(self) -> dict[str, Any]:
         """What metadata.json and the run summary say about the twin."""

@@ -23,17 +23,16 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.discrepancy.initial_state import matched_states
-from rehab_hil.discrepancy.replay import ADC_FULL_SCALE_COUNTS, Replay
+from rehab_hil.discrepancy.replay import Replay
 from rehab_hil.interchange import Recording
 from rehab_hil.interfaces import DeviceBinding
-from rehab_hil.models.sensors import QuadratureEncoder
 from rehab_hil.plants.registry import Plant, get_plant
 from rehab_hil.protocol import DUTY_FULL
+from rehab_hil.twin.reading import RigReading
 
 __all__ = ["Block", "TwinModel", "TwinSetupError"]
 
 ANCHOR_SAMPLES = 10  # the anchoring error is the mean over this many samples: sensor noise averages out
-RAD_TO_DEG = 180.0 / math.pi
 FD_STEP = 0.02  # finite-difference step on a state for the anchor gain (relative, and its floor): wider
 # than an encoder count, whose quantised output has no slope over a smaller step
 
@@ -65,21 +64,8 @@ class TwinModel:
         counts (an estimate's finite differences need a prediction that moves with a parameter)."""
         self.cfg, self.binding, self.period_s = cfg, binding, period_s
         self.spec: type[Plant] = get_plant(cfg.plant)
-        measured = [binding.angle_output] if binding.encoder_signal else []
-        measured += [a.signal for a in binding.adc]
-        outputs = set(self.spec.outputs)
-        ext = set(self.spec.external_inputs(cfg))
-        self.adc_inputs = [a.signal for a in binding.adc if a.signal in ext and a.signal not in outputs]
-        available = [c for c in measured if c in outputs]
-        if channels is None:
-            channels = available
-        bad = [c for c in channels if c not in available]
-        if bad:
-            raise TwinSetupError(f"residual on {bad[0]!r}: the rig does not measure it (it measures "
-                                 f"{available or 'no model output'})")
-        if not channels:
-            raise TwinSetupError(f"plant {cfg.plant!r}: the rig measures none of the model's outputs")
-        self.replay = _bind(self.spec, cfg, list(channels))
+        channels, self.adc_inputs = _measured(self.spec, cfg, binding, channels)
+        self.replay = _bind(self.spec, cfg, channels)
         self.channels: list[str] = list(self.replay.channels)
         sys_ = self.replay.system
         self.system = sys_
@@ -88,10 +74,9 @@ class TwinModel:
             raise TwinSetupError(f"model step {sys_.dt} s does not divide the sample period {period_s} s")
         self.segment_samples = max(1, round(segment_s / period_s))
         self.P = self.replay.nominal_params()[: self.replay.n_diagram_params].copy()
-        # channels read before their encoder's quantisation, in rad (-> deg in ``sensed``)
-        read = [(_encoder_input(sys_.diagram.parts, c) if smooth else None) or c for c in self.channels]
-        self._unquantised = [j for j, (r, c) in enumerate(zip(read, self.channels, strict=True)) if r != c]
-        self._slots = sys_.out_slots(read)
+        self.reading = RigReading(binding, self.channels, sys_.diagram.parts, smooth)  # the rig's view of them
+        self.resolution = self.reading.resolution
+        self._slots = sys_.out_slots(self.reading.signals)
         self._ws = sys_.workspace()
         names = sys_.input_names
         self._duty = [(names.index(n), d) for n, d in binding.duty_inputs.items() if n in names]
@@ -100,25 +85,12 @@ class TwinModel:
         for n, v in binding.constant_inputs.items():
             if n in names:
                 self._u_const[names.index(n)] = v
-        self.resolution = np.array([self._resolution(c) for c in self.channels])
-        # the ADC a channel is read through: the model's value is clipped to the converter's range as
-        # the rig's reading is (a 10-bit ADC shows no negative force), never rounded (fits need a slope)
-        self._adc = [(j, a.offset_counts, a.counts_per_unit) for j, c in enumerate(self.channels)
-                     for a in binding.adc if a.signal == c]
         # an encoder reads floor(angle x counts per unit): the middle of the count is the unbiased angle
         self.encoder_centre_deg = 0.5 * binding.encoder_direction * 360.0 / binding.encoder_counts_per_rev
         self.reset()
         self.anchor_gain = self._anchor_gain()
 
     # -- set-up ------------------------------------------------------------------------------
-    def _resolution(self, channel: str) -> float:
-        """The smallest change a channel shows: an encoder count in degrees, an ADC count in its unit."""
-        b = self.binding
-        if channel == b.angle_output:
-            return 360.0 / b.encoder_counts_per_rev
-        ch = next(a for a in b.adc if a.signal == channel)
-        return 1.0 / abs(ch.counts_per_unit)
-
     def reset(self) -> None:
         """Back to the config's rest state, not yet anchored."""
         s = self.system
@@ -205,20 +177,12 @@ class TwinModel:
         return self.sensed(Y)
 
     def sensed(self, Y: np.ndarray) -> np.ndarray:
-        """Model outputs through the rig's ADC range (in place; see ``_adc``)."""
-        for j in self._unquantised:
-            Y[:, j] *= RAD_TO_DEG
-        for j, offset, per_unit in self._adc:
-            c = np.clip(offset + per_unit * Y[:, j], 0.0, ADC_FULL_SCALE_COUNTS)
-            Y[:, j] = (c - offset) / per_unit
-        return Y
+        """Model outputs as the rig reads them (in place; ``RigReading.sensed``)."""
+        return self.reading.sensed(Y)
 
     def beyond_resolution(self, err: np.ndarray) -> np.ndarray:
-        """The part of an error a sensor can vouch for: within half a count of the reading the
-        truth may lie anywhere, and anchoring a slow state (a coil's heat behind a force) on that
-        rounding walks it away from a model that was right."""
-        e = np.nan_to_num(err)
-        return np.sign(e) * np.maximum(np.abs(e) - 0.5 * self.resolution, 0.0)
+        """The part of an error a sensor can vouch for (``RigReading.beyond_resolution``)."""
+        return self.reading.beyond_resolution(err)
 
     def anchor(self, measured: np.ndarray, u: np.ndarray) -> None:
         """Set the matched states so the model's outputs equal ``measured`` (a few Newton steps)."""
@@ -276,15 +240,25 @@ class TwinModel:
         return Block(index * self.period_s, measured.copy(), pred, anchored)
 
 
-def _encoder_input(parts: Sequence[Any], channel: str) -> str | None:
-    """The angle signal (rad) a quadrature encoder part turns into ``channel`` (deg), if one does,
-    through a single unit-gain connection."""
-    for p in parts:
-        if isinstance(p, QuadratureEncoder) and channel in p.signal_names:
-            terms = p.connections["angle_rad"]
-            if len(terms) == 1 and terms[0][1] == 1.0:
-                return terms[0][0]
-    return None
+def _measured(spec: type[Plant], cfg: Any, binding: DeviceBinding,
+              channels: Sequence[str] | None) -> tuple[list[str], list[str]]:
+    """The channels the twin compares (by default every model output the rig measures; one it does
+    not measure is refused) and the ADC signals that feed a plant input (a patient torque)."""
+    measured = [binding.angle_output] if binding.encoder_signal else []
+    measured += [a.signal for a in binding.adc]
+    outputs = set(spec.outputs)
+    ext = set(spec.external_inputs(cfg))
+    adc_inputs = [a.signal for a in binding.adc if a.signal in ext and a.signal not in outputs]
+    available = [c for c in measured if c in outputs]
+    if channels is None:
+        channels = available
+    bad = [c for c in channels if c not in available]
+    if bad:
+        raise TwinSetupError(f"residual on {bad[0]!r}: the rig does not measure it (it measures "
+                             f"{available or 'no model output'})")
+    if not channels:
+        raise TwinSetupError(f"plant {cfg.plant!r}: the rig measures none of the model's outputs")
+    return list(channels), adc_inputs
 
 
 def _bind(spec: type[Plant], cfg: Any, channels: list[str]) -> Replay:
