@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 # does): half the cost, once per sample and per command on the loop thread
 _new_record = tuple.__new__
 
+MAX_TAKEN = 50  # samples taken in one cycle at the most (50 ms of samples at 1 kHz), then a command goes out
 STALL_MARK_EVERY = 50  # cycles between marks of the loop thread's run-queue wait (a host stall's baseline)
 CONFIGURE_TIMEOUT_S = 1.0  # a board answers CONFIGURE within milliseconds; 1 s is a dead or wrong port
 # a simulated device spawned here is a process that may wait seconds for a CPU on a busy machine (two
@@ -194,7 +195,9 @@ class LoopService:
             while arrival is not None:
                 self._take(arrival)
                 n += 1
-                arrival = hw.read(0.0) if hw.pending_samples() else None
+                # a backlog (a device that sent a burst while this process could not run) is taken at most
+                # MAX_TAKEN at a time: a loop that kept taking while the device kept sending would never write
+                arrival = hw.read(0.0) if n < MAX_TAKEN and hw.pending_samples() else None
         except HardwareError as e:
             self.supervisor.trip(self.run_state.t_s, "link_loss", str(e))
         return n
