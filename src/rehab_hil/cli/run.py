@@ -115,6 +115,8 @@ def summary_table(r: RunResult) -> Table:
     t.add_row("pacing / scheduler", f"{r.pacing} / {r.realtime.scheduler if r.realtime else 'not real-time'}")
     if r.realtime is not None and r.realtime.process:
         t.add_row("loop runs in", r.realtime.process)
+    if r.realtime is not None and r.realtime.tty_workers:
+        t.add_row("kernel tty workers", r.realtime.tty_workers)
     t.add_row("ran", f"{r.ran_s:.2f} s of {r.duration_s:g} s asked")
     t.add_row("cycles / samples / gaps / reboots", f"{r.cycles} / {r.samples} / {r.sample_gaps} / {r.reboots}")
     for k, v in r.tracking.items():

@@ -30,6 +30,7 @@ from typing import Any
 
 from rehab_hil.hardware.interface import HardwareError
 from rehab_hil.loop.dispatch import Dispatch
+from rehab_hil.loop.kworkers import KworkerBoost, loop_processes_running
 from rehab_hil.loop.mailbox import Mailbox, MailboxFull
 from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
 from rehab_hil.loop.ring import RING_S, RecordRing, RingReader, RingWriter
@@ -148,8 +149,14 @@ def main(argv: list[str] | None = None) -> int:
     hw = SerialHardware.handed_over(job.link, job.fd)
     hw.device_process = job.device
     report = _run(job, hw)
-    with os.fdopen(result_fd, "wb") as out:
-        pickle.dump((report, hw.link_state(), job.controller), out, protocol=pickle.HIGHEST_PROTOCOL)
+    try:
+        with os.fdopen(result_fd, "wb") as out:
+            pickle.dump((report, hw.link_state(), job.controller), out, protocol=pickle.HIGHEST_PROTOCOL)
+    except OSError:  # nobody reads the report (the session's process is gone): say on the terminal how it ended
+        first = report.events[0] if report.events else None
+        how = f"{first.reason}: {first.detail}" if first is not None else report.stop_reason
+        print(f"rehab-hil loop: the session's process ended; the loop stopped ({how}); the rig was left with "
+              "PWM 0 and ESTOP sent", file=sys.stderr, flush=True)
     hw.close_handed()
     return 0
 
@@ -166,11 +173,6 @@ def _run(job: LoopJob, hw: Any) -> LoopReport:
     if report.realtime is not None:
         where = f"loop process {os.getpid()}, memory {memory}, {threading.active_count()} thread(s)"
         report.realtime = dataclasses.replace(report.realtime, process=where)
-    if os.getppid() != job.parent_pid:  # nobody reads the report: say on the terminal how it ended
-        first = report.events[0] if report.events else None
-        how = f"{first.reason}: {first.detail}" if first is not None else report.stop_reason
-        print(f"rehab-hil loop: the session's process ended; the loop stopped ({how}); the rig was left with "
-              "PWM 0 and ESTOP sent", file=sys.stderr, flush=True)
     report.ring_overflow = writer.overflow
     return report
 
@@ -262,6 +264,7 @@ class LoopProcess:
         finally:
             os.close(result_w)
         self.pid = proc.pid
+        boost = KworkerBoost().start() if run.get("realtime", True) else None
         if self._stop is not None:  # a stop asked for while it started
             self.request_stop(*self._stop)
         pump = threading.Thread(target=self._pump, name="ring-reader", daemon=True)
@@ -273,6 +276,10 @@ class LoopProcess:
             self._done.set()
             pump.join()
             os.close(result_r)
+            if boost is not None:
+                boost.stop(others_running=loop_processes_running(but=proc.pid))
+        if boost is not None and got.realtime is not None:
+            got.realtime = dataclasses.replace(got.realtime, tty_workers=boost.note)
         return got
 
     def _wait(self, proc: subprocess.Popen[bytes], result_r: int, run: dict[str, Any]) -> LoopReport:

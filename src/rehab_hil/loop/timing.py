@@ -44,6 +44,7 @@ class RealtimeReport:
     gc_frozen: bool
     switch_interval_s: float = SWITCH_INTERVAL_S
     process: str = ""  # a loop process's pid, its memory lock and its threads ("": the session's own process)
+    tty_workers: str = ""  # the kernel's tty workers raised for the session (loop/kworkers.py), or why not
 
 
 def realtime_setup(fifo_priority: int | None = 10, switch_interval_s: float = SWITCH_INTERVAL_S,
