@@ -108,6 +108,7 @@ def main() -> int:
     ap.add_argument("--busy", type=int, default=2, help="busy loops beside the sessions")
     ap.add_argument("--config", type=Path, default=ROOT / "configs" / "finger_extensor.toml")
     ap.add_argument("--devices", default="sim,avr", help="device kinds, alternating")
+    ap.add_argument("--keep", type=Path, default=None, help="write the sessions' folders here (kept)")
     ap.add_argument("--views", action="store_true", help="zenoh telemetry and the live twin in every session")
     ap.add_argument("--tree", type=Path, default=ROOT, help="the checkout whose src/ runs the sessions (the "
                     "alternative: an older tree, e.g. before issue 41; its trips carry no cause)")
@@ -117,7 +118,7 @@ def main() -> int:
           f"{args.busy} busy loops, {os.cpu_count()} CPUs, config {args.config.name}, tree {args.tree}", flush=True)
     try:
         with tempfile.TemporaryDirectory(prefix="busy_sessions-") as tmp:
-            results, loads = run_all(args, Path(tmp))
+            results, loads = run_all(args, args.keep or Path(tmp))
     finally:
         for p in busy:
             p.kill()

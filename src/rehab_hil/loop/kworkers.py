@@ -100,7 +100,14 @@ class KworkerBoost:
     def note(self) -> str:
         if self.refused:
             return self.refused
-        return f"{len(self.changed)} kernel tty workers (kworker/u*) at SCHED_FIFO {self.priority}"
+        raised = 0
+        for pid in unbound_workers():
+            try:
+                raised += os.sched_getscheduler(pid) == os.SCHED_FIFO
+            except OSError:
+                continue
+        return (f"{raised} kernel tty workers (kworker/u*) at SCHED_FIFO {self.priority} ({len(self.changed)} "
+                "raised by this session)")
 
 
 def loop_processes_running(but: int | None = None) -> bool:

@@ -17,6 +17,7 @@ copy of the link (``loop_process_lost``, with the exit status).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import pickle
@@ -36,7 +37,7 @@ from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
 from rehab_hil.loop.ring import RING_S, RecordRing, RingReader, RingWriter
 from rehab_hil.loop.runner import LoopReport, LoopService
 from rehab_hil.loop.supervisor import SafetyEvent
-from rehab_hil.loop.timing import lock_memory
+from rehab_hil.loop.timing import HELPER_NICE, lock_memory, threads_niced
 
 __all__ = ["LoopJob", "LoopProcess", "RingOutlet", "can_cross"]
 
@@ -253,9 +254,25 @@ class LoopProcess:
         return True
 
     def run(self, **run: Any) -> LoopReport:
+        """Spawn the loop process with its job, read its ring until it ends, return its report. In real time
+        the kernel's tty workers are raised meanwhile (``loop.kworkers``) and this process's threads (the
+        ring's reader, the sinks) run at ``HELPER_NICE``: ahead of busy ordinary processes, never of the loop."""
+        realtime = run.get("realtime", True)
         job = LoopJob(self.hw.link_state(), self.hw.fd, _view(self.hw), self.configure, self.controller,
                       self.estimator, self.supervisor, self.period_s, self.ring.name, self.mailbox.name, os.getpid(),
                       run, self.trip_on_overflow)
+        boost = KworkerBoost().start() if realtime else None
+        try:
+            with threads_niced(HELPER_NICE) if realtime else contextlib.nullcontext(0):
+                got = self._spawned(job, run)
+        finally:
+            if boost is not None:
+                boost.stop(others_running=loop_processes_running(but=self.pid))
+        if boost is not None and got.realtime is not None:
+            got.realtime = dataclasses.replace(got.realtime, tty_workers=boost.note)
+        return got
+
+    def _spawned(self, job: LoopJob, run: dict[str, Any]) -> LoopReport:
         result_r, result_w = os.pipe()
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # what this process imports
         try:
@@ -264,23 +281,17 @@ class LoopProcess:
         finally:
             os.close(result_w)
         self.pid = proc.pid
-        boost = KworkerBoost().start() if run.get("realtime", True) else None
         if self._stop is not None:  # a stop asked for while it started
             self.request_stop(*self._stop)
         pump = threading.Thread(target=self._pump, name="ring-reader", daemon=True)
         pump.start()
         try:
             _send(proc, job)
-            got = self._wait(proc, result_r, run)
+            return self._wait(proc, result_r, run)
         finally:
             self._done.set()
             pump.join()
             os.close(result_r)
-            if boost is not None:
-                boost.stop(others_running=loop_processes_running(but=proc.pid))
-        if boost is not None and got.realtime is not None:
-            got.realtime = dataclasses.replace(got.realtime, tty_workers=boost.note)
-        return got
 
     def _wait(self, proc: subprocess.Popen[bytes], result_r: int, run: dict[str, Any]) -> LoopReport:
         """The loop process's report, or, if it ended without one, the rig made safe from here."""

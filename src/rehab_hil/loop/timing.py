@@ -15,12 +15,14 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["SPIN_S", "DeadlineTimer", "RealtimeReport", "TimingStats", "lock_memory", "realtime_setup",
-           "realtime_teardown", "run_queue_wait_s"]
+           "realtime_teardown", "run_queue_wait_s", "threads_niced"]
 
 SPIN_S = 200e-6  # sleep until this long before the deadline, then spin (sleep overshoots ~60-100 us)
 SWITCH_INTERVAL_S = 50e-6  # the GIL switch interval while the loop runs (CPython's default: 5 ms)
@@ -86,6 +88,44 @@ def lock_memory() -> str:
     except (OSError, AttributeError) as e:
         return f"not locked ({type(e).__name__})"
     return "locked"
+
+
+@contextmanager
+def threads_niced(nice: int) -> Iterator[int]:
+    """Every thread of this process at ``nice`` meanwhile (threads started meanwhile inherit it from the
+    thread that starts them), then back: the session's process while its loop runs in a process of its
+    own, so the ring's reader, the recorder and zenoh keep up beside busy ordinary processes. Yields how
+    many threads it changed (0 without CAP_SYS_NICE)."""
+    saved = []
+    for tid in _task_ids():
+        try:
+            old = os.getpriority(os.PRIO_PROCESS, tid)
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+            saved.append((tid, old))
+        except OSError:  # gone meanwhile, or not permitted
+            continue
+    try:
+        yield len(saved)
+    finally:
+        for tid, old in saved:
+            try:
+                os.setpriority(os.PRIO_PROCESS, tid, old)
+            except OSError:
+                continue
+        me = threading.get_native_id()
+        for tid in _task_ids():  # threads started meanwhile took the raised value: back to the caller's
+            if tid != me and not any(t == tid for t, _ in saved):
+                try:
+                    os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, me))
+                except OSError:
+                    continue
+
+
+def _task_ids() -> list[int]:
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return []
 
 
 def _renice_other_threads(nice: int) -> None:
