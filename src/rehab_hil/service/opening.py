@@ -118,7 +118,7 @@ def open_hardware(stack: ExitStack, loaded: Loaded) -> SessionParts:
     """Open and connect the rig (a simulated one's process stops with the stack); a simulated patient's
     truth file first, so it is moved after the device has closed it."""
     opts = loaded.options
-    if opts.sim.sim_patient is not None:
+    if opts.sim.sim_patient is not None and opts.views.record is not None:  # unrecorded: nothing to keep it in
         loaded.truth = SimTruth()
         stack.callback(loaded.truth.finish)
     hw = opts.rig.hw
