@@ -53,6 +53,7 @@ class SessionFigures:
         self.rows = 0
         self.cols = np.full((3, capacity), np.nan)  # time, reference (of the command in force), angle
         self.commands = 0
+        self._first_index: int | None = None
         self._last_index: int | None = None
         self._angle = math.nan
 
@@ -69,13 +70,10 @@ class SessionFigures:
         if meter is not None and st is not None:
             meter.add(rec.time_s, cmd.reference_deg, angle, self.effort_of(cmd), st.velocity_rad_s,
                       rec.temperature_c, meter.torque_of(st.analog))
-        p = self.progress
-        p.samples += 1
-        index = rec.sample.sample_index
-        if self._last_index is not None:
-            gap = (index - self._last_index - 1) & 0xFFFFFFFF
-            p.sample_gaps += gap if gap < 0x80000000 else 0  # the index went back: a restart, no gap
-        self._last_index = index
+        self.progress.samples += 1
+        self._last_index = rec.sample.sample_index
+        if self._first_index is None:
+            self._first_index = self._last_index
         self._angle = angle
 
     def command(self, rec: CommandRecord) -> CycleRecord | None:
@@ -85,6 +83,9 @@ class SessionFigures:
             p, cmd = self.progress, rec.command
             p.t_s, p.angle_deg, p.reference_deg = rec.time_s, self._angle, cmd.reference_deg
             p.duty, p.temperature_c = max(cmd.duty), rec.temperature_c
+            if self._first_index is not None and self._last_index is not None:  # indices missing so far (a
+                span = (self._last_index - self._first_index) & 0xFFFFFFFF  # restart makes it 0 for a while)
+                p.sample_gaps = max(0, span + 1 - p.samples) if span < 0x80000000 else p.sample_gaps
         if self.meter is None:
             return None
         cycle = self.meter.poll()
