@@ -209,3 +209,20 @@ def test_a_controller_the_loop_process_cannot_import_runs_in_the_sessions_proces
     assert result.events == [] and result.samples > 500
     assert result.realtime.process.startswith("the session's process (the loop process could not load its job: ")
     assert "ghost_controllers" in result.realtime.process
+
+
+def test_a_terminals_ctrl_c_stops_the_loop_through_the_safe_state_not_by_killing_it(slow_watchdog) -> None:
+    cli = subprocess.Popen([sys.executable, "-m", "rehab_hil.cli", "run", "--config", str(slow_watchdog), "--device",
+                            "sim", "--duration", "60", "--no-display", "--home", "none", "--controller", "pid"],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT,
+                           start_new_session=True)
+    try:
+        loop_pid = _child_running(cli.pid, "rehab_hil.loop.process", timeout_s=120)
+        _running_fifo(loop_pid, timeout_s=120)
+        os.killpg(cli.pid, signal.SIGINT)  # what a terminal does: the whole foreground process group
+        out, _ = cli.communicate(timeout=60)
+    finally:
+        cli.kill()
+    assert cli.returncode == 130 and "safety stop_request" in out and "SIGINT" in out
+    assert "loop_process_lost" not in out and "PWM off at end" in out
+    assert next(x for x in out.splitlines() if "PWM off at end" in x).split("│")[2].strip() == "yes"

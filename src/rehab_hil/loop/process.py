@@ -22,6 +22,7 @@ import dataclasses
 import os
 import pickle
 import select
+import signal
 import subprocess
 import sys
 import threading
@@ -141,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     from rehab_hil.hardware.serial_hw import SerialHardware
 
     result_fd = int((argv or sys.argv[1:])[0])
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the session's process stops the loop, through the safe state
     try:
         job: LoopJob = pickle.load(sys.stdin.buffer)
     except Exception as e:  # a class this interpreter cannot import (a test's own controller): the session's
@@ -170,6 +172,7 @@ def _run(job: LoopJob, hw: Any) -> LoopReport:
     loop = LoopService(hw, job.configure, job.controller, job.estimator, job.supervisor, job.period_s,
                        RingOutlet(writer, hw.stats),
                        ProcessMail(mailbox, job.parent_pid, writer if job.trip_on_overflow else None))
+    signal.signal(signal.SIGTERM, lambda n, f: loop.request_stop("SIGTERM to the loop process", "stop_request"))
     report = loop.run(**job.run)
     if report.realtime is not None:
         where = f"loop process {os.getpid()}, memory {memory}, {threading.active_count()} thread(s)"
@@ -276,8 +279,10 @@ class LoopProcess:
         result_r, result_w = os.pipe()
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # what this process imports
         try:
+            # its own process group: a terminal's Ctrl-C reaches the session's process alone, which stops the loop
+            # through the safe state (a stop request); the loop process never dies of it mid-cycle
             proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.loop.process", str(result_w)],
-                                    stdin=subprocess.PIPE, pass_fds=(self.hw.fd, result_w), env=env)
+                                    stdin=subprocess.PIPE, pass_fds=(self.hw.fd, result_w), env=env, process_group=0)
         finally:
             os.close(result_w)
         self.pid = proc.pid
