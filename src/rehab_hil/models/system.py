@@ -150,10 +150,12 @@ class Diagram:
 
     def _flat_layout(self, spans: Sequence[tuple[tuple[int, int], ...]]) -> Layout:
         """The structure handed to the engine: slices, wiring, order and the kernels' modules."""
+        modules = {cls: kernel_modules([cls], framework=Part) for cls in {type(part) for part in self.parts}}
         parts = tuple(
             PartLayout(name=part.name, kernel_class=(type(part).__module__, type(part).__qualname__),
                        x=x, xd=xd, u=u, p=p, y=y,
-                       wires=tuple(tuple(part.connections[port]) for port in part.inputs))
+                       wires=tuple(tuple(part.connections[port]) for port in part.inputs),
+                       kernel_modules=modules[type(part)])
             for part, (x, xd, u, p, y) in zip(self.parts, spans, strict=True)
         )
         return Layout(
@@ -162,7 +164,7 @@ class Diagram:
             input_names=self.input_names,
             order=tuple(self.order),
             n_x=self.n_x, n_xd=self.n_xd, n_w=self.n_w, n_p=self.n_p, n_sig=self.n_sig,
-            kernel_modules=kernel_modules([type(part) for part in self.parts], framework=Part),
+            kernel_modules=tuple(sorted({m for ms in modules.values() for m in ms})),
         )
 
     def _check_sums(self, owners: Mapping[str, Sequence[str]]) -> None:
