@@ -118,3 +118,22 @@ def test_an_edit_to_a_kernel_module_gives_new_part_modules_and_a_new_engine(monk
     after = engine.engine_for(layout)  # generated and imported, not compiled: numba compiles on the first call
     assert after.__name__ != before.__name__
     assert after._C0.__name__ != before._C0.__name__ and after._C1.__name__ != before._C1.__name__
+
+
+def test_an_engine_stepped_by_hand_is_compiled_before_its_first_step():
+    # the rig's controller steps its engine by hand (service/controllers.py): on a clean cache its first
+    # step compiled these for seconds inside the session's loop, a simulated device's its ``step``
+    probe = Gain("probe", connect={"u": [("angle_rad", 0.377)]}, rename={"y": "probe"}, gain=1.0)
+    system = _oscillator(probe).compile(1e-3)
+    e = system.engine
+    names = ("sample", "read_outputs", "integrate")
+    assert [len(getattr(e, n).signatures) for n in names] == [1, 1, 1]
+    stepper = system.stepper(["probe"])
+    assert len(e.step.signatures) == 1
+    sig, w, stage, xdn = system.workspace()
+    x, xd, y = system.x0.copy(), system.xd0.copy(), np.zeros(1)
+    e.sample(0.0, x, xd, np.zeros(0), system.params, sig, w, xdn)
+    e.read_outputs(system.out_slots(["probe"]), sig, y)
+    e.integrate(0.0, x, xd, np.zeros(0), system.params, 1e-3, 1, sig, w, stage)
+    assert stepper.step(np.zeros(0))[0] == y[0] == 0.377 and x[0] < 1.0  # the spring pulls the mass back
+    assert [len(getattr(e, n).signatures) for n in (*names, "step")] == [1, 1, 1, 1]  # nothing compiled anew

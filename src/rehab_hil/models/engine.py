@@ -28,7 +28,7 @@ from rehab_hil.models.codegen import KERNELS, engine_source, part_source
 from rehab_hil.models.layout import Layout
 from rehab_hil.progress import watch_compiles
 
-__all__ = ["KERNELS", "cache_dir", "call_holding_ctrl_c", "engine_for", "kernel_modules"]
+__all__ = ["KERNELS", "cache_dir", "call_holding_ctrl_c", "engine_for", "kernel_modules", "prepare"]
 
 _LOADED: dict[str, ModuleType] = {}
 
@@ -107,6 +107,26 @@ def engine_for(layout: Layout) -> ModuleType:
     names = [_load("rehab_hil_part", part_source(*p.kernel_class), p.kernel_modules).__name__
              for p in layout.parts]
     return _load("rehab_hil_engine", engine_source(layout, names), ())
+
+
+def prepare(engine: ModuleType, *entry_points: str) -> None:
+    """Compile ``engine``'s ``entry_points`` now (or load them from the disk cache) for the types the
+    flat arrays have (``CompiledSystem.workspace``): a caller that steps an engine by hand (the rig's
+    controller, a simulated device) would otherwise compile it at its first step, inside its loop, for
+    seconds on a clean cache. ``simulate`` compiles these as its own callees: preparing them first adds
+    no compilation."""
+    from numba import float64, int64, types
+
+    v, m = types.Array(float64, 1, "C"), types.Array(float64, 2, "C")
+    slots = types.Array(int64, 2, "C")
+    signatures = {
+        "sample": (float64, v, v, v, v, v, v, v),
+        "read_outputs": (slots, v, v),
+        "integrate": (float64, v, v, v, v, float64, int64, v, v, m),
+        "step": (float64, v, v, v, v, float64, int64, slots, v, v, v, m, v),
+    }
+    for name in entry_points:
+        getattr(engine, name).compile(signatures[name])
 
 
 def _load(prefix: str, src: str, modules: Sequence[str]) -> ModuleType:

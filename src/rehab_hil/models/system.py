@@ -19,11 +19,12 @@ from __future__ import annotations
 import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from types import ModuleType
 from typing import ClassVar
 
 import numpy as np
 
-from rehab_hil.models.engine import call_holding_ctrl_c, engine_for, kernel_modules
+from rehab_hil.models.engine import call_holding_ctrl_c, engine_for, kernel_modules, prepare
 from rehab_hil.models.jit import njit, noop
 from rehab_hil.models.layout import Layout, PartLayout
 
@@ -273,9 +274,19 @@ class CompiledSystem:
         self.diagram = diagram
         self.dt = float(dt)
         self.substeps = int(substeps)
-        self.engine = engine_for(diagram.layout)
+        self._engine = engine_for(diagram.layout)
+        self._prepared = False
         self.params = diagram.initial_params()
         self.x0, self.xd0 = diagram.initial_state()
+
+    @property
+    def engine(self) -> ModuleType:
+        """The compiled module, for a caller that steps it by hand: its ``sample``, ``read_outputs`` and
+        ``integrate`` compiled (or loaded) here, before that caller's loop, not at its first step there."""
+        if not self._prepared:
+            prepare(self._engine, "sample", "read_outputs", "integrate")
+            self._prepared = True
+        return self._engine
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -337,7 +348,7 @@ class CompiledSystem:
         """The compiled loop on raw arrays (``x`` and ``xd`` advanced in place): the states and outputs per
         step. For callers that keep their own workspace; a Ctrl-C during it is raised when it returns."""
         # a Ctrl-C raised inside numba's return could crash the interpreter (see call_holding_ctrl_c)
-        return call_holding_ctrl_c(self.engine.simulate, x, xd, U, P, self.dt, self.substeps, out_slots,
+        return call_holding_ctrl_c(self._engine.simulate, x, xd, U, P, self.dt, self.substeps, out_slots,
                                    *workspace)
 
     def stepper(self, outputs: Sequence[str] | None = None, params: np.ndarray | None = None) -> Stepper:
@@ -368,6 +379,8 @@ class Stepper:
         self.outputs = list(outputs or system.diagram.signal_names)
         self._slots = system.out_slots(self.outputs)
         self.params = (system.params if params is None else np.asarray(params, float)).copy()
+        self._engine = system._engine
+        prepare(self._engine, "step")  # compiled here, not at the first step of a device's loop
         self.reset()
 
     def reset(self) -> None:
@@ -380,7 +393,7 @@ class Stepper:
     def step(self, uext: np.ndarray) -> np.ndarray:
         """Sample outputs at the current time with inputs ``uext``, then advance one ``dt``."""
         s = self.system
-        s.engine.step(self.t, self.x, self.xd, np.asarray(uext, float), self.params, s.dt, s.substeps,
+        self._engine.step(self.t, self.x, self.xd, np.asarray(uext, float), self.params, s.dt, s.substeps,
                       self._slots, self._y, *self._ws)
         self.t += s.dt
         return self._y.copy()
