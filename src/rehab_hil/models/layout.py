@@ -22,7 +22,8 @@ class PartLayout:
     """One part's place in the flat arrays, its input wiring and where its kernels live.
 
     ``kernel_class`` is (module, qualified name) of the class whose ``output``, ``derivatives``
-    and ``update`` the generated engine imports."""
+    and ``update`` the generated engine calls; ``kernel_modules`` are the modules their source
+    depends on (the key of the class's compiled part module)."""
 
     name: str
     kernel_class: tuple[str, str]
@@ -32,6 +33,7 @@ class PartLayout:
     p: Span
     y: Span
     wires: tuple[Wire, ...]  # one per input port, in port order
+    kernel_modules: tuple[str, ...]  # the modules this class's kernels depend on
 
     @property
     def has_outputs(self) -> bool:

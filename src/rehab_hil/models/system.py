@@ -19,11 +19,12 @@ from __future__ import annotations
 import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from types import ModuleType
 from typing import ClassVar
 
 import numpy as np
 
-from rehab_hil.models.engine import call_holding_ctrl_c, engine_for, kernel_modules
+from rehab_hil.models.engine import call_holding_ctrl_c, engine_for, kernel_modules, prepare
 from rehab_hil.models.jit import njit, noop
 from rehab_hil.models.layout import Layout, PartLayout
 
@@ -150,10 +151,12 @@ class Diagram:
 
     def _flat_layout(self, spans: Sequence[tuple[tuple[int, int], ...]]) -> Layout:
         """The structure handed to the engine: slices, wiring, order and the kernels' modules."""
+        modules = {cls: kernel_modules([cls], framework=Part) for cls in {type(part) for part in self.parts}}
         parts = tuple(
             PartLayout(name=part.name, kernel_class=(type(part).__module__, type(part).__qualname__),
                        x=x, xd=xd, u=u, p=p, y=y,
-                       wires=tuple(tuple(part.connections[port]) for port in part.inputs))
+                       wires=tuple(tuple(part.connections[port]) for port in part.inputs),
+                       kernel_modules=modules[type(part)])
             for part, (x, xd, u, p, y) in zip(self.parts, spans, strict=True)
         )
         return Layout(
@@ -162,7 +165,7 @@ class Diagram:
             input_names=self.input_names,
             order=tuple(self.order),
             n_x=self.n_x, n_xd=self.n_xd, n_w=self.n_w, n_p=self.n_p, n_sig=self.n_sig,
-            kernel_modules=kernel_modules([type(part) for part in self.parts], framework=Part),
+            kernel_modules=tuple(sorted({m for ms in modules.values() for m in ms})),
         )
 
     def _check_sums(self, owners: Mapping[str, Sequence[str]]) -> None:
@@ -271,9 +274,19 @@ class CompiledSystem:
         self.diagram = diagram
         self.dt = float(dt)
         self.substeps = int(substeps)
-        self.engine = engine_for(diagram.layout)
+        self._engine = engine_for(diagram.layout)
+        self._prepared = False
         self.params = diagram.initial_params()
         self.x0, self.xd0 = diagram.initial_state()
+
+    @property
+    def engine(self) -> ModuleType:
+        """The compiled module, for a caller that steps it by hand: its ``sample``, ``read_outputs`` and
+        ``integrate`` compiled (or loaded) here, before that caller's loop, not at its first step there."""
+        if not self._prepared:
+            prepare(self._engine, "sample", "read_outputs", "integrate")
+            self._prepared = True
+        return self._engine
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -335,7 +348,7 @@ class CompiledSystem:
         """The compiled loop on raw arrays (``x`` and ``xd`` advanced in place): the states and outputs per
         step. For callers that keep their own workspace; a Ctrl-C during it is raised when it returns."""
         # a Ctrl-C raised inside numba's return could crash the interpreter (see call_holding_ctrl_c)
-        return call_holding_ctrl_c(self.engine.simulate, x, xd, U, P, self.dt, self.substeps, out_slots,
+        return call_holding_ctrl_c(self._engine.simulate, x, xd, U, P, self.dt, self.substeps, out_slots,
                                    *workspace)
 
     def stepper(self, outputs: Sequence[str] | None = None, params: np.ndarray | None = None) -> Stepper:
@@ -366,6 +379,8 @@ class Stepper:
         self.outputs = list(outputs or system.diagram.signal_names)
         self._slots = system.out_slots(self.outputs)
         self.params = (system.params if params is None else np.asarray(params, float)).copy()
+        self._engine = system._engine
+        prepare(self._engine, "step")  # compiled here, not at the first step of a device's loop
         self.reset()
 
     def reset(self) -> None:
@@ -378,7 +393,7 @@ class Stepper:
     def step(self, uext: np.ndarray) -> np.ndarray:
         """Sample outputs at the current time with inputs ``uext``, then advance one ``dt``."""
         s = self.system
-        s.engine.step(self.t, self.x, self.xd, np.asarray(uext, float), self.params, s.dt, s.substeps,
+        self._engine.step(self.t, self.x, self.xd, np.asarray(uext, float), self.params, s.dt, s.substeps,
                       self._slots, self._y, *self._ws)
         self.t += s.dt
         return self._y.copy()
