@@ -114,10 +114,12 @@ def _device_config(cfg: Any, config: Path, device: str, sim_plant: Path | None) 
 
 
 def open_hardware(stack: ExitStack, loaded: Loaded) -> SessionParts:
-    """Open and connect the rig (a simulated one's process stops with the stack); a simulated patient's
-    truth file first, so it is moved after the device has closed it."""
+    """Open and connect the rig (a simulated one's process stops with the stack); a simulated rig's truth
+    file first (a simulated patient's session, or any recorded one), so it is moved after the device
+    has closed it."""
     opts = loaded.options
-    if opts.sim.sim_patient is not None:
+    simulated = loaded.device in RIG_KINDS and opts.rig.hw is None
+    if opts.sim.sim_patient is not None or (simulated and opts.views.record is not None):
         loaded.truth = SimTruth()
         stack.callback(loaded.truth.finish)
     hw = opts.rig.hw
