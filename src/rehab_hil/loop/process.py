@@ -6,8 +6,8 @@ nothing else: no helper thread runs Python there. It asks for SCHED_FIFO and loc
 sample, command and event goes into the shared-memory ring (``loop.ring``); the session's process reads
 the ring on a thread of its own and hands the records to the figures, the feeds and the sinks
 (``loop.dispatch``: the recorder, zenoh, Foxglove, the twin), which may stall for as long as the ring
-holds (``ring.RING_S``) without losing a record. What flows back (a stop request, a learned table) goes
-through the mailbox (``loop.mailbox``), looked at once a cycle.
+holds (``ring.RING_S``) without losing a record. What flows back (a stop request, a learned table, stricter
+values for the temperature estimate) goes through the mailbox (``loop.mailbox``), looked at once a cycle.
 
 Either side's death is a safety event with the PWM off: the loop process looks at its parent each
 cycle and, if the session's process is gone, trips (``session_lost``), sends PWM 0 and ESTOP and ends;
@@ -93,11 +93,14 @@ class ProcessMail:
 
 
 def _act(loop: LoopService, message: tuple[Any, ...]) -> None:
-    """One message from the session: ("stop", reason, kind) or ("table", table, retune)."""
+    """One message from the session: ("stop", reason, kind), ("table", table, retune) or ("thermal",
+    tightening): stricter values for the supervisor's temperature estimate (``loop/thermal.py``)."""
     if message[0] == "stop":
         loop.request_stop(message[1], message[2])
     elif message[0] == "table":
         loop.controller.offer_table(message[1], message[2])  # type: ignore[attr-defined]
+    elif message[0] == "thermal":
+        loop.tighten_thermal(message[1])
 
 
 @dataclass
@@ -161,13 +164,30 @@ def _run(job: LoopJob, hw: Any) -> LoopReport:
     if report.realtime is not None:
         where = f"loop process {os.getpid()}, memory {memory}, {threading.active_count()} thread(s)"
         report.realtime = dataclasses.replace(report.realtime, process=where)
-    if os.getppid() != job.parent_pid:  # nobody reads the report: say on the terminal how it ended
+    if parent_gone(job.parent_pid):  # nobody reads the report: say on the terminal how it ended
         first = report.events[0] if report.events else None
         how = f"{first.reason}: {first.detail}" if first is not None else report.stop_reason
         print(f"rehab-hil loop: the session's process ended; the loop stopped ({how}); the rig was left with "
               "PWM 0 and ESTOP sent", file=sys.stderr, flush=True)
     report.ring_overflow = writer.overflow
     return report
+
+
+PF_EXITING = 0x4  # /proc/<pid>/stat flags: the task is in do_exit (include/linux/sched.h)
+
+
+def parent_gone(parent_pid: int) -> bool:
+    """The session's process has ended or is ending: this process has another parent, or the parent is
+    exiting. A killed session's process with a large address space takes tens of ms to exit, and until
+    it has, ``getppid`` still names it (a loop that stopped on the link its death closed asked too soon)."""
+    if os.getppid() != parent_pid:
+        return True
+    try:
+        with open(f"/proc/{parent_pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return True
+    return fields[0] in (b"Z", b"X") or bool(int(fields[6]) & PF_EXITING)
 
 
 class RingLink:
@@ -234,6 +254,15 @@ class LoopProcess:
         ones before it (counted by the caller as late)."""
         try:
             self.mailbox.post(("table", table, retune), timeout_s=0.5)
+        except MailboxFull:
+            return False
+        return True
+
+    def tighten_thermal(self, change: Any) -> bool:
+        """Stricter values for the supervisor's temperature estimate, taken at the loop's next cycle (any
+        thread); False if the loop has not taken the messages before it (the caller tries again)."""
+        try:
+            self.mailbox.post(("thermal", change), timeout_s=0.5)
         except MailboxFull:
             return False
         return True

@@ -19,6 +19,7 @@ from rehab_hil.loading import load_config
 from rehab_hil.patient.profile import load_patient
 from rehab_hil.patient.truth import SimTruth
 from rehab_hil.plants import get_plant
+from rehab_hil.plants.thermal import ActuatorThermal
 from rehab_hil.profiles import apply_profile, load_profile, profile_rig_keys
 from rehab_hil.protocol import Configure
 from rehab_hil.service import assembly
@@ -27,6 +28,7 @@ from rehab_hil.service.features.assistance import KeptAssistanceFeature, assista
 from rehab_hil.service.features.base import Feature, SessionParts
 from rehab_hil.service.features.learning import RigLearningFeature, learning_wanted
 from rehab_hil.service.features.recording import Recording
+from rehab_hil.service.features.safety_thermal import SafetyThermalFeature
 from rehab_hil.service.features.truth import SimTruthFeature
 from rehab_hil.service.features.twin import PatientTorque, Twin
 from rehab_hil.service.features.views import Foxglove, Telemetry
@@ -156,4 +158,6 @@ def session_features(loaded: Loaded, parts: SessionParts) -> list[Feature]:
         out += [Twin(), PatientTorque()]
     if hasattr(controller, "controller") and learning_wanted(controller, opts.learning.rig_learning):
         out.append(RigLearningFeature())
+    if any(isinstance(f, Twin) for f in out) and ActuatorThermal.of(cfg) is not None:
+        out.append(SafetyThermalFeature())  # after the learning: its hook tells the safety before the re-plan
     return out + list(opts.test.features)
