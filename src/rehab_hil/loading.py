@@ -59,22 +59,17 @@ def load_config(path: str | Path, expect: str | None = None) -> PlantConfig:
 
 def check_thermal(cfg: PlantConfig, path: str | Path) -> None:
     """One thermal model of a heated actuator: a plant that models its actuator's heat (``plants/thermal.py``)
-    takes no ``[rig.thermal]`` estimate of its own, and its ``max_temperature_c`` must be one that model
-    reaches at ``max_duty`` (else the temperature trip could never fire)."""
-    from rehab_hil.plants.thermal import ActuatorThermal, steady_temperature_c
+    takes no ``[rig.thermal]`` estimate of its own. (Its ``max_temperature_c`` may lie above what the model
+    reaches at ``max_duty``: the wire cannot get that hot on this config's values, and a simulated rig's
+    file, a 10 % lower supply, is such a config; the twin's stricter values can make it reachable.)"""
+    from rehab_hil.plants.thermal import ActuatorThermal
 
-    model = ActuatorThermal.of(cfg)
-    if model is None:
+    th = cfg.rig.thermal
+    if th is None or not th.has_model:
         return
-    th, lim = cfg.rig.thermal, cfg.rig.limits
-    if th is not None and th.has_model:
+    model = ActuatorThermal.of(cfg)
+    if model is not None:
         raise ConfigError(path, "rig.thermal.rise_at_full_duty_c", f"plant {cfg.plant!r} models its actuator's "
                           f"heat ({model.temperature}): that model is the safety's estimate, as the controllers' "
                           "and the twin's; remove ambient_c, rise_at_full_duty_c and time_constant_s from "
                           "[rig.thermal] (the room, the convection and the supply are the plant's own keys)")
-    ceiling = steady_temperature_c(model, lim.max_duty)
-    if lim.max_temperature_c >= ceiling:
-        raise ConfigError(path, "rig.limits.max_temperature_c", f"{lim.max_temperature_c} C is unreachable: the "
-                          f"plant's thermal model ({model.temperature}) levels off at {ceiling:.1f} C at "
-                          f"rig.limits.max_duty = {lim.max_duty:g}, so the temperature trip could never fire; "
-                          "set it below that")
