@@ -7,11 +7,12 @@ the device's ``sim_truth.csv`` (the actuator's true temperature on the simulated
 
 * ``rooms``: the SMA exoskeleton's shipped session (``model_based``, the twin beside it, 60 s) on rigs that
   differ from the config the way a lab's day does (``--sim-plant``: the shipped config with ONE value
-  changed: the room 16, 23, 30, 40 C; the convection -30 / +30 %; the supply -10 / +10 %). Per rig: the
-  supervisor's peak estimate, the true peak, the largest gap |estimate - truth| over the whole session and
-  after the twin's first window (12 s: before it nobody can know the room), the largest under-estimate
-  (truth above the estimate: the side that matters for safety), the safety events, the twin's changes of
-  the safety's values.
+  changed: the room 16, 23, 30, 40 C; the convection -30 / +30 %; the supply -10 / +10 %; and the nominal
+  and the +7 C room with the controller's table kept as planned, no re-plan). Per rig: the supervisor's
+  peak estimate and the true peak, over the session and after the twin's first window (12.5 s: before it
+  nobody can know the room); the largest gap |estimate - truth| over both; the largest under-estimate
+  (truth above the estimate: the side that matters for safety); the safety events; the twin's changes
+  of the safety's values.
 * ``budgets``: every controller with a ``[controllers.<name>]`` table in each plant's shipped config, with
   no simulated patient and with each shipped one (``profiles/sim/``), 180 s: the supervisor's peak
   estimate against the controller's temperature budget (its ``temperature_budget_c``, else the rig's
@@ -43,14 +44,17 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 BASE = "66ac9a6"  # main's safety (3960d3d) with the truth file of every simulated rig: the 'before'
 SMA = "configs/sma_exoskeleton.toml"
-ROOMS = [  # (name, config key, value): seed 000 Table 5's 23 C, 300 W/(m^2 C), 32 V moved as a lab's day does
-    ("nominal", None, None), ("room 16 C", "sma.ambient_c", 16.0), ("room 30 C (+7)", "sma.ambient_c", 30.0),
-    ("room 40 C", "sma.ambient_c", 40.0), ("convection -30 %", "sma.h1_w_per_m2_c", 210.0),
-    ("convection +30 %", "sma.h1_w_per_m2_c", 390.0), ("supply -10 %", "drive.supply_voltage_v", 28.8),
-    ("supply +10 %", "drive.supply_voltage_v", 35.2)]
+ROOMS = [  # (name, config key, value, re-plan): seed 000 Table 5's 23 C, 300 W/(m^2 C), 32 V moved as a lab's day does
+    ("nominal", None, None, True), ("room 16 C", "sma.ambient_c", 16.0, True),
+    ("room 30 C (+7)", "sma.ambient_c", 30.0, True), ("room 40 C", "sma.ambient_c", 40.0, True),
+    ("convection -30 %", "sma.h1_w_per_m2_c", 210.0, True), ("convection +30 %", "sma.h1_w_per_m2_c", 390.0, True),
+    ("supply -10 %", "drive.supply_voltage_v", 28.8, True), ("supply +10 %", "drive.supply_voltage_v", 35.2, True),
+    # the controller's table kept as planned on the config (no re-plan on the twin's values): the wire runs as
+    # much hotter as the room makes it, the case the target's "truth about +7 C" describes
+    ("nominal, table kept", None, None, False), ("room 30 C (+7), table kept", "sma.ambient_c", 30.0, False)]
 PLANTS = ("sma_exoskeleton", "tcp_finger", "finger_extensor")
 PATIENTS = ("capable", "fatiguing", "passive", "slacking", "spastic", "weak")
-FIRST_WINDOW_S = 12.0  # the twin's first thermal window on the SMA (one 12 s cycle): its first estimate [s]
+FIRST_WINDOW_S = 12.5  # the twin's first thermal window on the SMA (one 12 s cycle), fitted and taken [s]
 
 
 # -- one session, in a worker process running the side's code ------------------------------------
@@ -73,7 +77,8 @@ def worker(spec: dict[str, Any]) -> dict[str, Any]:
         os.environ["REHAB_HIL_ASSISTANCE_DIR"] = str(Path(tmp) / "assistance")
         try:
             with open_session(spec["config"], "inprocess", controller=name, sim_plant=spec.get("sim_plant"),
-                              sim_patient=spec.get("patient"), twin=spec.get("twin", False), record=tmp) as s:
+                              sim_patient=spec.get("patient"), twin=spec.get("twin", False), record=tmp,
+                              thermal_replan=spec.get("replan", True)) as s:
                 res = s.run(spec["duration_s"])
                 run_dir = s.run_dir
         except SessionError as e:
@@ -89,6 +94,8 @@ def worker(spec: dict[str, Any]) -> dict[str, Any]:
         true = np.interp(t, truth["t_s"], truth[temp])
         gap, late = e - true, t >= FIRST_WINDOW_S
         out.update(peak_truth_c=float(true.max()), max_gap_c=float(np.abs(gap).max()),
+                   peak_estimate_late_c=float(e[late].max()) if late.any() else float("nan"),
+                   peak_truth_late_c=float(true[late].max()) if late.any() else float("nan"),
                    max_gap_after_first_window_c=float(np.abs(gap[late]).max()) if late.any() else float("nan"),
                    max_under_c=float(max(-gap.min(), 0.0)),
                    max_under_after_first_window_c=float(max(-gap[late].min(), 0.0)) if late.any() else float("nan"))
@@ -130,12 +137,14 @@ def room_rig(tree: Path, key: str | None, value: float | None, out: Path) -> Pat
     return out
 
 
-def rooms(tree: Path, bench: Path, tmp: Path, quick: bool) -> list[dict[str, Any]]:
+def rooms(tree: Path, bench: Path, tmp: Path, quick: bool, only: list[str]) -> list[dict[str, Any]]:
     rows = []
-    for i, (name, key, value) in enumerate(ROOMS[:4] if quick else ROOMS):
+    for i, (name, key, value, replan) in enumerate(ROOMS[:4] if quick else ROOMS):
+        if only and name not in only:
+            continue
         rig = room_rig(tree, key, value, tmp / f"rig{i}.toml")
         spec = {"config": str(tree / SMA), "sim_plant": str(rig) if rig else None, "twin": True,
-                "duration_s": 36.0 if quick else 60.0}
+                "duration_s": 36.0 if quick else 60.0, "replan": replan}
         t0 = time.monotonic()
         rows.append({"rig": name, **run_worker(tree, bench, spec), "wall_s": time.monotonic() - t0})
         print(f"  rooms  {name:18s} {_room_line(rows[-1])}", flush=True)
@@ -172,8 +181,10 @@ def _f(v: Any, fmt: str = "6.1f") -> str:
 def _room_line(r: dict[str, Any]) -> str:
     if "error" in r or "refused" in r:
         return r.get("error") or r["refused"]
-    return (f"peak est {_f(r['peak_estimate_c'])} truth {_f(r.get('peak_truth_c'))}  |gap| max {_f(r.get('max_gap_c'))}"
-            f" after 12 s {_f(r.get('max_gap_after_first_window_c'))}  under max {_f(r.get('max_under_c'))} after 12 s"
+    return (f"peak est {_f(r['peak_estimate_c'])} truth {_f(r.get('peak_truth_c'))}  after 12.5 s est "
+            f"{_f(r.get('peak_estimate_late_c'))} truth {_f(r.get('peak_truth_late_c'))}  "
+            f"|gap| max {_f(r.get('max_gap_c'))}"
+            f" after 12.5 s {_f(r.get('max_gap_after_first_window_c'))}  under max {_f(r.get('max_under_c'))} after"
             f" {_f(r.get('max_under_after_first_window_c'))}  events {len(r['events'])} changes "
             f"{len(r.get('safety_thermal', []))}")
 
@@ -216,6 +227,7 @@ def main() -> int:
     ap.add_argument("--base", default=BASE, help="the commit whose code and configs are 'before'")
     ap.add_argument("--quick", action="store_true", help="four rooms (36 s); three patients and none (90 s)")
     ap.add_argument("--print", action="store_true", help="print the results files there are, run nothing")
+    ap.add_argument("--rooms", default="", help="only these rigs of the rooms part, ';'-separated names")
     args = ap.parse_args()
     if args.worker is not None:
         print(json.dumps(worker(json.loads(args.worker))))
@@ -231,14 +243,26 @@ def main() -> int:
                 print(f"{side}: {tree}", flush=True)
                 got: dict[str, Any] = {"commit": args.base if side == "before" else _head(), "quick": args.quick}
                 if "rooms" in args.parts:
-                    got["rooms"] = rooms(tree, bench, tmp, args.quick)
+                    got["rooms"] = rooms(tree, bench, tmp, args.quick, [r for r in args.rooms.split(";") if r])
                 if "budgets" in args.parts:
                     got["budgets"] = budgets(tree, bench, args.quick)
-                (RESULTS / f"thermal_truth_{side}.json").write_text(json.dumps(got, indent=1))
+                save(side, got)
     found = {s: json.loads((RESULTS / f"thermal_truth_{s}.json").read_text()) for s in ("before", "after")
              if (RESULTS / f"thermal_truth_{s}.json").exists()}
     print_sides(found)
     return 0
+
+
+def save(side: str, got: dict[str, Any]) -> None:
+    """Into ``thermal_truth_<side>.json``, over the rows of the same rig or session already there."""
+    path = RESULTS / f"thermal_truth_{side}.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    for part, key in (("rooms", ("rig",)), ("budgets", ("plant", "controller", "patient"))):
+        if part in got:
+            rows = {tuple(r.get(k) for k in key): r for r in old.get(part, [])}
+            rows.update({tuple(r.get(k) for k in key): r for r in got[part]})
+            got[part] = list(rows.values())
+    path.write_text(json.dumps({**old, **got}, indent=1))
 
 
 def _head() -> str:
