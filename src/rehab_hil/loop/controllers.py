@@ -18,8 +18,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from rehab_hil.controllers.base import DT, Controller, Reference
+from rehab_hil.controllers.observer import OBSERVER
 from rehab_hil.interfaces import Claims, CommandInterface, DeviceBinding
 from rehab_hil.loop.estimation import State
+from rehab_hil.loop.thermal import ObserverFollow
 
 __all__ = ["SAFE_COMMAND", "Actuator", "Command", "ControllerRuntime", "LoopController"]
 
@@ -173,18 +175,13 @@ class ControllerRuntime:
         return self._row, error, float(y[0]), float(y[2])
 
     def follow_thermal(self, supervisor: Any) -> bool:
-        """From now on the thermal observer (and its ceiling) takes the supervisor's estimate at each step
-        (``loop.thermal.ObserverFollow``): the loop's wiring, in the process the loop runs in."""
-        from rehab_hil.controllers.observer import OBSERVER
-        from rehab_hil.loop.thermal import ObserverFollow
-
+        """The observer and its ceiling take the supervisor's estimate each step (``loop.thermal.ObserverFollow``)."""
         self._follow = ObserverFollow.of(supervisor, self.controller.diagram, OBSERVER)
         return self._follow is not None
 
     def __getstate__(self) -> dict[str, object]:
-        """Everything but the compiled engine (a loop process compiles it again from the diagram: the
-        on-disk cache makes that a load) and the supervisor it follows (the loop wires that again), so
-        the runtime crosses to the loop process as it is."""
+        """Everything but the compiled engine (a loop process compiles it again from the diagram, a load from
+        the on-disk cache) and the supervisor it follows (wired again there): it crosses as it is."""
         state = dict(self.__dict__)
         state.pop("_engine")
         state["_follow"] = None
