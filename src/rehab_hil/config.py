@@ -94,16 +94,20 @@ class RigHostSection(Section):
 
 
 class RigThermalSection(Section):
-    """First-order actuator temperature from the PWM history (host supervisor): tau dT/dt = T0 + rise*duty - T.
+    """The host's own actuator temperature estimate, for a plant whose model has no heated actuator (the
+    Finger Extensor's winding): first order from the PWM history, tau dT/dt = T0 + rise*duty - T, or two
+    modes. A plant that models its actuator's heat (the SMA wire, the TCP coil) has one thermal model, its
+    own (``plants/thermal.py``): the safety uses it, and a model here is refused (``loading.py``).
 
     Where a thermistor is wired (an ADC channel whose signal ends in ``_c``), the supervisor trips
     on the measured temperature too and on a disagreement with the estimate (broken sensor or
-    wrong model)."""
+    wrong model): ``max_disagreement_c`` and ``disagreement_s`` hold for either estimate."""
 
-    ambient_c: float = Field(ge=-50.0, le=100.0)
-    rise_at_full_duty_c: float = Field(ge=0.0, le=10000.0, description="equilibrium rise at duty 1 [C] (may "
-                                       "exceed any real temperature: a coil that would melt long before)")
-    time_constant_s: float = Field(gt=0.0, le=3600.0)
+    ambient_c: float | None = Field(default=None, ge=-50.0, le=100.0, description="the room [C]")
+    rise_at_full_duty_c: float | None = Field(default=None, ge=0.0, le=10000.0, description="equilibrium rise at "
+                                              "duty 1 [C] (may exceed any real temperature: a coil that would melt "
+                                              "long before)")
+    time_constant_s: float | None = Field(default=None, gt=0.0, le=3600.0)
     second_rise_at_full_duty_c: float = Field(default=0.0, ge=-10000.0, le=10000.0, description="a second mode's "
                                               "equilibrium rise at duty 1 (an identified second-order transfer "
                                               "function; may be negative) [C]")
@@ -112,6 +116,23 @@ class RigThermalSection(Section):
     max_disagreement_c: float = Field(default=25.0, gt=0.0, le=500.0, description="measured vs estimated "
                                       "temperature beyond this is a fault (sensor or model) [C]")
     disagreement_s: float = Field(default=1.0, gt=0.0, le=600.0, description="for this long [s]")
+
+    @model_validator(mode="after")
+    def _whole_model(self) -> RigThermalSection:
+        given = [k for k in MODEL_KEYS if getattr(self, k) is not None]
+        if given and len(given) < len(MODEL_KEYS):
+            missing = next(k for k in MODEL_KEYS if getattr(self, k) is None)
+            raise ValueError(f"{missing} is missing: a first-order estimate needs {', '.join(MODEL_KEYS)} "
+                             f"(given: {', '.join(given)})")
+        return self
+
+    @property
+    def has_model(self) -> bool:
+        """Whether the table holds an estimate (else only the thermistor's disagreement settings)."""
+        return self.rise_at_full_duty_c is not None
+
+
+MODEL_KEYS = ("ambient_c", "rise_at_full_duty_c", "time_constant_s")  # [rig.thermal]'s first-order estimate
 
 
 class RigEstopSection(Section):
@@ -198,7 +219,7 @@ class RigSection(Section):
     def unreachable_temperature(self) -> str | None:
         """Why ``limits.max_temperature_c`` can never fire (the estimate levels off below it), or None."""
         th = self.thermal
-        if th is None:
+        if th is None or not th.has_model:
             return None
         rise = th.rise_at_full_duty_c + (th.second_rise_at_full_duty_c if th.second_time_constant_s else 0.0)
         ceiling = th.ambient_c + rise * self.limits.max_duty

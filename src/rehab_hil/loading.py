@@ -53,4 +53,23 @@ def load_config(path: str | Path, expect: str | None = None) -> PlantConfig:
             cls.device(cfg)
         except ScheduleError as e:
             raise ConfigError(path, e.key, e.message) from None
+    check_thermal(cfg, path)
     return validate_controllers(cfg, path)
+
+
+def check_thermal(cfg: PlantConfig, path: str | Path) -> None:
+    """One thermal model of a heated actuator: a plant that models its actuator's heat (``plants/thermal.py``)
+    takes no ``[rig.thermal]`` estimate of its own. (Its ``max_temperature_c`` may lie above what the model
+    reaches at ``max_duty``: the wire cannot get that hot on this config's values, and a simulated rig's
+    file, a 10 % lower supply, is such a config; the twin's stricter values can make it reachable.)"""
+    from rehab_hil.plants.thermal import ActuatorThermal
+
+    th = cfg.rig.thermal
+    if th is None or not th.has_model:
+        return
+    model = ActuatorThermal.of(cfg)
+    if model is not None:
+        raise ConfigError(path, "rig.thermal.rise_at_full_duty_c", f"plant {cfg.plant!r} models its actuator's "
+                          f"heat ({model.temperature}): that model is the safety's estimate, as the controllers' "
+                          "and the twin's; remove ambient_c, rise_at_full_duty_c and time_constant_s from "
+                          "[rig.thermal] (the room, the convection and the supply are the plant's own keys)")

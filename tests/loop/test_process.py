@@ -226,3 +226,27 @@ def test_a_terminals_ctrl_c_stops_the_loop_through_the_safe_state_not_by_killing
     assert cli.returncode == 130 and "safety stop_request" in out and "SIGINT" in out
     assert "loop_process_lost" not in out and "PWM off at end" in out
     assert next(x for x in out.splitlines() if "PWM off at end" in x).split("│")[2].strip() == "yes"
+
+
+def test_stricter_thermal_values_reach_a_loop_process_through_its_mailbox(tmp_path) -> None:
+    """The twin's stricter values (here a room 7 C warmer, handed over as the safety feature does) are taken
+    by the supervisor in the loop process at its next cycle: the estimate reads the warmer room from then on."""
+    from rehab_hil.loading import load_config
+    from rehab_hil.service.features.safety_thermal import Tightener
+
+    text = (ROOT / "configs" / "sma_exoskeleton.toml").read_text()
+    for key, value in (("watchdog_ms", 100), ("link_loss_periods", 100)):
+        assert f"{key} = {value} " in text
+        text = text.replace(f"{key} = {value} ", f"{key} = 1000 ")
+    sma = tmp_path / "sma.toml"
+    sma.write_text(text)
+    change = Tightener(load_config(sma), ["sma.ambient_c"], 0.001).tightening(0.0, {"sma.ambient_c": 30.0})
+    posted: list[bool] = []
+    with open_session(sma, "sim", controller="pid", home="none") as s:
+        _when_running(s, lambda loop: posted.append(loop.tighten_thermal(change)))
+        result = s.run(3.0)
+    assert posted == [True] and result.events == []
+    (taken,) = result.thermal_changes
+    assert taken["values"] == {"sma.ambient_c": 30.0} and 0.2 < taken["t_s"] < 3.0
+    assert taken["temperature_before_c"] == pytest.approx(23.0, abs=0.1)  # at rest: the room (the PID's closed hold)
+    assert taken["temperature_after_c"] == pytest.approx(30.0, abs=0.1)

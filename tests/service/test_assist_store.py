@@ -11,6 +11,7 @@ from pathlib import Path
 from rehab_hil.controllers import Reference
 from rehab_hil.loading import load_config
 from rehab_hil.service.assist_store import FORMAT, AssistanceStore
+from rehab_hil.service.identity import store_name
 from rehab_hil.service.session import open_session
 from tests.conftest import ROOT
 
@@ -108,7 +109,8 @@ def test_a_session_stopped_part_way_keeps_what_it_learned_so_far(tmp_path: Path)
 def test_the_store_file_is_one_per_rig_patient_and_config_and_written_whole(tmp_path: Path) -> None:
     key = {"plant": "p", "controller": "assist_as_needed", "directions": ["open"], "feedback": {"kp_per_deg": 1.0}}
     s = AssistanceStore(tmp_path, "rig a", "sim-capable", "finger_extensor", key)
-    assert s.path == tmp_path / "rig-a" / "sim-capable-finger_extensor.json"
+    assert s.path == tmp_path / store_name("rig a") / f"{store_name('sim-capable')}-finger_extensor.json"
+    assert s.path.parent.name.startswith("rig-a-") and s.path.name.startswith("sim-capable-")  # readable
     assert s.load() == (None, None)
     s.save({"open": 0.25}, 3, "duration")
     stored, problem = s.load()

@@ -66,7 +66,7 @@ def test_heating_time_trips_within_2_percent_of_its_limit_under_bursty_arrival(s
 def test_the_thermal_estimate_under_bursts_matches_one_sample_per_cycle() -> None:
     bursty = Supervisor(limits(max_heating_s=100.0), DT, thermal=FirstOrderThermal(23.0, 110.0, 1.0))
     run_bursty(bursty, 0.7, 3.0)
-    t_end = bursty._t_filter
+    t_end = bursty._thermal.t_s - DT  # the last command's time (the estimate runs to the end of its period)
     steady = FirstOrderThermal(23.0, 110.0, 1.0)
     for _ in range(round(t_end / DT) + 1):
         steady.step(0.7, DT)

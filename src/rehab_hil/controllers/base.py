@@ -25,7 +25,6 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from rehab_hil.config import ConfigError, Section
-from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.control.trajectories import OpenCloseReference, StepReference, open_close_reference
 from rehab_hil.interfaces import Claims, DeviceBinding
 from rehab_hil.models.ports import Ports
@@ -47,6 +46,7 @@ __all__ = [
     "controllers",
     "get_controller",
     "offline_session",
+    "safety_temperature",
 ]
 
 DT = "dt_s"  # the controller's input: device time since its last step [s]
@@ -352,6 +352,19 @@ def closed_loop_system(controller: Controller, plant_cfg: PlantConfig | None = N
     return system, feed
 
 
+def safety_temperature(cfg: PlantConfig, effort: np.ndarray, duty_scale: float, step_s: float,
+                       max_duty: float = 1.0) -> np.ndarray | None:
+    """The safety's estimate (``plants.thermal.safety_thermal``) over a run of ``effort`` per step, as the
+    supervisor computes it on the rig from the duty sent (clamped to ``max_duty``); None without one."""
+    from rehab_hil.plants.thermal import safety_thermal
+
+    est = safety_thermal(cfg)
+    if est is None:
+        return None
+    duty = np.minimum(np.abs(np.asarray(effort, float)) / duty_scale, max_duty)
+    return np.array([est.step(d, step_s) for d in duty])
+
+
 def offline_session(controller: Controller, cycles: int = 3, plant_cfg: PlantConfig | None = None,
                     outputs: Sequence[str] = ()) -> tuple[SimulationResult, dict[str, float]]:
     """``cycles`` open-close cycles of the controller on the model (after its rest at closed) and
@@ -361,11 +374,7 @@ def offline_session(controller: Controller, cycles: int = 3, plant_cfg: PlantCon
     res = closed_loop(controller, ref.first_open_s + cycles * ref.period_s, plant_cfg=plant_cfg, outputs=outputs)
     effort = res[ctx.effort]
     power = ctx.plant.actuator_power_w(cfg, effort, np.zeros_like(effort))
-    th = cfg.rig.thermal
-    temp = None
-    if th is not None:  # the host's estimate, as the supervisor computes it on the rig
-        est, scale = thermal_from_config(th), ctx.ports.actuators[0].duty_scale
-        temp = np.array([est.step(abs(u) / scale, ctx.step_s) for u in effort])
+    temp = safety_temperature(cfg, effort, ctx.ports.actuators[0].duty_scale, ctx.step_s)
     found = cycle_metrics(res.t - ref.first_open_s, res[ctx.reference], res[ctx.angle], power, temp, ref.period_s,
                           ref.move_s, ref.closed_deg, ref.open_deg)
     return res, session_summary(found[1:] if len(found) > 1 else found)

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from rehab_hil.config import ConfigError, validate
-from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.controllers.base import (
     ControlContext,
     Controller,
@@ -25,6 +24,7 @@ from rehab_hil.controllers.base import (
     Reference,
     closed_loop,
     get_controller,
+    safety_temperature,
 )
 from rehab_hil.plants.sections import PlantConfig
 from rehab_hil.progress import announce
@@ -173,12 +173,10 @@ def _runs(on: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _temperature_trip(ctx: ControlContext, res: Any, src: Sources, name: str) -> Trip | None:
-    th, lim = ctx.cfg.rig.thermal, ctx.cfg.rig.limits
-    if th is None:
+    lim = ctx.cfg.rig.limits
+    est = safety_temperature(ctx.cfg, res[ctx.effort], ctx.ports.actuators[0].duty_scale, ctx.step_s, lim.max_duty)
+    if est is None:
         return None
-    model = thermal_from_config(th)
-    duty = np.minimum(np.abs(res[ctx.effort]) / ctx.ports.actuators[0].duty_scale, lim.max_duty)
-    est = np.array([model.step(d, ctx.step_s) for d in duty])
     over = np.flatnonzero(est > lim.max_temperature_c)
     if not over.size:
         return None

@@ -233,7 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="SCHED_FIFO priority of this driver and the harness (it inherits it) with --clock realtime "
                         "(0: none); below the host loop's 10, as the Python device (docs/loop.md, 'Scheduling')")
     p.add_argument("--sim-patient", default=None, help="a simulated patient on the plant (profiles/sim/*.toml)")
-    p.add_argument("--sim-truth", default=None, help="write the patient's true state here (sim_truth.csv)")
+    p.add_argument("--sim-truth", default=None,
+                   help="write the rig's true state here (sim_truth.csv: the actuator's temperature, the patient's)")
     p.add_argument("--uno", action="store_true", help="the whole Uno: optiboot loaded with the sketch (harness -b) "
                    "and the UART's real receive rate into its 2-byte buffer (-u)")
     return p

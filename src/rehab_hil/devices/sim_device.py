@@ -245,7 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--corrupt", type=float, default=0.0, help="probability of corrupting an outgoing frame")
     p.add_argument("--delay-ms", type=float, default=0.0, help="delay of every outgoing frame [ms]")
     p.add_argument("--sim-patient", default=None, help="a simulated patient on the plant (profiles/sim/*.toml)")
-    p.add_argument("--sim-truth", default=None, help="write the patient's true state here (sim_truth.csv)")
+    p.add_argument("--sim-truth", default=None,
+                   help="write the rig's true state here (sim_truth.csv: the actuator's temperature, the patient's)")
     p.add_argument("--fifo-priority", type=int, default=5,
                    help="SCHED_FIFO priority in realtime mode (0: none; below the host loop's 10); an MCU is never "
                         "descheduled (a stall that still happens is measured and reported, never a fault; "

@@ -44,16 +44,17 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
     device runs in virtual time, one sample period per COMMAND (deterministic; "inprocess" always
     does; "avr": the harness stops simulated time once the firmware has answered the host).
     ``baud``: a serial path's rate (default ``[rig].baud``). ``sim_patient``: a simulated patient
-    (``profiles/sim/*.toml``) on a simulated device's plant, its true state written to ``sim_truth``.
-    ``cfg``, ``loaded_patient``: ``config_path`` and ``sim_patient`` already loaded (a session loads each once; the
-    in-process device takes them as they are). Failures raise ``HardwareError``."""
+    (``profiles/sim/*.toml``) on a simulated device's plant; ``sim_truth``: where a simulated device
+    writes its true state (``sim_truth.csv``: the actuator's temperature, and the patient's, if any).
+    ``cfg``, ``loaded_patient``: ``config_path`` and ``sim_patient`` already loaded (a session loads each
+    once; the in-process device takes them as they are). Failures raise ``HardwareError``."""
     cfg = cfg if cfg is not None else _config(config_path)
     device = resolve_device(device)  # "auto": the one Arduino-like USB serial port (hardware/discovery.py)
     announce_device(device, config_path, cfg.rig.port)  # which device, on stderr
     with ExitStack() as stack:
         hw: HardwareInterface
         patient = ["--sim-patient", str(sim_patient)] if sim_patient is not None else []
-        if sim_patient is not None and sim_truth is not None:
+        if sim_truth is not None:
             patient += ["--sim-truth", str(sim_truth)]
         if device == "inprocess":
             hw = _inprocess(stack, cfg, loaded_patient if loaded_patient is not None else sim_patient, sim_truth)
@@ -76,11 +77,12 @@ def open_rig(device: str, config_path: str | Path, *, lockstep: bool = False, ba
 
 def _inprocess(stack: ExitStack, cfg: Any, sim_patient: Any,
                sim_truth: str | Path | None) -> InProcessHardware:
-    """The in-process rig, with a simulated patient on its plant when one is given."""
+    """The in-process rig, with a simulated patient on its plant when one is given, writing its truth
+    when asked to."""
     from rehab_hil.plants import get_plant
 
     binding = get_plant(cfg.plant).device(cfg)
-    if sim_patient is None:
+    if sim_patient is None and sim_truth is None:
         return inprocess_hardware(binding)
     from rehab_hil.config import ConfigError
     from rehab_hil.devices.patient_plant import patient_plant

@@ -13,13 +13,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from rehab_hil.controllers.base import DT, Controller, Reference
+from rehab_hil.controllers.observer import OBSERVER
 from rehab_hil.interfaces import Claims, CommandInterface, DeviceBinding
 from rehab_hil.loop.estimation import State
+from rehab_hil.loop.thermal import ObserverFollow
 
 __all__ = ["SAFE_COMMAND", "Actuator", "Command", "ControllerRuntime", "LoopController"]
 
@@ -125,6 +127,7 @@ class ControllerRuntime:
         self._row = -1  # the plan row the last step read
         self._table_slot = -1  # the learned table's place in ``_tables`` (-1: none learned on the rig)
         self._offered: tuple[np.ndarray, tuple[np.ndarray, dict[str, float]] | None] | None = None
+        self._follow: Any = None  # the observer follows the supervisor's temperature estimate (``follow_thermal``)
         self.swapped_at: list[float] = []  # device times an offered table was taken (a loop process's swaps)
         self.reset()
 
@@ -171,11 +174,17 @@ class ControllerRuntime:
         error = float(y[1]) - float(self._u_prev[self._i_angle]) if self._i_angle >= 0 else math.nan
         return self._row, error, float(y[0]), float(y[2])
 
+    def follow_thermal(self, supervisor: Any) -> bool:
+        """The observer and its ceiling take the supervisor's estimate each step (``loop.thermal.ObserverFollow``)."""
+        self._follow = ObserverFollow.of(supervisor, self.controller.diagram, OBSERVER)
+        return self._follow is not None
+
     def __getstate__(self) -> dict[str, object]:
-        """Everything but the compiled engine (a loop process compiles it again from the diagram: the
-        on-disk cache makes that a load), so the runtime crosses to the loop process as it is."""
+        """Everything but the compiled engine (a loop process compiles it again from the diagram, a load from
+        the on-disk cache) and the supervisor it follows (wired again there): it crosses as it is."""
         state = dict(self.__dict__)
         state.pop("_engine")
+        state["_follow"] = None
         return state
 
     def __setstate__(self, state: dict[str, object]) -> None:
@@ -269,6 +278,8 @@ class ControllerRuntime:
             k = self._row = self._plan.index(t_s)
             for i, table in self._tables:
                 u[i] = table[k]
+        if self._follow is not None:
+            self._follow(t_s, self._x)
         e.sample(t_s, self._x, self._xd, u, self._params, sig, w, xdn)
         e.read_outputs(self._slots, sig, self._y)
         self._u_prev[:] = u

@@ -6,8 +6,8 @@ nothing else: no helper thread runs Python there. It asks for SCHED_FIFO and loc
 sample, command and event goes into the shared-memory ring (``loop.ring``); the session's process reads
 the ring on a thread of its own and hands the records to the figures, the feeds and the sinks
 (``loop.dispatch``: the recorder, zenoh, Foxglove, the twin), which may stall for as long as the ring
-holds (``ring.RING_S``) without losing a record. What flows back (a stop request, a learned table) goes
-through the mailbox (``loop.mailbox``), looked at once a cycle.
+holds (``ring.RING_S``) without losing a record. What flows back (a stop request, a learned table, stricter
+values for the temperature estimate) goes through the mailbox (``loop.mailbox``), looked at once a cycle.
 
 Either side's death is a safety event with the PWM off: the loop process looks at its parent each
 cycle and, if the session's process is gone, trips (``session_lost``), sends PWM 0 and ESTOP and ends;
@@ -96,11 +96,14 @@ class ProcessMail:
 
 
 def _act(loop: LoopService, message: tuple[Any, ...]) -> None:
-    """One message from the session: ("stop", reason, kind) or ("table", table, retune)."""
+    """One message from the session: ("stop", reason, kind), ("table", table, retune) or ("thermal",
+    tightening): stricter values for the supervisor's temperature estimate (``loop/thermal.py``)."""
     if message[0] == "stop":
         loop.request_stop(message[1], message[2])
     elif message[0] == "table":
         loop.controller.offer_table(message[1], message[2])  # type: ignore[attr-defined]
+    elif message[0] == "thermal":
+        loop.tighten_thermal(message[1])
 
 
 @dataclass
@@ -252,6 +255,15 @@ class LoopProcess:
             return True
         try:
             self.mailbox.post(("table", table, retune), timeout_s=0.5)
+        except MailboxFull:
+            return False
+        return True
+
+    def tighten_thermal(self, change: Any) -> bool:
+        """Stricter values for the supervisor's temperature estimate, taken at the loop's next cycle (any
+        thread); False if the loop has not taken the messages before it (the caller tries again)."""
+        try:
+            self.mailbox.post(("thermal", change), timeout_s=0.5)
         except MailboxFull:
             return False
         return True

@@ -12,11 +12,13 @@ estimated, supervised and recorded, but only the newest is controlled: the older
 coalesced (never caught up) and count as missed cycles.
 
 Nothing but the loop's own work happens before the write. What comes back to the loop (a stop
-request, a learned table) is taken at a cycle's start (``mail``, a loop process's inbox).
+request, a learned table, stricter values for the temperature estimate) is taken at a cycle's start
+(``mail``, a loop process's inbox).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -30,6 +32,7 @@ from rehab_hil.loop.pacing import PACINGS, DevicePacing, HostPacing, RunState
 from rehab_hil.loop.records import CommandRecord, EventRecord, SampleRecord
 from rehab_hil.loop.shutdown import shut_down, stall_facts
 from rehab_hil.loop.supervisor import SafetyEvent, Supervisor
+from rehab_hil.loop.thermal import ThermalTightening
 from rehab_hil.loop.timing import HELPER_NICE, RealtimeReport, realtime_setup, realtime_teardown, run_queue_wait_s
 from rehab_hil.loop.trip_cause import StallFacts
 from rehab_hil.protocol import Configure, Sample
@@ -86,6 +89,8 @@ class LoopReport:
     stall_facts: StallFacts | None = None  # the causes of a stall trip are explained from these (trip_cause.py)
     pwm_unconfirmed: str = ""  # why no sample after the trip shows the PWM state ("" = confirmed or not needed)
     ring_overflow: int = 0  # a loop process's records written over unread ones (loop.ring)
+    # each tightening of the supervisor's temperature estimate the loop took (loop/thermal.py): when, the values
+    thermal_changes: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
 
 class LoopService:
@@ -99,6 +104,9 @@ class LoopService:
         self.outlet, self.mail = outlet, mail
         self._advance = getattr(controller, "advance", None)  # the controller's work that can wait for the write
         self._last_step = getattr(controller, "last_step", None)  # what it computed, for the learning on the rig
+        follow = getattr(controller, "follow_thermal", None)  # its observer on the supervisor's temperature estimate
+        if follow is not None:
+            follow(supervisor)
         self._stop_reason = ""
         self._stop_kind = "stop_request"
         self._host_clock = True  # link loss judged on the host's clock (run(lockstep=True): empty waits)
@@ -109,6 +117,11 @@ class LoopService:
         safe state at its next cycle and exits."""
         self._stop_kind = kind
         self._stop_reason = reason
+
+    def tighten_thermal(self, change: ThermalTightening) -> None:
+        """Stricter values for the supervisor's temperature estimate (``loop/thermal.py``), taken now, between
+        two cycles, at the newest sample's device time (the loop's own thread only)."""
+        self.supervisor.tighten_thermal(self.run_state.t_s, change)
 
     # ------------------------------------------------------------------------------------------
     def run(self, duration_s: float, pacing: str = "device", realtime: bool = True,
@@ -273,6 +286,7 @@ class LoopService:
             sample_gaps=s.sample_gaps, reboots=s.reboots, timing={**pace.timing(), **s.speed()},
             reaction=s.reaction.summary(), ran_s=s.ran_s, link=self.hw.stats.as_dict(), events=list(sup.events),
             stall_facts=stall_facts(self, self._host_clock), pwm_unconfirmed=s.pwm_unconfirmed, final_sample=s.final,
+            thermal_changes=list(sup.thermal_changes),
             stop_reason=f"safety trip: {sup.events[0].reason}" if sup.events else "duration reached")
 
 

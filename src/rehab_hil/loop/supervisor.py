@@ -18,11 +18,11 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
-from rehab_hil.control.thermal import ModalThermal
 from rehab_hil.loop.controllers import SAFE_COMMAND, Command
 from rehab_hil.loop.estimation import State
+from rehab_hil.loop.thermal import SafetyThermal, ThermalTightening
 from rehab_hil.protocol import Fault, Status
 
 __all__ = ["DeviceStall", "SafetyEvent", "Supervisor", "SupervisorLimits"]
@@ -84,9 +84,12 @@ class Supervisor:
     """Judges every cycle; ``filter`` turns a controller's command into what may be sent."""
 
     def __init__(self, limits: SupervisorLimits, dt_s: float, force_signals: tuple[str, ...] = (),
-                 thermal: ModalThermal | None = None, *, estop_input: bool = False,
+                 thermal: Any = None, *, estop_input: bool = False,
                  temperature_signal: str | None = None) -> None:
+        """``thermal``: the actuator temperature estimate (``plants.thermal.safety_thermal``: the plant's own
+        model, or ``control.thermal.ModalThermal``), advanced by device time on the duty sent."""
         self.limits, self.dt_s, self.force_signals, self.thermal = limits, dt_s, force_signals, thermal
+        self._thermal = SafetyThermal(thermal) if thermal is not None else None
         self.estop_input, self.temperature_signal = estop_input, temperature_signal
         self.events: list[SafetyEvent] = []
         self.tripped = False  # latched by the first event (a plain attribute: read several times a cycle)
@@ -94,7 +97,6 @@ class Supervisor:
         self.missing = 0
         self.max_temperature_c = thermal.temperature_c if thermal else math.nan
         self.measured_temperature_c = math.nan
-        self._t_filter: float | None = None  # device time of the last filter() call
         self._heating_since: float | None = None  # device time the drive went on
         self._force_since: dict[str, float] = {}
         self._disagree_since: float | None = None
@@ -110,6 +112,19 @@ class Supervisor:
     @property
     def temperature_c(self) -> float:
         return self.thermal.temperature_c if self.thermal else math.nan
+
+    def thermal_state(self, t_s: float) -> Any:
+        """The temperature estimate's state at device time ``t_s`` (the controller's observer follows it)."""
+        return self._thermal.state_at(t_s) if self._thermal is not None else None
+
+    def tighten_thermal(self, t_s: float, change: ThermalTightening) -> bool:
+        """Stricter values for the temperature estimate (``loop/thermal.py``), between two cycles."""
+        return self._thermal is not None and self._thermal.tighten(t_s, change)
+
+    @property
+    def thermal_changes(self) -> list[dict[str, Any]]:
+        """Each tightening of the temperature estimate taken (device time, values, temperature)."""
+        return self._thermal.changes if self._thermal is not None else []
 
     def trip(self, t_s: float, reason: str, detail: str = "") -> None:
         """Latch the safe state (the first reason is the one that counts; later ones are logged too)."""
@@ -246,9 +261,6 @@ class Supervisor:
                 cmd = Command((d0, d1), cmd.direction, cmd.enable, cmd.reference_deg)
         out = SAFE_COMMAND if self.tripped else cmd
         duty = max(out.duty) if out.enable else 0.0
-        elapsed = self.dt_s if self._t_filter is None else max(t_s - self._t_filter, 0.0)
-        held = self._sent_duty  # on the device since the last call
-        self._t_filter = t_s
         self._sent_duty, self._sent_reference_deg = duty, out.reference_deg
         if duty > 0.0:  # on-time to the end of this period, as the firmware counts its ticks
             if self._heating_since is None:
@@ -256,9 +268,8 @@ class Supervisor:
             self.heating_s = t_s - self._heating_since + self.dt_s
         else:
             self._heating_since, self.heating_s = None, 0.0
-        if self.thermal is not None:
-            self.thermal.step(held, max(elapsed - self.dt_s, 0.0))  # the periods the burst skipped
-            temp = self.thermal.step(duty, min(elapsed, self.dt_s))
+        if self._thermal is not None:  # the periods a burst skipped with the duty held, then this one's
+            temp = self._thermal.apply(t_s, duty, self.dt_s)
             self.max_temperature_c = max(self.max_temperature_c, temp)
             if temp > self.limits.max_temperature_c and not self.tripped:
                 self.trip(t_s, "temperature", f"estimated {temp:.1f} C > {self.limits.max_temperature_c} C")

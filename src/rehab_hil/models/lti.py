@@ -17,8 +17,8 @@ from rehab_hil.models.system import Part, njit
 if TYPE_CHECKING:  # python-control takes seconds to import: only where it is used
     import control
 
-__all__ = ["MAX_ORDER", "PeakAfterCut", "StateSpace1", "StateSpace2", "StateSpace3", "lti_part", "peak_after_cut_part",
-           "state_space_params"]
+__all__ = ["MAX_ORDER", "PeakAfterCut", "StateSpace1", "StateSpace2", "StateSpace3", "lti_part", "modal_form",
+           "peak_after_cut_part", "state_space_params"]
 
 MAX_ORDER = 3
 
@@ -151,12 +151,12 @@ class PeakAfterCut(Part):
             dx[i] = p[i] * x[i] + p[3 + i] * du
 
 
-def peak_after_cut_part(name: str, part: Part, **kwargs: Any) -> Part | None:
-    """A ``PeakAfterCut`` copying ``part`` (a ``StateSpace<n>``, started at rest), or None where the
-    bound does not hold: an output that reads its input (D != 0) or modes that oscillate."""
-    values = dict(zip(part.params, part.param_values, strict=True))
-    if not isinstance(part, _StateSpace) or values["d"] != 0.0 or np.any(part.x0 != 0.0):
+def modal_form(part: Part) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(poles, modal input gains b, modal output gains c, the map from the part's state to the modal one)
+    of a ``StateSpace<n>`` part with real, stable poles; None otherwise (modes that oscillate)."""
+    if not isinstance(part, _StateSpace):
         return None
+    values = dict(zip(part.params, part.param_values, strict=True))
     n = len(part.states)
     A = np.array([values[f"a{i}{j}"] for i in range(1, n + 1) for j in range(1, n + 1)]).reshape(n, n)
     B = np.array([values[f"b{i}"] for i in range(1, n + 1)])
@@ -165,7 +165,22 @@ def peak_after_cut_part(name: str, part: Part, **kwargs: Any) -> Part | None:
     if np.any(np.abs(lam.imag) > 1e-12) or np.any(lam.real >= 0.0):
         return None
     lam, V = lam.real, V.real
-    b, c = np.linalg.solve(V, B), C @ V
+    to_modal = np.linalg.inv(V)
+    return lam, to_modal @ B, C @ V, to_modal
+
+
+def peak_after_cut_part(name: str, part: Part, **kwargs: Any) -> Part | None:
+    """A ``PeakAfterCut`` copying ``part`` (a ``StateSpace<n>``, started at rest), or None where the
+    bound does not hold: an output that reads its input (D != 0) or modes that oscillate. Its states
+    are the modal ones of ``part``'s (``modal_form``'s map), so one follows the other."""
+    form = modal_form(part)
+    if form is None:
+        return None
+    values = dict(zip(part.params, part.param_values, strict=True))
+    if values["d"] != 0.0 or np.any(part.x0 != 0.0):
+        return None
+    lam, b, c, _ = form
+    n = lam.size
     pad = [0.0] * (MAX_ORDER - n)
     modal = dict(zip(PeakAfterCut.params, [*lam, *[-1.0] * (MAX_ORDER - n), *b, *pad, *c, *pad,
                                            values["u0"], values["y0"]], strict=True))

@@ -1,8 +1,10 @@
-"""``sim_truth.csv``: what the simulated patient really did, written by the simulated device beside
-the recording so benches can score what the host estimates. A real rig has no such file.
+"""``sim_truth.csv``: what the simulated rig really did, written by the simulated device beside the
+recording so benches and tests can score what the host estimates. A real rig has no such file.
 
-One row per ``every_s`` of the device's session clock: ``t_s`` then the patient's signals (SI units
-in the names). The session clock restarts at each accepted CONFIGURE (homing's, then the loop's): the
+One row per ``every_s`` of the device's session clock: ``t_s`` then the axis's true angle and velocity,
+the heated actuator's true temperature (``sma_temperature_c``, ``tcp_temperature_c``: what the safety
+estimates and no rig measures) and a simulated patient's signals (``devices.patient_plant.truth_signals``;
+SI units in the names). The session clock restarts at each accepted CONFIGURE (homing's, then the loop's): the
 file restarts with it, so it always holds the session the host ran.
 """
 

@@ -155,7 +155,7 @@ def compose(plant: type[Plant], cfg: PlantConfig) -> list[Part]:
     return attach(plant.name, plant.ports(cfg), plant.step(cfg)[0], parts, effects)
 
 
-_NOT_PLANTS = {"changes", "experiments", "registry", "sections"}  # this package's helpers
+_NOT_PLANTS = {"changes", "experiments", "registry", "sections", "thermal"}  # this package's helpers
 
 
 def plants() -> dict[str, type[Plant]]:

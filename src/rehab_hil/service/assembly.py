@@ -10,7 +10,6 @@ import math
 
 from rehab_hil.calibration import force_limit_counts
 from rehab_hil.config import ConfigError
-from rehab_hil.control.thermal import thermal_from_config
 from rehab_hil.controllers import ControllerError, Reference, offline_session
 from rehab_hil.controllers import build_controller as build
 from rehab_hil.controllers.build import Sources
@@ -21,6 +20,7 @@ from rehab_hil.loop.estimation import Estimator
 from rehab_hil.loop.supervisor import Supervisor, SupervisorLimits
 from rehab_hil.plants.registry import get_plant
 from rehab_hil.plants.sections import PlantConfig
+from rehab_hil.plants.thermal import safety_thermal
 from rehab_hil.protocol import Configure
 from rehab_hil.session_metrics import SessionMeter
 
@@ -112,7 +112,8 @@ def estop_enabled(cfg: PlantConfig) -> bool:
 
 
 def build_supervisor(cfg: PlantConfig, binding: DeviceBinding) -> Supervisor:
-    """Host limits = ``[rig.limits]`` tightened by the ``[rig.host]`` margins (``RigSection.host_limits``)."""
+    """Host limits = ``[rig.limits]`` tightened by the ``[rig.host]`` margins (``RigSection.host_limits``); the
+    temperature estimate is the plant's own thermal model of its actuator (``plants.thermal.safety_thermal``)."""
     lim, th, host = cfg.rig.limits, cfg.rig.thermal, cfg.rig.host_limits()
     limits = SupervisorLimits(
         min_angle_deg=host.min_angle_deg, max_angle_deg=host.max_angle_deg,
@@ -123,7 +124,7 @@ def build_supervisor(cfg: PlantConfig, binding: DeviceBinding) -> Supervisor:
         force_debounce_s=lim.force_debounce_ms / 1000.0,
         max_disagreement_c=th.max_disagreement_c if th else 25.0, disagreement_s=th.disagreement_s if th else 1.0,
     )
-    thermal = thermal_from_config(th) if th else None
+    thermal = safety_thermal(cfg)
     return Supervisor(limits, period_s(cfg), force_channels(binding), thermal, estop_input=estop_enabled(cfg),
                       temperature_signal=temperature_channel(binding))
 

@@ -8,8 +8,9 @@ file per rig id, patient and config, ``<dir>/<rig>/<patient>-<config>.json``:
 - ``<dir>``: the ``assistance_store`` option (``rehab-hil run --assistance-store DIR``), else
   ``REHAB_HIL_ASSISTANCE_DIR``, else ``$XDG_DATA_HOME/rehab-hil/assistance`` (``~/.local/share``):
   patient data, not a cache;
-- ``<patient>``: the host's patient profile's ``patient_id``, else a simulated patient's, else
-  ``no-patient``; ``<rig>`` as the rig learning's (a simulated rig's ``--sim-plant`` is part of it).
+- ``<rig>`` and ``<patient>``: the session's identity (``service.identity.SessionIdentity``: the rig id,
+  a simulated rig's ``--sim-plant`` part of it; the profile's ``patient_id`` and a simulated patient,
+  both when both are given, else ``no-patient``), each through ``store_name``, as the rig learning's store.
 
 The file holds the assistance per learned direction and what gives it meaning (``key``: the plant,
 the controller, the directions it learns, the feedback's gains): one made under another key is not
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from rehab_hil.outputs import name_part, replacing
+from rehab_hil.service.identity import store_name
 
 __all__ = ["FORMAT", "AssistanceStore", "Stored", "default_assistance_dir"]
 
@@ -58,11 +60,10 @@ class Stored:
 class AssistanceStore:
     """One patient's learned assistance on one rig and config; see the module docstring."""
 
-    def __init__(self, directory: Path, rig_id: str, patient_id: str | None, config_name: str,
+    def __init__(self, directory: Path, rig: str, patient: str | None, config_name: str,
                  key: dict[str, Any]) -> None:
         self.key = key
-        who = name_part(patient_id) if patient_id else "no-patient"
-        self.path = Path(directory) / name_part(rig_id) / f"{who}-{name_part(config_name)}.json"
+        self.path = Path(directory) / store_name(rig) / f"{store_name(patient)}-{name_part(config_name)}.json"
 
     def load(self) -> tuple[Stored | None, str | None]:
         """(what the file holds, None); (None, None) without a file; (None, one line) for a file that

@@ -4,7 +4,7 @@ The rig is its rig id; a simulated rig that runs another plant file is another r
 file's hash). The patient is a profile's ``patient_id`` (a person on a real rig) or a simulated patient
 (``sim-`` its id and its file's hash: two files with one id are two patients); a profile and a simulated
 patient together name both. A table learned with one patient is never used with another: every store
-keys on ``SessionIdentity.rig`` and ``.patient``.
+keys on ``SessionIdentity.rig`` and ``.patient``, each through ``store_name`` (one file name per identity).
 """
 
 from __future__ import annotations
@@ -14,12 +14,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SessionIdentity", "file_hash"]
+from rehab_hil.outputs import name_part
+
+__all__ = ["NO_PATIENT", "SessionIdentity", "file_hash", "store_name"]
 
 
 def file_hash(path: str | Path) -> str:
     """The first 12 hex digits of a file's sha256 (what makes two files with one name two things)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+NO_PATIENT = "no-patient"  # a store's name for a session that named nobody (no profile, no simulated patient)
+
+
+def store_name(text: str | None) -> str:
+    """``text`` (a rig or a patient of ``SessionIdentity``) as a store's file or folder name: readable, and
+    one name per text. ``outputs.name_part`` alone folds "a b" and "a-b" into one name, and a patient whose
+    id is "no-patient" would have taken the store of a session with nobody; the text's hash keeps them
+    apart. None: ``NO_PATIENT``."""
+    if text is None:
+        return NO_PATIENT
+    return f"{name_part(text)}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
 
 
 @dataclass(frozen=True)

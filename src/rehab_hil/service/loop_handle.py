@@ -3,7 +3,7 @@ the session's own process in lockstep (its time is virtual: nothing competes wit
 cannot cross to a process (an in-process device, a controller that does not pickle: said in a note).
 
 Both handles answer the same calls (``service.features.base.LoopHandle``): ``run``, ``request_stop``,
-``offer_table``, ``progress`` and ``link`` (the link figures the live views publish).
+``offer_table``, ``tighten_thermal``, ``progress`` and ``link`` (the link figures the live views publish).
 """
 
 from __future__ import annotations
@@ -44,6 +44,12 @@ class LocalLoop:
 
     def offer_table(self, table: Any, retune: Any = None) -> bool:
         self.service.controller.swap_table(table, retune)  # type: ignore[attr-defined]
+        return True
+
+    def tighten_thermal(self, change: Any) -> bool:
+        """Stricter values for the supervisor's temperature estimate, straight into it: called on the loop's
+        own thread between two cycles (the safety feature's feed hands them over there)."""
+        self.service.tighten_thermal(change)
         return True
 
     def run(self, **run: Any) -> LoopReport:

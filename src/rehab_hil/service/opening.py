@@ -19,6 +19,7 @@ from rehab_hil.loading import load_config
 from rehab_hil.patient.profile import load_patient
 from rehab_hil.patient.truth import SimTruth
 from rehab_hil.plants import get_plant
+from rehab_hil.plants.thermal import ActuatorThermal
 from rehab_hil.profiles import apply_profile, load_profile, profile_rig_keys
 from rehab_hil.protocol import Configure
 from rehab_hil.service import assembly
@@ -27,6 +28,7 @@ from rehab_hil.service.features.assistance import KeptAssistanceFeature, assista
 from rehab_hil.service.features.base import Feature, SessionParts
 from rehab_hil.service.features.learning import RigLearningFeature, learning_wanted
 from rehab_hil.service.features.recording import Recording
+from rehab_hil.service.features.safety_thermal import SafetyThermalFeature
 from rehab_hil.service.features.truth import SimTruthFeature
 from rehab_hil.service.features.twin import PatientTorque, Twin
 from rehab_hil.service.features.views import Foxglove, Telemetry
@@ -115,10 +117,12 @@ def _device_config(cfg: Any, config: Path, device: str, sim_plant: Path | None) 
 
 
 def open_hardware(stack: ExitStack, loaded: Loaded) -> SessionParts:
-    """Open and connect the rig (a simulated one's process stops with the stack); a simulated patient's
-    truth file first, so it is moved after the device has closed it."""
+    """Open and connect the rig (a simulated one's process stops with the stack); a simulated rig's truth
+    file first (a simulated patient's session, or any recorded one), so it is moved after the device
+    has closed it."""
     opts = loaded.options
-    if opts.sim.sim_patient is not None and opts.views.record is not None:  # unrecorded: nothing to keep it in
+    simulated = loaded.device in RIG_KINDS and opts.rig.hw is None
+    if simulated and opts.views.record is not None:  # unrecorded: nothing to keep it in
         loaded.truth = SimTruth()
         stack.callback(loaded.truth.finish)
     hw = opts.rig.hw
@@ -155,4 +159,6 @@ def session_features(loaded: Loaded, parts: SessionParts) -> list[Feature]:
         out += [Twin(), PatientTorque()]
     if hasattr(controller, "controller") and learning_wanted(controller, opts.learning.rig_learning):
         out.append(RigLearningFeature())
+    if any(isinstance(f, Twin) for f in out) and ActuatorThermal.of(cfg) is not None:
+        out.append(SafetyThermalFeature())  # after the learning: its hook tells the safety before the re-plan
     return out + list(opts.test.features)

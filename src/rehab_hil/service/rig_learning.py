@@ -19,7 +19,8 @@ new model table to ``rebase``: at the next swap point it becomes both the table 
 one the forgetting pulls toward (an update computed from the old table meanwhile is dropped).
 
 Each accepted table is written to ``store`` (``TableStore``) by the worker, so the next session
-on the same rig, patient profile and plan starts from it. ``log`` says what each update did.
+on the same rig, patient and plan starts from it, and a session with another patient (or none) never
+does. ``log`` says what each update did.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ import numpy as np
 
 from rehab_hil.controllers.rig_learning import RigLearner, RigLearningSpec
 from rehab_hil.models.engine import cache_dir
-from rehab_hil.outputs import name_part, replacing
+from rehab_hil.outputs import replacing
+from rehab_hil.service.identity import store_name
 
 __all__ = ["LEAD_S", "LOCKSTEP_REPLAN_WAIT_S", "RigLearning", "TableStore", "default_store_dir"]
 
@@ -53,15 +55,15 @@ def default_store_dir() -> Path:
 
 
 class TableStore:
-    """One learned table per rig id, patient profile and plan: ``<dir>/<rig>/<profile>-<plan>.npz``
-    holding the table, the trials it took and the plan's key (a table for another plan is never
-    used). Writes are atomic (a killed session leaves the previous table)."""
+    """One learned table per rig, patient and plan (``service.identity``: the session's ``SessionIdentity``,
+    each part through ``store_name``): ``<dir>/<rig>/<patient>-<plan>.npz`` holding the table, the trials it
+    took and the plan's key (a table for another plan is never used). Writes are atomic (a killed session
+    leaves the previous table)."""
 
-    def __init__(self, directory: Path, rig_id: str, profile_id: str | None, plan_key: str) -> None:
-        slug = name_part(rig_id)
-        who = name_part(profile_id) if profile_id else "no-profile"
+    def __init__(self, directory: Path, rig: str, patient: str | None, plan_key: str) -> None:
         self.plan_key = plan_key
-        self.path = Path(directory) / slug / f"{who}-{hashlib.sha1(plan_key.encode()).hexdigest()[:16]}.npz"
+        plan = hashlib.sha1(plan_key.encode()).hexdigest()[:16]
+        self.path = Path(directory) / store_name(rig) / f"{store_name(patient)}-{plan}.npz"
 
     def load(self, n: int) -> tuple[np.ndarray, int] | None:
         """The stored table and its trial count, or None (none, damaged, another plan or length)."""

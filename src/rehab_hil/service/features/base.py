@@ -30,6 +30,10 @@ class LoopHandle(Protocol):
 
     def offer_table(self, table: Any, retune: Any = None) -> bool: ...
 
+    def tighten_thermal(self, change: Any) -> bool: ...
+
+    separate: bool  # the loop runs in a process of its own (``LoopProcess``): any thread may post to it
+
 
 @dataclass
 class SessionParts:

@@ -1,6 +1,7 @@
-"""A simulated patient's truth as a session feature: the device writes the patient's true state (and, on
-a heated actuator, the true actuator temperature) to a temporary ``sim_truth.csv``, moved into the run
-directory once the device has closed it (``patient.truth.SimTruth``)."""
+"""A simulated rig's truth as a session feature: the device writes its true state (the heated actuator's
+temperature, with or without a patient, and a simulated patient's state) to a temporary
+``sim_truth.csv``, moved into the run directory once the device has closed it
+(``patient.truth.SimTruth``)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ __all__ = ["SimTruthFeature"]
 
 
 class SimTruthFeature(Feature):
-    """``sim_patient``: the truth file of the simulated patient (the session made ``truth`` before the rig)."""
+    """The truth file of a simulated rig (the session made ``truth`` before the rig): a simulated patient's
+    session, or any recorded session on a simulated rig."""
 
     name = "sim_truth"
 
@@ -24,4 +26,4 @@ class SimTruthFeature(Feature):
 
     def finish(self, result: RunResult) -> FeatureResult | None:
         where = str(self.truth.run_dir / TRUTH_FILE) if self.truth.run_dir is not None else None
-        return FeatureResult(self.name, {"file": where})
+        return FeatureResult(self.name, {"file": where}, {"sim_truth": TRUTH_FILE} if where is not None else {})
