@@ -1,7 +1,7 @@
 """Assist-as-needed on patients it was not tuned on (issue 48): a short trial of the shipped cohort on a
 seed the settings were not tuned with (they were tuned on seed 1; docs/patient.md), on the Finger
-Extensor: the moves the rig drives succeed at the target, with no safety event, the severe patients'
-with the headroom's integral; and a patient who tires gets more assistance as they tire."""
+Extensor: the moves the rig drives succeed at the target, with no safety event, the severe patients
+with more assistance than the moderate one; and a patient who tires gets more assistance as they tire."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ import pytest
 
 from rehab_hil.cli import main
 from rehab_hil.controllers import Reference
-from rehab_hil.controllers.build import settings_for
 from rehab_hil.loading import load_config
 from rehab_hil.service.session import open_session
 
@@ -27,16 +26,17 @@ HELD_OUT_SEED = "2"  # patients 0 and 1 severe (a flexed rest, 0.11-0.23 N m of 
 def test_patients_not_tuned_on_reach_the_target_without_a_safety_event(tmp_path):
     out = tmp_path / "trial"
     assert main(["trial", "--config", str(CONFIG), "--controller", "assist_as_needed", "--patients", "3",
-                 "--duration", "63", "--seed", HELD_OUT_SEED, "--out", str(out), "--record", "failed",
+                 "--duration", "64", "--seed", HELD_OUT_SEED, "--out", str(out), "--record", "failed",
                  "--workers", "2"]) == 0
     doc = json.loads((out / "trial.json").read_text())
-    knee = 1.0 - settings_for(load_config(CONFIG), "assist_as_needed").integral_headroom
     for p in doc["patients"]:
         (s,) = p["sessions"]
         assert p["error"] is None and s["safety_events"] == [], (p["id"], p["error"], s["safety_events"])
         assert s["cycles"] == 5 and s["success_assisted"] >= 0.8, (p["id"], s["success_assisted_per_cycle"])
-        if p["stratum"] == "severe":  # full feedback gains are not enough: they work in the headroom
-            assert s["assistance_end"]["open"] > knee, (p["id"], s["assistance_end"])
+    opening = {p["stratum"]: [] for p in doc["patients"]}
+    for p in doc["patients"]:
+        opening[p["stratum"]].append(p["sessions"][0]["assistance_end"]["open"])
+    assert min(opening["severe"]) > max(opening["moderate"]) + 0.2, opening  # the severe need more of it
     assert doc["summary"]["met"] == 3
 
 
