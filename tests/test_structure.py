@@ -1,5 +1,6 @@
 """The package's shape holds: no import circles (function-local imports included) and functions short
-enough to read at once, the few exceptions named (issue 37)."""
+enough to read at once, the few exceptions named (issue 37); classes under 200 lines and no package
+importing one above it (issue 46)."""
 
 from __future__ import annotations
 
@@ -150,3 +151,21 @@ def test_the_layer_check_finds_an_upward_import_inside_a_function():
     known = {"rehab_hil", "rehab_hil.loop", "rehab_hil.loop.x", "rehab_hil.service", "rehab_hil.service.session"}
     assert "rehab_hil.service.session" in imports_of("rehab_hil.loop.x", tree, known)
 
+
+
+def long_classes(source: str, where: str) -> list[tuple[str, int]]:
+    """Classes of ``source`` longer than ``MAX_CLASS_LINES`` (their whole body, docstring included)."""
+    return [(f"{where}:{node.lineno} {node.name}", node.end_lineno - node.lineno + 1)
+            for node in ast.walk(ast.parse(source)) if isinstance(node, ast.ClassDef)
+            and node.end_lineno - node.lineno + 1 > MAX_CLASS_LINES]
+
+
+def test_no_class_is_longer_than_two_hundred_lines():
+    found = [c for p in sorted(SRC.rglob("*.py")) for c in long_classes(p.read_text(), str(p.relative_to(SRC)))]
+    assert found == []
+
+
+def test_the_class_check_counts_a_class_from_its_first_line_to_its_last():
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_CLASS_LINES - 1))
+    assert long_classes(f"class Fits:\n{body}", "f.py") == []
+    assert long_classes(f"class TooLong:\n{body}    y = 0\n", "f.py") == [("f.py:1 TooLong", MAX_CLASS_LINES + 1)]

@@ -253,17 +253,20 @@ class LoopProcess:
         if self.local_service is not None:
             self.controller.swap_table(table, retune)
             return True
-        try:
-            self.mailbox.post(("table", table, retune), timeout_s=0.5)
-        except MailboxFull:
-            return False
-        return True
+        return self._post(("table", table, retune))
 
     def tighten_thermal(self, change: Any) -> bool:
-        """Stricter values for the supervisor's temperature estimate, taken at the loop's next cycle (any
-        thread); False if the loop has not taken the messages before it (the caller tries again)."""
+        """Stricter values for the supervisor's temperature estimate, taken at the loop's next cycle (in a
+        loop run here, straight away: the safety feature's feed calls it on the loop's thread); False if
+        the loop has not taken the messages before it (the caller tries again)."""
+        if self.local_service is not None:
+            self.local_service.tighten_thermal(change)
+            return True
+        return self._post(("thermal", change))
+
+    def _post(self, message: tuple[Any, ...]) -> bool:
         try:
-            self.mailbox.post(("thermal", change), timeout_s=0.5)
+            self.mailbox.post(message, timeout_s=0.5)
         except MailboxFull:
             return False
         return True
@@ -321,7 +324,7 @@ class LoopProcess:
         try:
             got = pickle.loads(data)
         except Exception:  # nothing, or half a report: it died
-            return self._lost(proc, run)
+            return _lost(proc, self.hw, self.dispatch, run)
         if got[0] == "unloadable":
             return self._here(got[1], run)
         report, link, controller = got
@@ -329,7 +332,7 @@ class LoopProcess:
         if hasattr(self.controller, "adopt"):
             self.controller.adopt(controller)
         self.overflow = getattr(report, "ring_overflow", 0)
-        self._device_said(report)
+        _device_said(self.hw, report)
         return report
 
     def _here(self, why: str, run: dict[str, Any]) -> LoopReport:
@@ -346,38 +349,6 @@ class LoopProcess:
             report.realtime = dataclasses.replace(report.realtime, process=f"the session's process (the loop "
                                                   f"process could not load its job: {why})")
         return report
-
-    def _device_said(self, report: LoopReport) -> None:
-        """A local simulated device's own stall counts, asked for here (this process holds its control
-        channel), into the report's stall facts."""
-        proc, facts = getattr(self.hw, "device_process", None), report.stall_facts
-        if proc is not None and facts is not None and facts.simulated and proc.alive():
-            facts.device_reported = proc.reported_stalls()
-
-    def _lost(self, proc: subprocess.Popen[bytes], run: dict[str, Any]) -> LoopReport:
-        """The loop process ended (or hung) without its report: ESTOP from this side, a safety event."""
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
-        code = proc.returncode
-        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit status {code}"
-        detail = f"the loop process {proc.pid} ended without its report ({how})"
-        try:
-            self.hw.estop(timeout=0.5)
-            self.hw.discard_pending()  # the samples from before the ESTOP
-            detail += "; ESTOP sent from the session's process"
-        except HardwareError as e:
-            detail += f"; ESTOP not confirmed: {e}"
-        figures = self.dispatch.figures
-        t_s = float(figures.cols[0, figures.rows - 1]) if figures.rows else 0.0  # the last sample read
-        event = SafetyEvent(t_s, "loop_process_lost", detail)
-        self.dispatch.events([EventRecord(t_s, event.reason, detail)])
-        return LoopReport(pacing=run.get("pacing", "device"), realtime=None, duration_s=run["duration_s"],
-                          cycles=self.dispatch.figures.commands,
-                          samples=self.dispatch.figures.progress.samples, sample_gaps=0, reboots=0, timing={},
-                          reaction={}, link=self.hw.stats.as_dict(), events=[event], final_sample=None,
-                          stop_reason="safety trip: loop_process_lost", ran_s=t_s,
-                          pwm_unconfirmed="the loop process ended: no sample after the trip was read")
 
     def _pump(self) -> None:
         """The ring reader: records to the dispatch until the loop process is done and the ring is read."""
@@ -404,6 +375,39 @@ class LoopProcess:
     def close(self) -> None:
         self.ring.close()
         self.mailbox.close()
+
+
+def _device_said(hw: Any, report: LoopReport) -> None:
+    """A local simulated device's own stall counts, asked for here (this process holds its control
+    channel), into the report's stall facts."""
+    proc, facts = getattr(hw, "device_process", None), report.stall_facts
+    if proc is not None and facts is not None and facts.simulated and proc.alive():
+        facts.device_reported = proc.reported_stalls()
+
+
+def _lost(proc: subprocess.Popen[bytes], hw: Any, dispatch: Dispatch, run: dict[str, Any]) -> LoopReport:
+    """The loop process ended (or hung) without its report: ESTOP from this side, a safety event."""
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    code = proc.returncode
+    how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit status {code}"
+    detail = f"the loop process {proc.pid} ended without its report ({how})"
+    try:
+        hw.estop(timeout=0.5)
+        hw.discard_pending()  # the samples from before the ESTOP
+        detail += "; ESTOP sent from the session's process"
+    except HardwareError as e:
+        detail += f"; ESTOP not confirmed: {e}"
+    figures = dispatch.figures
+    t_s = float(figures.cols[0, figures.rows - 1]) if figures.rows else 0.0  # the last sample read
+    event = SafetyEvent(t_s, "loop_process_lost", detail)
+    dispatch.events([EventRecord(t_s, event.reason, detail)])
+    return LoopReport(pacing=run.get("pacing", "device"), realtime=None, duration_s=run["duration_s"],
+                      cycles=figures.commands, samples=figures.progress.samples, sample_gaps=0, reboots=0, timing={},
+                      reaction={}, link=hw.stats.as_dict(), events=[event], final_sample=None,
+                      stop_reason="safety trip: loop_process_lost", ran_s=t_s,
+                      pwm_unconfirmed="the loop process ended: no sample after the trip was read")
 
 
 def _view(hw: Any) -> Any:

@@ -46,24 +46,13 @@ import numpy as np
 
 from rehab_hil.twin.interaction import resolve_parameters
 from rehab_hil.twin.model import TwinModel, TwinSetupError
+from rehab_hil.twin.thermal_fit import WindowFit, explains, grown_covariance, rms
 
 __all__ = ["THERMAL_EVENT", "ThermalEstimator", "ThermalEvent", "ThermalQuantity", "thermal_event_text",
            "thermal_quantities"]
 
 THERMAL_EVENT = "thermal_change"
-NUDGE = 0.002  # finite-difference step of a relative quantity: the SMA's error valley is narrow (0.5 C off
-# the room's temperature moves the angle by 2.6 counts RMS over a cycle), and a step of 0.02 (0.46 C) read
-# slopes across it: a 5 C colder room was found at 21.0 C with it, at 18.01 C with 0.002
-MAX_ITER = 12  # Levenberg-Marquardt steps per window at most ...
-TOL = 1e-3  # ... while the estimate moves more than this (relative)
-START_SPREAD = 1.5  # the fit's other starts: each quantity moved by this many prior spreads
-DESCENTS = 2  # descents from the best of the starts; the lowest cost is kept
-MU0, MU_MAX = 1e-3, 1e4  # Levenberg-Marquardt damping: its start (and floor) and where a step is given up
-EXPLAINED_COUNTS = 2.0  # a fit that leaves at most this RMS on a channel explains it [counts] ...
-EXPLAINED_SHARE = 0.1  # ... or this share of the RMS the previous estimate left
-BOUNDS = (0.3, 3.0)  # the estimate stays within these multiples of the config value
 SUBSAMPLE_S = 0.02  # the fit reads a sample every this long (neighbours carry the same information) [s]
-MIN_VARIANCE_COUNTS2 = 1.0 / 12.0  # a residual variance is never taken below a count's quantisation
 
 
 @dataclass(frozen=True)
@@ -221,7 +210,7 @@ class ThermalEstimator:
         fit = self._fit(index, U, Y)
         if fit is not None:
             self.theta, self.cov, before, after = fit
-            self.explained = self.explains(before, after)
+            self.explained = explains(before, after)
             self.residual_counts = [round(float(r), 3) for r in after]
         self._run(self.theta, index, U, Y)  # the model at the window's end, as run on the estimate
         self._start, self._start_theta = self.model.snapshot(), self.theta.copy()
@@ -255,11 +244,9 @@ class ThermalEstimator:
             time.sleep(0)  # the interpreter back to the loop between two runs (a fit is ~100 of them)
 
     def _fit(self, index: np.ndarray, U: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, ...] | None:
-        """The window's fit with the previous estimate as prior: Levenberg-Marquardt from the best of a
-        few starts (the prior and each quantity moved by its spread, ``_starts``: the angle is flat
-        outside the wire's transformation band, and a descent from one start can stop where the wire
-        crosses the band at the wrong times), the lowest cost kept. The new estimate, its covariance and
-        each channel's RMS (counts) before and after, or None (too few finite samples)."""
+        """The window's fit with the previous estimate as prior (``thermal_fit.WindowFit``): the new
+        estimate, its covariance and each channel's RMS (counts) before and after, or None (too few
+        finite samples)."""
         m = self.model
         keep = np.arange(0, index.size, max(1, round(SUBSAMPLE_S / m.period_s)))
         z = Y[keep] / m.resolution
@@ -267,112 +254,10 @@ class ThermalEstimator:
         if ok.sum() < 10:
             return None
         prior = self.theta.copy()
-        prior_info = np.linalg.inv(self._grown())
-        data = (index, U, Y, keep, z, ok)
-        starts = self._starts(prior, prior_info, data)[:DESCENTS]
-        ends = [self._descend(start, prior, prior_info, data) for start in starts]
-        # the ends compared with one set of weights: those of the end that predicts the samples best
-        sse = [float(np.nansum((z - y) ** 2)) for _, y in ends]
-        w = self._weights(z - ends[int(np.argmin(sse))][1], ok)
-        theta, y = min(ends, key=lambda ty: self._cost(z - ty[1], ok, w, ty[0] - prior, prior_info))
-        before, after = _rms(z - self._predicted(prior, data)), _rms(z - y)
-        w = self._weights(z - y, ok)
-        J = self._jacobian(theta, index, U, Y, keep, y)
-        A = np.vstack([J[ok[:, c], c, :] * math.sqrt(w[c]) for c in range(z.shape[1])])
-        return theta, np.linalg.inv(A.T @ A + prior_info), before, after
-
-    def _grown(self) -> np.ndarray:
-        """The previous covariance grown by the forgetting factor, each variance at most the prior's (a
-        quantity the windows say nothing about keeps its prior spread instead of growing without end)."""
-        C = self.cov / self.lam
-        d = np.sqrt(np.minimum(1.0, np.diag(self._prior_cov) / np.maximum(np.diag(C), 1e-300)))
-        return C * np.outer(d, d)
-
-    def _predicted(self, theta: np.ndarray, data: tuple[np.ndarray, ...]) -> np.ndarray:
-        index, U, Y, keep = data[:4]
-        return self._run(theta, index, U, Y)[keep] / self.model.resolution
-
-    def _starts(self, prior: np.ndarray, prior_info: np.ndarray, data: tuple[np.ndarray, ...]) -> list[np.ndarray]:
-        """The prior and each quantity alone moved by +-START_SPREAD of its prior spread, best first
-        (cost with the prior point's residual weights)."""
-        z, ok = data[4], data[5]
-        e0 = z - self._predicted(prior, data)
-        w = self._weights(e0, ok)
-        sd = np.sqrt(np.diag(np.linalg.inv(prior_info)))
-        cands = [prior.copy()]
-        for j in range(prior.size):
-            for sign in (-1.0, 1.0):
-                th = prior.copy()
-                th[j] = np.clip(th[j] + sign * START_SPREAD * sd[j], *BOUNDS)
-                cands.append(th)
-        costs = [self._cost(z - self._predicted(th, data), ok, w, th - prior, prior_info) for th in cands]
-        return [cands[k] for k in np.argsort(costs)]
-
-    def _descend(self, theta: np.ndarray, prior: np.ndarray, prior_info: np.ndarray,
-                 data: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
-        """Levenberg-Marquardt from ``theta``: a step is taken only where it lowers the cost (the
-        hysteresis makes the error far from smooth). The end point and its predicted samples."""
-        index, U, Y, keep, z, ok = data
-        mu = MU0
-        y = self._predicted(theta, data)
-        for _ in range(MAX_ITER):
-            w = self._weights(z - y, ok)  # this point's residual variance weighs the data against the prior
-            J = self._jacobian(theta, index, U, Y, keep, y)
-            A = np.vstack([J[ok[:, c], c, :] * math.sqrt(w[c]) for c in range(z.shape[1])])
-            b = np.concatenate([(z - y)[ok[:, c], c] * math.sqrt(w[c]) for c in range(z.shape[1])])
-            H, g = A.T @ A + prior_info, A.T @ b + prior_info @ (prior - theta)
-            cost = self._cost(z - y, ok, w, theta - prior, prior_info)
-            while mu < MU_MAX:
-                new = np.clip(theta + np.linalg.solve(H + mu * np.diag(np.diag(H)), g), *BOUNDS)
-                y_new = self._predicted(new, data)
-                if self._cost(z - y_new, ok, w, new - prior, prior_info) < cost:
-                    break
-                mu *= 4.0
-            else:
-                break  # no step lowers the cost: at the minimum
-            moved = float(np.max(np.abs(new - theta)))
-            theta, y, mu = new, y_new, max(mu / 4.0, MU0)
-            if moved < TOL:
-                break
-        return theta, y
-
-    @staticmethod
-    def explains(before: np.ndarray, after: np.ndarray) -> bool:
-        """The fitted thermal quantities explain the window: on every channel the RMS left is within
-        ``EXPLAINED_COUNTS`` or a ``EXPLAINED_SHARE`` of what the previous estimate left. A difference
-        that is not thermal (the SMA wire's pre-strain 15 % lower: 39.5 counts at the config, 13.5
-        after the fit; a warm room: 30.5 -> 0.35) is not handed to the controller as one."""
-        return bool(np.all((after <= EXPLAINED_COUNTS) | (after <= EXPLAINED_SHARE * before)))
-
-    @staticmethod
-    def _cost(e: np.ndarray, ok: np.ndarray, w: np.ndarray, d: np.ndarray, prior_info: np.ndarray) -> float:
-        """The weighted squared prediction error plus the prior's term."""
-        return float(sum(w[c] * np.sum(e[ok[:, c], c] ** 2) for c in range(e.shape[1])) + d @ prior_info @ d)
-
-    def _jacobian(self, theta: np.ndarray, index: np.ndarray, U: np.ndarray, Y: np.ndarray, keep: np.ndarray,
-                  y: np.ndarray) -> np.ndarray:
-        """d predicted sample / d quantity (samples x channels x quantities, in counts), by forward
-        differences through the whole window."""
-        J = np.empty((*y.shape, theta.size))
-        for j in range(theta.size):
-            th = theta.copy()
-            th[j] += NUDGE
-            J[..., j] = (self._run(th, index, U, Y)[keep] / self.model.resolution - y) / NUDGE
-        return J
-
-    @staticmethod
-    def _weights(e: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        """Per channel: 1 / (residual variance widened for the residuals' correlation, AR(1))."""
-        w = np.zeros(e.shape[1])
-        for c in range(e.shape[1]):
-            r = e[ok[:, c], c]
-            if r.size < 3:
-                continue
-            var = max(float(np.mean(r**2)), MIN_VARIANCE_COUNTS2)
-            d = r - r.mean()
-            rho = float(np.clip(np.sum(d[1:] * d[:-1]) / max(float(np.sum(d * d)), 1e-300), 0.0, 0.95))
-            w[c] = 1.0 / (var * (1.0 + rho) / (1.0 - rho))
-        return w
+        fit = WindowFit(lambda th: self._run(th, index, U, Y)[keep] / m.resolution, z, ok, prior,
+                        np.linalg.inv(grown_covariance(self.cov, self.lam, self._prior_cov)))
+        theta, y = fit.best()
+        return theta, fit.covariance(theta, y), rms(z - fit.predict(prior)), rms(z - y)
 
     # -- out -----------------------------------------------------------------------------------
     def estimates(self) -> list[dict[str, Any]]:
@@ -407,8 +292,3 @@ class ThermalEstimator:
         return {"estimates": {e["key"]: e for e in self.estimates()}, "windows": self.history,
                 "window_s": self.window_samples * self.model.period_s, "events": [e.as_dict() for e in self.events],
                 "cpu_s_per_window": self.busy_s / max(self.windows, 1)}
-
-
-def _rms(e: np.ndarray) -> np.ndarray:
-    """Per channel: the RMS of the finite residuals (counts)."""
-    return np.sqrt(np.nanmean(e**2, axis=0))
