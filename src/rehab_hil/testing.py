@@ -22,6 +22,7 @@ __all__ = [
     "CONFIGS",
     "InProcessHardware",
     "config_with_changes",
+    "config_with_lines",
     "free_port",
     "inprocess_rig",
     "pid_runtime",
@@ -139,4 +140,18 @@ def config_with_changes(base_path: str | Path, out_path: str | Path, *,
     out = Path(out_path)
     out.write_text(text)
     load_config(out)
+    return out
+
+
+def config_with_lines(base_path: str | Path, out_path: str | Path, replacements: Mapping[str, str]) -> Path:
+    """Write ``out_path``: the config ``base_path`` with each text ``old`` of ``replacements`` replaced
+    (once) by its ``new`` (a test's rig that differs from the shipped one by a line); an ``old`` the file
+    does not hold raises ValueError (the shipped file changed under the test)."""
+    text = Path(base_path).read_text()
+    for old, new in replacements.items():
+        if old not in text:
+            raise ValueError(f"{base_path}: no {old!r} to replace")
+        text = text.replace(old, new, 1)
+    out = Path(out_path)
+    out.write_text(text)
     return out

@@ -21,6 +21,7 @@ from rehab_hil.protocol import Status
 from rehab_hil.rig_recording import read_recording
 from rehab_hil.service.features.base import Feature
 from rehab_hil.service.session import open_session
+from rehab_hil.testing import config_with_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 FE = ROOT / "configs" / "finger_extensor.toml"
@@ -30,13 +31,9 @@ FE = ROOT / "configs" / "finger_extensor.toml"
 def slow_watchdog(tmp_path: Path) -> Path:
     """The Finger Extensor with a 1 s watchdog and link-loss budget: a loaded test machine's own stalls of
     the simulated device (not what these tests are about) trip nothing."""
-    text = FE.read_text()
-    for key, value in (("watchdog_ms", 50), ("link_loss_periods", 50)):
-        assert f"{key} = {value} " in text
-        text = text.replace(f"{key} = {value} ", f"{key} = 1000 ")
-    path = tmp_path / "finger_extensor.toml"
-    path.write_text(text)
-    return path
+    return config_with_lines(FE, tmp_path / "finger_extensor.toml",
+                             {"watchdog_ms = 50 ": "watchdog_ms = 1000 ",
+                              "link_loss_periods = 50 ": "link_loss_periods = 1000 "})
 
 
 def _when_running(session, then) -> threading.Thread:
@@ -234,12 +231,9 @@ def test_stricter_thermal_values_reach_a_loop_process_through_its_mailbox(tmp_pa
     from rehab_hil.loading import load_config
     from rehab_hil.service.features.safety_thermal import Tightener
 
-    text = (ROOT / "configs" / "sma_exoskeleton.toml").read_text()
-    for key, value in (("watchdog_ms", 100), ("link_loss_periods", 100)):
-        assert f"{key} = {value} " in text
-        text = text.replace(f"{key} = {value} ", f"{key} = 1000 ")
-    sma = tmp_path / "sma.toml"
-    sma.write_text(text)
+    sma = config_with_lines(ROOT / "configs" / "sma_exoskeleton.toml", tmp_path / "sma.toml",
+                            {"watchdog_ms = 100 ": "watchdog_ms = 1000 ",
+                             "link_loss_periods = 100 ": "link_loss_periods = 1000 "})
     change = Tightener(load_config(sma), ["sma.ambient_c"], 0.001).tightening(0.0, {"sma.ambient_c": 30.0})
     posted: list[bool] = []
     with open_session(sma, "sim", controller="pid", home="none") as s:

@@ -21,6 +21,8 @@ from .test_rig_learning import StopAfter
 CAPABLE = ROOT / "profiles" / "sim" / "capable.toml"
 WEAK = ROOT / "profiles" / "sim" / "weak.toml"
 CYCLES = 3
+A0 = load_config(CONFIG).controllers["assist_as_needed"].initial_assistance
+START = {"open": A0, "close": A0}  # the config's initial_assistance
 
 
 def run(store: Path, record: Path | None = None, patient: Path = CAPABLE, cycles: int = CYCLES, **kw):
@@ -40,8 +42,8 @@ def test_the_next_session_starts_with_the_assistance_the_last_one_ended_with(tmp
     first, meta, notes = run(store, record=tmp_path / "runs")
     a = first.assistance
     assert first.events == [] and notes == []
-    assert not a["resumed"] and a["start"] == {"open": 1.0, "close": 1.0}  # the config's initial_assistance
-    assert a["end"]["open"] < 0.9  # a capable patient: the assistance fell
+    assert not a["resumed"] and a["start"] == START
+    assert a["end"]["open"] < A0 - 0.1  # a capable patient: the assistance fell
     assert meta["assistance_store"] == a and Path(a["store"]).exists()
     second, _, notes = run(store)
     b = second.assistance
@@ -58,7 +60,7 @@ def test_a_fresh_start_ignores_the_store_and_still_saves_its_end(tmp_path: Path)
     first, _, _ = run(store, cycles=2)
     fresh, _, _ = run(store, cycles=1, fresh_assistance=True)
     f = fresh.assistance
-    assert f["fresh"] and not f["resumed"] and f["start"] == {"open": 1.0, "close": 1.0}
+    assert f["fresh"] and not f["resumed"] and f["start"] == START
     assert json.loads(Path(f["store"]).read_text())["assistance"] == f["end"] != first.assistance["end"]
 
 
@@ -70,7 +72,7 @@ def test_a_corrupt_store_is_one_line_naming_the_file_and_the_session_starts_from
     res, _, notes = run(store, cycles=1)
     assert len(notes) == 1 and str(path) in notes[0] and "unreadable" in notes[0] and "\n" not in notes[0]
     a = res.assistance
-    assert not a["resumed"] and a["start"] == {"open": 1.0, "close": 1.0} and a["problem"] == notes[0]
+    assert not a["resumed"] and a["start"] == START and a["problem"] == notes[0]
     assert json.loads(path.read_text())["format"] == FORMAT  # the end replaced it with a readable file
 
 
@@ -88,7 +90,7 @@ def test_a_store_learned_with_other_gains_or_out_of_range_is_not_used(tmp_path: 
     path.write_text(json.dumps(data))
     res, _, notes = run(store, cycles=1)
     assert len(notes) == 1 and "'assistance.open' must be a number in 0..1, got 1.5" in notes[0]
-    assert res.assistance["start"]["open"] == 1.0
+    assert res.assistance["start"] == START
 
 
 def test_a_session_stopped_part_way_keeps_what_it_learned_so_far(tmp_path: Path) -> None:
@@ -101,7 +103,7 @@ def test_a_session_stopped_part_way_keeps_what_it_learned_so_far(tmp_path: Path)
         res = s.run(ref.first_open_s + 5 * ref.period_s)
     a = res.assistance
     assert res.events and res.events[0].reason == "stop_request"
-    assert a["end"]["open"] < 1.0 and a["ended"].startswith("stop_request")
+    assert a["end"]["open"] < A0 and a["ended"].startswith("stop_request")
     saved = json.loads(Path(a["store"]).read_text())
     assert saved["assistance"] == a["end"] and saved["ended"] == a["ended"]
 

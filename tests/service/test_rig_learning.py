@@ -17,7 +17,7 @@ from rehab_hil.controllers.limits import heating_limit_s
 from rehab_hil.controllers.rig_learning import RigLearner, longest_run_s
 from rehab_hil.loading import load_config
 from rehab_hil.service.session import open_session
-from rehab_hil.testing import CONFIGS
+from rehab_hil.testing import CONFIGS, config_with_lines
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -27,11 +27,7 @@ EXAMPLE = CONFIGS.parent / "profiles" / "example.toml"
 
 def rig(tmp_path: Path, old: str, new: str) -> Path:
     """The shipped SMA config with one value changed: the simulated rig's plant (``--sim-plant``)."""
-    text = SMA.read_text()
-    assert old in text
-    out = tmp_path / "rig.toml"
-    out.write_text(text.replace(old, new, 1))
-    return out
+    return config_with_lines(SMA, tmp_path / "rig.toml", {old: new})
 
 
 def rmse_per_cycle(sim: Path | None, learning: bool, store: Path, duration_s: float = 100.0, **kw) -> list[float]:

@@ -16,7 +16,7 @@ import pytest
 from rehab_hil.patient.attach import TRUTH_SIGNALS
 from rehab_hil.patient.truth import TRUTH_FILE, read_truth
 from rehab_hil.service.session import open_session
-from rehab_hil.testing import CONFIGS
+from rehab_hil.testing import CONFIGS, config_with_lines
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
@@ -28,11 +28,7 @@ TAKEN_MARGIN_S = 0.005  # the rows recorded at the cycle that took a tightening 
 
 def rig(tmp_path: Path, old: str, new: str) -> Path:
     """The shipped SMA config with one line changed: the simulated rig's plant (``--sim-plant``)."""
-    text = SMA.read_text()
-    assert old in text
-    out = tmp_path / "rig.toml"
-    out.write_text(text.replace(old, new, 1))
-    return out
+    return config_with_lines(SMA, tmp_path / "rig.toml", {old: new})
 
 
 def session(tmp_path: Path, duration_s: float, **options) -> dict:

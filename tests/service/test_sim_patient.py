@@ -25,18 +25,18 @@ def test_assist_as_needed_with_a_capable_patient_lowers_the_assistance_and_keeps
     ref = Reference.session(cfg)
     with open_session(CONFIG, "inprocess", controller="assist_as_needed", sim_patient=CAPABLE,
                       record=tmp_path) as s:
-        res = s.run(ref.first_open_s + 5 * ref.period_s + 0.5)
+        res = s.run(ref.first_open_s + 6 * ref.period_s + 0.5)  # a streak of four successes, then forgetting
         run_dir = s.run_dir
     assert res.events == [] and res.pwm_off_at_end
     cycles = json.loads((run_dir / "metadata.json").read_text())["session_cycles"]
     ratio = [c["assistance_ratio"] for c in cycles]
-    assert len(ratio) == 5
-    assert ratio[-1] < 0.5 * ratio[0]  # the robot does less and less of the work
+    assert len(ratio) == 6
+    assert all(np.diff(ratio) < 0) and ratio[-1] < 0.5 * ratio[0]  # less and less of the work
     assert np.mean([c["success"] for c in cycles]) >= 0.8  # and the patient still reaches the targets
     meta = json.loads((run_dir / "metadata.json").read_text())
     assert meta["sim_patient"]["config_path"].endswith("capable.toml") and meta["sim_patient"]["truth"] == TRUTH_FILE
     truth = read_truth(run_dir / TRUTH_FILE)
-    assert truth["t_s"][-1] == pytest.approx(ref.first_open_s + 5 * ref.period_s + 0.5, abs=0.05)
+    assert truth["t_s"][-1] == pytest.approx(ref.first_open_s + 6 * ref.period_s + 0.5, abs=0.05)
     assert set(truth) >= {"patient_effort", "patient_voluntary_nm", "patient_axis_torque_nm", "iris_angle_rad"}
     # the host's torque sensor reads the patient's true torque (its quantisation apart)
     est = [c["patient_torque_open_nm"] for c in cycles]

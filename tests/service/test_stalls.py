@@ -22,7 +22,7 @@ from rehab_hil.devices.avr_device import unavailable_reason
 from rehab_hil.loading import load_config
 from rehab_hil.loop.controllers import SAFE_COMMAND
 from rehab_hil.service.session import open_session
-from rehab_hil.testing import CONFIGS
+from rehab_hil.testing import CONFIGS, config_with_lines
 
 FE = CONFIGS / "finger_extensor.toml"  # watchdog 50 ms, link loss after 50 ms without a sample
 WATCHDOG_MS = 200  # the stopped-device test's watchdog and link-loss budget: beside the other agents' work
@@ -32,13 +32,9 @@ STOP_S = 0.8  # four watchdogs and four link-loss budgets long
 
 def _with_budget(tmp_path, budget_ms: int):
     """The Finger Extensor with a ``budget_ms`` watchdog and link-loss budget (every other key as shipped)."""
-    text = FE.read_text()
-    for key, value in (("watchdog_ms", 50), ("link_loss_periods", 50)):
-        assert f"{key} = {value} " in text
-        text = text.replace(f"{key} = {value} ", f"{key} = {budget_ms} ")
-    path = tmp_path / "finger_extensor.toml"
-    path.write_text(text)
-    return path
+    return config_with_lines(FE, tmp_path / "finger_extensor.toml",
+                             {"watchdog_ms = 50 ": f"watchdog_ms = {budget_ms} ",
+                              "link_loss_periods = 50 ": f"link_loss_periods = {budget_ms} "})
 
 
 @pytest.fixture
