@@ -140,17 +140,26 @@ def test_a_killed_sessions_process_leaves_the_loop_process_to_stop_the_rig(slow_
 
 
 def _child_running(parent: int, needle: str, timeout_s: float) -> int:
+    """A process under ``parent`` (a child, or a child of its zygote: ``rehab_hil.launch``) running ``needle``."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        for task in Path(f"/proc/{parent}/task").iterdir():
-            for child in (task / "children").read_text().split():
-                try:
-                    if needle in Path(f"/proc/{child}/cmdline").read_text():
-                        return int(child)
-                except OSError:
-                    continue
+        for pid in _descendants(parent):
+            try:
+                if needle in Path(f"/proc/{pid}/cmdline").read_text():
+                    return pid
+            except OSError:
+                continue
         time.sleep(0.05)
     raise AssertionError(f"no child process running {needle}")
+
+
+def _descendants(pid: int) -> list[int]:
+    try:
+        children = [int(c) for task in Path(f"/proc/{pid}/task").iterdir()
+                    for c in (task / "children").read_text().split()]
+    except OSError:
+        return []
+    return children + [d for c in children for d in _descendants(c)]
 
 
 def _running_fifo(pid: int, timeout_s: float) -> None:

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from types import TracebackType
 
+from rehab_hil import launch
 from rehab_hil.devices.stall import parse_status
 from rehab_hil.devices.starvation import Starvation
 
@@ -53,8 +54,8 @@ class SimDeviceProcess:
         self._stderr = tempfile.TemporaryFile()
         # its own process group: Ctrl-C in the terminal reaches the host alone, which then stops the device
         # as it stops a real one (PWM 0, confirmed), not a device killed under it (a link loss)
-        self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr,
-                                     bufsize=0, process_group=0)
+        self.proc = launch.popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, bufsize=0,
+                                 process_group=0)  # forked from the warm zygote: no second import of the package
         self._buf = b""
         try:
             self.port = self._readline(ready_timeout_s)

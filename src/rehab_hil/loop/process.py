@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from rehab_hil import launch
 from rehab_hil.hardware.interface import HardwareError
 from rehab_hil.loop.dispatch import Dispatch
 from rehab_hil.loop.kworkers import KworkerBoost, loop_processes_running
@@ -44,6 +45,7 @@ __all__ = ["LoopJob", "LoopProcess", "RingOutlet", "can_cross"]
 
 PUMP_IDLE_S = 0.002  # the ring reader's sleep when the ring is empty (a record waits at most this long)
 LINK_EVERY = 100  # commands between writes of the link's counters for the live views
+Child = subprocess.Popen[bytes] | launch.ForkedChild
 PARENT_CHECK_EVERY = 10  # cycles between the loop process's looks at its parent
 START_TIMEOUT_S = 120.0  # spawning, importing and loading the controller's kernels (a busy machine: seconds)
 END_TIMEOUT_S = 30.0  # from the end of the loop's duration to its report (the shutdown's confirmation: < 1 s)
@@ -79,6 +81,13 @@ class ProcessMail:
     def __init__(self, mailbox: Mailbox, parent_pid: int, writer: RingWriter | None = None) -> None:
         self.mailbox, self.parent_pid, self.writer = mailbox, parent_pid, writer
         self.n = 0
+        try:  # a descriptor of the session's process, readable once it has ended (its parent may be the zygote)
+            self.parent_fd: int | None = os.pidfd_open(parent_pid)
+        except ProcessLookupError:
+            self.parent_fd = None
+
+    def parent_alive(self) -> bool:
+        return self.parent_fd is not None and not select.select([self.parent_fd], [], [], 0)[0]
 
     def check(self, loop: LoopService) -> None:
         if self.mailbox.waiting():
@@ -87,7 +96,7 @@ class ProcessMail:
         self.n += 1
         if self.n % PARENT_CHECK_EVERY:
             return
-        if os.getppid() != self.parent_pid:
+        if not self.parent_alive():
             loop.request_stop("the session's process ended (it reads the ring: recording, telemetry, the twin)",
                               "session_lost")
         elif self.writer is not None and self.writer.overflow:
@@ -296,8 +305,8 @@ class LoopProcess:
         try:
             # its own process group: a terminal's Ctrl-C reaches the session's process alone, which stops the loop
             # through the safe state (a stop request); the loop process never dies of it mid-cycle
-            proc = subprocess.Popen([sys.executable, "-m", "rehab_hil.loop.process", str(result_w)],
-                                    stdin=subprocess.PIPE, pass_fds=(self.hw.fd, result_w), env=env, process_group=0)
+            proc = launch.popen([sys.executable, "-m", "rehab_hil.loop.process", str(result_w)], stdin=subprocess.PIPE,
+                                pass_fds=(self.hw.fd, result_w), env=env, process_group=0)
         finally:
             os.close(result_w)
         self.pid = proc.pid
@@ -313,7 +322,7 @@ class LoopProcess:
             pump.join()
             os.close(result_r)
 
-    def _wait(self, proc: subprocess.Popen[bytes], result_r: int, run: dict[str, Any]) -> LoopReport:
+    def _wait(self, proc: Child, result_r: int, run: dict[str, Any]) -> LoopReport:
         """The loop process's report, or, if it ended without one, the rig made safe from here."""
         data = _read_all(result_r, proc, START_TIMEOUT_S + run["duration_s"] + END_TIMEOUT_S)
         if proc.poll() is None and data:
@@ -385,7 +394,7 @@ def _device_said(hw: Any, report: LoopReport) -> None:
         facts.device_reported = proc.reported_stalls()
 
 
-def _lost(proc: subprocess.Popen[bytes], hw: Any, dispatch: Dispatch, run: dict[str, Any]) -> LoopReport:
+def _lost(proc: Child, hw: Any, dispatch: Dispatch, run: dict[str, Any]) -> LoopReport:
     """The loop process ended (or hung) without its report: ESTOP from this side, a safety event."""
     if proc.poll() is None:
         proc.kill()
@@ -416,7 +425,7 @@ def _view(hw: Any) -> Any:
     return proc.view() if proc is not None and hasattr(proc, "view") else None
 
 
-def _send(proc: subprocess.Popen[bytes], job: LoopJob) -> None:
+def _send(proc: Child, job: LoopJob) -> None:
     """The job into the loop process's stdin (a process that died at its start: its exit is seen next)."""
     assert proc.stdin is not None
     try:
@@ -426,7 +435,7 @@ def _send(proc: subprocess.Popen[bytes], job: LoopJob) -> None:
         pass
 
 
-def _read_all(fd: int, proc: subprocess.Popen[bytes], timeout_s: float) -> bytes:
+def _read_all(fd: int, proc: Child, timeout_s: float) -> bytes:
     """Everything the loop process writes to ``fd`` until it closes it (its end), or the timeout."""
     chunks, deadline = [], time.monotonic() + timeout_s
     while time.monotonic() < deadline:
