@@ -26,7 +26,7 @@ run: $(STAMP)
 test: $(STAMP) toolchain browser clients firmware harness
 	$(BIN)/ruff check .
 	@$(PYC)
-	$(BIN)/python -m pytest -n 2 --dist loadgroup
+	$(BIN)/python -m pytest -n 3 --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python bench/finger_extensor_rtf.py

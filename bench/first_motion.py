@@ -35,7 +35,7 @@ BEFORE_SPLIT = "32250d9"  # the engine that inlined every kernel into each struc
 
 def make_run_args(duration_s: float, record: Path) -> list[str]:
     """The Makefile's ``run`` recipe as ``rehab-hil`` arguments, with ``duration_s`` and ``record``."""
-    recipe = re.search(r"^run:.*\n\t\$\(BIN\)/rehab-hil (.+)$", (ROOT / "Makefile").read_text(), re.M)
+    recipe = re.search(r"^run:.*\n(?:\t.*\n)*?\t\$\(BIN\)/rehab-hil (.+)$", (ROOT / "Makefile").read_text(), re.M)
     assert recipe, "no run recipe in the Makefile"
     args = recipe.group(1).split()
     args[args.index("--duration") + 1] = f"{duration_s:g}"

@@ -23,7 +23,7 @@ from rehab_hil.plants import get_plant
 from rehab_hil.testing import CONFIGS
 
 # the module fixtures are built once: every test of the module runs on one xdist worker
-pytestmark = pytest.mark.xdist_group("test_sets")
+pytestmark = [pytest.mark.xdist_group("test_sets"), pytest.mark.slow]
 
 HIDDEN = {"coulomb_friction_directional": {"level_pos_nm": 0.030, "level_neg_nm": 0.012}}
 VISCOUS_FACTOR = 1.7

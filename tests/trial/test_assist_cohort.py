@@ -16,7 +16,7 @@ from rehab_hil.controllers import Reference
 from rehab_hil.loading import load_config
 from rehab_hil.service.session import open_session
 
-pytestmark = pytest.mark.xdist_group("trial")
+pytestmark = [pytest.mark.xdist_group("trial"), pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "finger_extensor.toml"

@@ -22,7 +22,7 @@ from rehab_hil.testing import free_port
 from rehab_hil.trial.cohort import load_cohort
 from rehab_hil.trial.run import TrialSpec, patient_task, run_tasks
 
-pytestmark = pytest.mark.xdist_group("trial")  # one worker builds the module's local trial, once
+pytestmark = [pytest.mark.xdist_group("trial"), pytest.mark.slow]  # one worker builds the module's local trial, once
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "finger_extensor.toml"

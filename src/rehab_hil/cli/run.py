@@ -22,7 +22,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from rehab_hil import shipped
+from rehab_hil import launch, shipped
 from rehab_hil.cli import UserError, config_file, device_arg, writable_folder
 from rehab_hil.hardware import RIG_KINDS, HardwareError
 from rehab_hil.loop.figures import Progress
@@ -295,6 +295,8 @@ def _run_in_thread(session: RigSession, duration_s: float, display: bool, consol
 def run(args: argparse.Namespace) -> int:
     if not 0 < args.duration <= 24 * 3600:
         raise UserError(f"--duration must be in (0, 86400] s, got {args.duration}")
+    if args.device != "inprocess":  # the device's and the loop's processes: the zygote imports while this builds
+        launch.warm()
     console = Console()
     with _session(args) as session:
         for note in getattr(session.controller, "notes", ()):  # a declared controller's warnings
