@@ -1,6 +1,7 @@
 """The real-time loop in a process of its own: nothing else in it holds its interpreter lock.
 
-A real-time session's loop runs in a spawned process (``LoopProcess``) that holds the link (the open
+A real-time session's loop runs in a process of its own (``LoopProcess``; forked by ``rehab_hil.launch``'s
+warm zygote) that holds the link (the open
 serial port, handed over as a file descriptor), the controller, the estimator and the supervisor, and
 nothing else: no helper thread runs Python there. It asks for SCHED_FIFO and locks its memory. Every
 sample, command and event goes into the shared-memory ring (``loop.ring``); the session's process reads
@@ -9,10 +10,11 @@ the ring on a thread of its own and hands the records to the figures, the feeds 
 holds (``ring.RING_S``) without losing a record. What flows back (a stop request, a learned table, stricter
 values for the temperature estimate) goes through the mailbox (``loop.mailbox``), looked at once a cycle.
 
-Either side's death is a safety event with the PWM off: the loop process looks at its parent each
-cycle and, if the session's process is gone, trips (``session_lost``), sends PWM 0 and ESTOP and ends;
-the session's process sees the loop process end without its report and sends ESTOP itself over its
-copy of the link (``loop_process_lost``, with the exit status).
+Either side's death is a safety event with the PWM off: the loop process watches the session's process
+(a pidfd: its parent is the zygote) every ``PARENT_CHECK_EVERY`` cycles and, if it is gone, trips
+(``session_lost``), sends PWM 0 and ESTOP and ends; the session's process sees the loop process end
+without its report and sends ESTOP itself over its copy of the link (``loop_process_lost``, with the
+exit status).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ __all__ = ["LoopJob", "LoopProcess", "RingOutlet", "can_cross"]
 PUMP_IDLE_S = 0.002  # the ring reader's sleep when the ring is empty (a record waits at most this long)
 LINK_EVERY = 100  # commands between writes of the link's counters for the live views
 Child = subprocess.Popen[bytes] | launch.ForkedChild
-PARENT_CHECK_EVERY = 10  # cycles between the loop process's looks at its parent
+PARENT_CHECK_EVERY = 10  # cycles between the loop process's looks at the session's
 START_TIMEOUT_S = 120.0  # spawning, importing and loading the controller's kernels (a busy machine: seconds)
 END_TIMEOUT_S = 30.0  # from the end of the loop's duration to its report (the shutdown's confirmation: < 1 s)
 
