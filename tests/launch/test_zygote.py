@@ -116,3 +116,23 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return state not in "ZX"
+
+
+def test_a_pythonpath_of_the_child_is_put_first_on_its_path_and_still_forks(tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    p = launch.popen([sys.executable, "-c", "import sys; print(sys.path[0])"], env=env, stdout=subprocess.PIPE)
+    assert isinstance(p, launch.ForkedChild)
+    assert p.stdout.read().decode().strip() == str(tmp_path) and p.wait(10) == 0
+
+
+def test_a_warm_up_runs_in_the_zygote_once_before_the_child_and_its_failure_is_ignored(tmp_path: Path) -> None:
+    """What the warm-up loads, the child finds in memory: here a module nothing else imports."""
+    code = "import sys; print('wsgiref.simple_server' in sys.modules)"
+    plain = launch.popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
+    assert plain.stdout.read().decode().strip() == "False" and plain.wait(10) == 0
+    warm = ("importlib:import_module", ("wsgiref.simple_server",))
+    p = launch.popen([sys.executable, "-c", code], stdout=subprocess.PIPE, warm=warm)
+    assert p.stdout.read().decode().strip() == "True" and p.wait(10) == 0
+    broken = launch.popen([sys.executable, "-c", "print('ran')"], stdout=subprocess.PIPE,
+                          warm=("no_such_module:f", ()))
+    assert broken.stdout.read().decode().strip() == "ran" and broken.wait(10) == 0

@@ -44,7 +44,7 @@ import termios
 import time
 import tty
 from collections.abc import Sequence
-from typing import TextIO
+from typing import Any, TextIO
 
 from rehab_hil.devices.control import UNKNOWN, ControlChannel
 from rehab_hil.devices.core import DeviceCore, Readings
@@ -254,22 +254,34 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    from rehab_hil.config import ConfigError
+def _plant(args: argparse.Namespace, truth: str | None) -> tuple[Any, Any]:
+    """The config and the device's plant (with its patient), its kernels compiled or loaded: one step."""
     from rehab_hil.devices.patient_plant import patient_plant
     from rehab_hil.loading import load_config
     from rehab_hil.plants import get_plant
 
+    cfg = load_config(args.config)
+    spec = get_plant(cfg.plant)
+    if spec.device is None:
+        raise ValueError(f"plant {cfg.plant!r} has no device binding")
+    plant = patient_plant(cfg, spec.device(cfg), args.sim_patient, truth, adc_noise_counts=args.adc_noise_counts,
+                          seed=args.seed)
+    plant.tick([0, 0], 0)  # compile the kernels before announcing the port
+    return cfg, plant
+
+
+def warm(argv: Sequence[str]) -> None:
+    """In the zygote (``rehab_hil.launch``), before it forks this device: load the plant's kernels, so that
+    the device and every later one with the same plant start with them in memory (no truth file written)."""
+    _plant(build_parser().parse_args(argv), None)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from rehab_hil.config import ConfigError
+
     try:
-        cfg = load_config(args.config)
-        spec = get_plant(cfg.plant)
-        if spec.device is None:
-            raise ValueError(f"plant {cfg.plant!r} has no device binding")
-        binding = spec.device(cfg)
-        plant = patient_plant(cfg, binding, args.sim_patient, args.sim_truth, adc_noise_counts=args.adc_noise_counts,
-                              seed=args.seed)
-        plant.tick([0, 0], 0)  # compile the kernels before announcing the port
+        cfg, plant = _plant(args, args.sim_truth)
         plant.reset()  # the initial state, the session clock at 0
         estop = cfg.rig.estop
         device = SimDevice(plant, 0, clock=args.clock, seed=args.seed,  # 0: adopts CONFIGURE's, as the firmware

@@ -15,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from rehab_hil import launch
 from rehab_hil.devices.stall import parse_status
@@ -50,12 +51,13 @@ class SimDeviceProcess:
 
     kind = "python"
 
-    def __init__(self, argv: list[str], ready_timeout_s: float = 120.0) -> None:
+    def __init__(self, argv: list[str], ready_timeout_s: float = 120.0,
+                 warm: tuple[str, tuple[Any, ...]] | None = None) -> None:
         self._stderr = tempfile.TemporaryFile()
         # its own process group: Ctrl-C in the terminal reaches the host alone, which then stops the device
         # as it stops a real one (PWM 0, confirmed), not a device killed under it (a link loss)
         self.proc = launch.popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, bufsize=0,
-                                 process_group=0)  # forked from the warm zygote: no second import of the package
+                                 process_group=0, warm=warm)  # forked from the warm zygote (rehab_hil.launch)
         self._buf = b""
         try:
             self.port = self._readline(ready_timeout_s)
@@ -185,6 +187,8 @@ def spawn_sim_device(config_path: str | Path, clock: str = "realtime", *, extra_
                      ready_timeout_s: float = 120.0, usb_bridge: bool | None = None) -> SimDeviceProcess:
     """Start ``rehab_hil.devices.sim_device`` on ``config_path``; returns once its pty is ready.
     ``usb_bridge`` (default: the config's ``[rig.link]``) puts the Uno's USB-bridge model between."""
-    argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.sim_device import main; sys.exit(main())",
-            "--config", str(config_path), "--clock", clock, *(extra_args or [])]
-    return SimDeviceProcess(maybe_bridged(config_path, argv, usb_bridge), ready_timeout_s)
+    args = ["--config", str(config_path), "--clock", clock, *(extra_args or [])]
+    argv = [sys.executable, "-c", "import sys; from rehab_hil.devices.sim_device import main; sys.exit(main())", *args]
+    bridged = maybe_bridged(config_path, argv, usb_bridge)
+    warm = ("rehab_hil.devices.sim_device:warm", (args,)) if bridged is argv else None  # its plant's kernels
+    return SimDeviceProcess(bridged, ready_timeout_s, warm)

@@ -16,6 +16,8 @@ from typing import IO, Any
 
 FIXED_ENV_PREFIXES = ("NUMBA_", "OPENBLAS_", "OMP_", "MKL_", "PYTHON")  # read once, when a module is imported
 START_TIMEOUT_S = 120.0  # importing numba and the package on a busy machine
+WARM_TIMEOUT_S = 600.0  # a warm on a clean cache compiles the kernels: minutes on a busy machine
+MAX_WARM_BYTES = 100_000  # a unix datagram's default send buffer is about 200 kB
 UNKNOWN_EXIT = -1  # the zygote ended before the child did: its exit code cannot be known here
 
 
@@ -24,7 +26,15 @@ class ZygoteUnavailable(RuntimeError):
 
 
 def fixed_env(env: Any) -> dict[str, str]:
-    return {k: v for k, v in env.items() if k.startswith(FIXED_ENV_PREFIXES)}
+    """The settings read at import that a forked child cannot change (``PYTHONPATH`` it can: ``child_path``)."""
+    return {k: v for k, v in env.items() if k.startswith(FIXED_ENV_PREFIXES) and k != "PYTHONPATH"}
+
+
+def child_path(env: dict[str, str]) -> list[str]:
+    """The child's ``sys.path``: this process's, after the entries of the child's ``PYTHONPATH`` it lacks
+    (a fresh interpreter puts ``PYTHONPATH`` first)."""
+    extra = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and p not in sys.path]
+    return [*extra, *sys.path]
 
 
 class Zygote:
@@ -76,7 +86,8 @@ class Zygote:
             req["id"] = next(self.ids)
             socket.send_fds(self.sock, [pickle.dumps(req)], fds)
         with self.cond:
-            self.cond.wait_for(lambda: req["id"] in self.replies or self.state != "ready", START_TIMEOUT_S)
+            self.cond.wait_for(lambda: req["id"] in self.replies or self.state != "ready",
+                               WARM_TIMEOUT_S if req.get("warm") else START_TIMEOUT_S)
             kind, got = self.replies.pop(req["id"], ("failed", f"zygote {self.state}"))
         if kind != "started":
             raise ZygoteUnavailable(got)
@@ -174,14 +185,19 @@ def _plan(argv: list[str]) -> tuple[str, str, list[str]] | None:
 
 def popen(argv: list[str], *, stdin: Any = None, stdout: Any = None, stderr: Any = None,
           pass_fds: tuple[int, ...] = (), env: dict[str, str] | None = None, process_group: int | None = None,
-          bufsize: int = -1) -> subprocess.Popen[bytes] | ForkedChild:
+          bufsize: int = -1, warm: tuple[str, tuple[Any, ...]] | None = None) -> subprocess.Popen[bytes] | ForkedChild:
     """``subprocess.Popen(argv, ...)``, forked from the zygote when ``argv`` runs this interpreter's
-    ``-c``/``-m`` (``process_group``: None keeps this process's group, 0 a group of its own)."""
+    ``-c``/``-m`` (``process_group``: None keeps this process's group, 0 a group of its own).
+
+    ``warm`` ("module:function", args): the zygote calls it before forking, once per distinct call, to
+    load what the child will load (its compiled kernels); the child and every later one find it in
+    memory. Its failure is ignored there: the child meets the same error and reports it."""
     env = dict(os.environ if env is None else env)
     plan, zygote = _plan(argv), _zygote_for(env)
     if plan is not None and zygote is not None:
         try:
-            return _forked(zygote, argv, plan, (stdin, stdout, stderr), pass_fds, env, process_group, bufsize)
+            return _forked(zygote, argv, plan, (stdin, stdout, stderr), pass_fds, env, process_group, bufsize,
+                           _warm_bytes(warm))
         except ZygoteUnavailable:
             pass
     return subprocess.Popen(argv, stdin=stdin, stdout=stdout, stderr=stderr, pass_fds=pass_fds, env=env,
@@ -190,7 +206,7 @@ def popen(argv: list[str], *, stdin: Any = None, stdout: Any = None, stderr: Any
 
 def _forked(zygote: Zygote, argv: list[str], plan: tuple[str, str, list[str]], std: tuple[Any, Any, Any],
             pass_fds: tuple[int, ...], env: dict[str, str], process_group: int | None,
-            bufsize: int) -> ForkedChild:
+            bufsize: int, warm: bytes | None) -> ForkedChild:
     theirs: list[int] = []
     ours: list[int | None] = []
     opened: list[int] = []  # the child's ends made here, closed here once it has them
@@ -202,7 +218,8 @@ def _forked(zygote: Zygote, argv: list[str], plan: tuple[str, str, list[str]], s
             opened.append(child_fd)
     mode, target, args = plan
     req = {"argv": list(argv), "mode": mode, "target": target, "args": args, "env": env, "cwd": os.getcwd(),
-           "path": list(sys.path), "targets": [0, 1, 2, *pass_fds], "pgid": 0 if process_group == 0 else os.getpgrp()}
+           "path": child_path(env), "warm": warm, "targets": [0, 1, 2, *pass_fds],
+           "pgid": 0 if process_group == 0 else os.getpgrp()}
     try:
         pid = zygote.start(req, [*theirs, *pass_fds])
     except ZygoteUnavailable:
@@ -214,6 +231,18 @@ def _forked(zygote: Zygote, argv: list[str], plan: tuple[str, str, list[str]], s
     streams = [None if mine is None else open(mine, "wb" if n == 0 else "rb", buffering=bufsize)
                for n, mine in enumerate(ours)]
     return ForkedChild(zygote, pid, argv, streams)
+
+
+def _warm_bytes(warm: tuple[str, tuple[Any, ...]] | None) -> bytes | None:
+    """``warm`` pickled on its own (the zygote may not import all it names: then it skips it), or None
+    when it cannot be pickled or would not fit a socket message beside the request."""
+    if warm is None:
+        return None
+    try:
+        data = pickle.dumps(warm, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:
+        return None
+    return data if len(data) <= MAX_WARM_BYTES else None
 
 
 def _std_fd(n: int, how: Any) -> tuple[int, int | None]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Any, Protocol
 
 import numpy as np
@@ -83,6 +84,12 @@ class Actuator:
         duties = [0.0, 0.0]
         duties[ch] = min(max(duty, 0.0), 1.0)
         return Command((duties[0], duties[1]), (1 << ch) if reverse else 0, True, reference_deg)
+
+
+def load_engine(diagram: Any, period_s: float) -> ModuleType:
+    """The controller diagram's engine, its entry points compiled or loaded from the disk cache (a loop
+    process's unpickled runtime, and the zygote that forks it: ``rehab_hil.launch``)."""
+    return diagram.compile(period_s, 1).engine
 
 
 class ControllerRuntime:
@@ -189,8 +196,7 @@ class ControllerRuntime:
 
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
-        ctx = self.controller.ctx
-        self._engine = self.controller.diagram.compile(ctx.period_s, 1).engine
+        self._engine = load_engine(self.controller.diagram, self.controller.ctx.period_s)
 
     def adopt(self, other: ControllerRuntime) -> None:
         """Take the states, tables and parameters ``other`` ended with (the loop process's copy of this

@@ -308,7 +308,7 @@ class LoopProcess:
             # its own process group: a terminal's Ctrl-C reaches the session's process alone, which stops the loop
             # through the safe state (a stop request); the loop process never dies of it mid-cycle
             proc = launch.popen([sys.executable, "-m", "rehab_hil.loop.process", str(result_w)], stdin=subprocess.PIPE,
-                                pass_fds=(self.hw.fd, result_w), env=env, process_group=0)
+                                pass_fds=(self.hw.fd, result_w), env=env, process_group=0, warm=_warm(self.controller))
         finally:
             os.close(result_w)
         self.pid = proc.pid
@@ -419,6 +419,15 @@ def _lost(proc: Child, hw: Any, dispatch: Dispatch, run: dict[str, Any]) -> Loop
                       reaction={}, link=hw.stats.as_dict(), events=[event], final_sample=None,
                       stop_reason="safety trip: loop_process_lost", ran_s=t_s,
                       pwm_unconfirmed="the loop process ended: no sample after the trip was read")
+
+
+def _warm(controller: Any) -> tuple[str, tuple[Any, ...]] | None:
+    """What the zygote loads before it forks the loop process: the controller's engine (``launch.popen``)."""
+    inner = getattr(controller, "controller", None)
+    diagram, ctx = getattr(inner, "diagram", None), getattr(inner, "ctx", None)
+    if diagram is None or ctx is None:
+        return None
+    return "rehab_hil.loop.controllers:load_engine", (diagram, ctx.period_s)
 
 
 def _view(hw: Any) -> Any:
