@@ -23,7 +23,8 @@ Control channel (stdin, one command per line; each answered by one stdout line `
   stall MS           send nothing for MS milliseconds of device time (frames meant for then are lost)
   disconnect         close the pty and exit
   reboot [CAUSE]     reset the device (seq 0, unconfigured, HELLO sent); CAUSE: external|watchdog
-  status             one line of counters (with the device's own stalls: not_scheduled=N ..._total_ms ..._max_ms)
+  status             one line of counters (with the device's own stalls: not_scheduled=N ..._total_ms ..._max_ms,
+                     and ..._excused_ms: the ticks it caught up that its watchdog did not count)
 
 A realtime device measures its own stalls (``devices/stall.py``): when its process was not
 scheduled for ``STALL_MIN_S`` or more and the host's commands arrived meanwhile, the ticks it then
@@ -83,6 +84,7 @@ class SimDevice(ControlChannel):
         self.stalls = StallMeter()  # this process not scheduled: measured, reported, never a fault
         self.commands_seen = 0  # valid COMMAND frames received (evidence the host was alive during a stall)
         self._unwatched = 0  # ticks still to catch up that the watchdog does not count (a stall of this process)
+        self.excused_ticks = 0  # all such ticks so far (status: not_scheduled_excused_ms)
         self._woke = 0.0  # when the loop last woke (perf_counter)
         self.running = True
         self._boot(ResetCause.POWER_ON)
@@ -119,6 +121,7 @@ class SimDevice(ControlChannel):
         watch = self._unwatched == 0
         if not watch:
             self._unwatched -= 1
+            self.excused_ticks += 1
         self._send(core.tick(Readings(enc, a0, a1, self.estop_pin, self.estop_wire_broken), watch))
 
     # ---- control channel ----------------------------------------------------------------------
@@ -150,7 +153,8 @@ class SimDevice(ControlChannel):
         elif cmd == "status" and not args:
             c = self.core
             return (f"ok ticks={c.ticks} samples={c.sample_index} faults={c.faults} rx_bad={c.rx_bad_frames} "
-                    f"{self.tx.status()} {self.stalls.status()}")
+                    f"{self.tx.status()} {self.stalls.status()} "
+                    f"not_scheduled_excused_ms={self.excused_ticks * TICK_S * 1e3:.0f}")
         else:
             return UNKNOWN
         return None
