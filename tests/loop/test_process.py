@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from rehab_hil.devices.starvation import process_tree
 from rehab_hil.loop.records import SampleRecord
 from rehab_hil.protocol import Status
 from rehab_hil.rig_recording import read_recording
@@ -143,7 +144,7 @@ def _child_running(parent: int, needle: str, timeout_s: float) -> int:
     """A process under ``parent`` (a child, or a child of its zygote: ``rehab_hil.launch``) running ``needle``."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        for pid in _descendants(parent):
+        for pid in process_tree(parent)[1:]:
             try:
                 if needle in Path(f"/proc/{pid}/cmdline").read_text():
                     return pid
@@ -151,15 +152,6 @@ def _child_running(parent: int, needle: str, timeout_s: float) -> int:
                 continue
         time.sleep(0.05)
     raise AssertionError(f"no child process running {needle}")
-
-
-def _descendants(pid: int) -> list[int]:
-    try:
-        children = [int(c) for task in Path(f"/proc/{pid}/task").iterdir()
-                    for c in (task / "children").read_text().split()]
-    except OSError:
-        return []
-    return children + [d for c in children for d in _descendants(c)]
 
 
 def _running_fifo(pid: int, timeout_s: float) -> None:

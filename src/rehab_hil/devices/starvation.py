@@ -18,7 +18,7 @@ __all__ = ["Starvation"]
 PROC = Path("/proc")
 
 
-def _tree(pid: int) -> list[int]:
+def process_tree(pid: int) -> list[int]:
     """``pid`` and its descendants (via /proc/PID/task/*/children)."""
     out, todo = [], [pid]
     while todo:
@@ -60,7 +60,7 @@ class Starvation:
     def start(self) -> None:
         """A new window (a silence began): the baseline, nothing starved yet."""
         self._t = time.perf_counter()
-        self._last = {p: r for p in _tree(self.pid) if (r := _read(p)) is not None}
+        self._last = {p: r for p in process_tree(self.pid) if (r := _read(p)) is not None}
         self.starved_s = 0.0
 
     def poll(self) -> float:
@@ -69,7 +69,7 @@ class Starvation:
         dt, self._t = now - self._t, now
         worst = 0.0
         current: dict[int, tuple[int, bool]] = {}
-        for p in _tree(self.pid):
+        for p in process_tree(self.pid):
             r = _read(p)
             if r is None:
                 continue
