@@ -9,10 +9,10 @@ STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# The project and its test extras: uv installs them where it can be had from PyPI, else pip (the script says why).
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	sh scripts/install_python.sh $(VENV)
 	rm -f $(VENV)/.installed-* && touch $@
 
 # Byte-compile the package: every process a session starts reads it from __pycache__ then, even where

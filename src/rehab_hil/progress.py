@@ -9,6 +9,8 @@ clean cache a minute of silence.
 
 from __future__ import annotations
 
+import json
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -55,11 +57,14 @@ def announce(text: str, after_s: float = AFTER_S) -> Iterator[None]:
 
 class _CompileDepth:
     """numba's ``numba:compile`` events (cache misses only: a cache hit raises none); the outermost
-    compilation of a thread is announced, nested ones are part of it."""
+    compilation of a thread is announced, nested ones are part of it. With ``REHAB_HIL_COMPILE_LOG``
+    set, each outermost compilation also appends a JSON line there (process, function, start, wall and
+    CPU seconds): ``bench/compile_log.py`` reads it to say what a run compiled, and what twice."""
 
     def __init__(self) -> None:
         self.depth = threading.local()
         self.blocks: dict[int, Any] = {}
+        self.log = os.environ.get("REHAB_HIL_COMPILE_LOG")
 
     def on_start(self, event: Any) -> None:
         depth = getattr(self.depth, "n", 0)
@@ -68,12 +73,22 @@ class _CompileDepth:
             block = announce("compiling the model (numba: once per model structure on this machine, then cached)")
             block.__enter__()
             self.blocks[threading.get_ident()] = block
+            self.depth.started = (time.time(), time.perf_counter(), time.thread_time())
 
     def on_end(self, event: Any) -> None:
         depth = getattr(self.depth, "n", 0)
         self.depth.n = max(depth - 1, 0)
         if depth == 1 and (block := self.blocks.pop(threading.get_ident(), None)) is not None:
             block.__exit__(None, None, None)
+            if self.log:
+                self._write(event, *self.depth.started)
+
+    def _write(self, event: Any, start: float, wall0: float, cpu0: float) -> None:
+        py_func = event.data["dispatcher"].py_func
+        line = {"pid": os.getpid(), "module": py_func.__module__, "function": py_func.__qualname__,
+                "start": start, "wall_s": time.perf_counter() - wall0, "cpu_s": time.thread_time() - cpu0}
+        with open(self.log, "a") as f:  # one short append per line: lines from parallel processes do not mix
+            f.write(json.dumps(line) + "\n")
 
 
 _watching = False

@@ -137,3 +137,44 @@ def test_an_engine_stepped_by_hand_is_compiled_before_its_first_step():
     e.integrate(0.0, x, xd, np.zeros(0), system.params, 1e-3, 1, sig, w, stage)
     assert stepper.step(np.zeros(0))[0] == y[0] == 0.377 and x[0] < 1.0  # the spring pulls the mass back
     assert [len(getattr(e, n).signatures) for n in (*names, "step")] == [1, 1, 1, 1]  # nothing compiled anew
+
+
+# Two processes that need the same new engine at the same moment (parallel test workers, a session and its
+# simulated device): each builds the diagram, says so, and runs it once the test says go.
+TWIN_CHILD = textwrap.dedent("""
+    import os, sys, time
+    from rehab_hil.models.mechanics import RotaryInertia, TorsionSpring
+    from rehab_hil.models.sensors import Gain
+    from rehab_hil.models.system import Diagram
+
+    parts = [RotaryInertia("mass", connect={"torque_nm": "torque_nm"}, x0=[1.0, 0.0], inertia_kg_m2=1.0),
+             TorsionSpring("spring", rename={"torque_nm": "torque_nm"}, stiffness_nm_per_rad=4.0,
+                           rest_angle_rad=0.0),
+             Gain("probe", connect={"u": [("angle_rad", 0.613)]}, rename={"y": "probe"}, gain=1.0)]
+    system = Diagram(parts, inputs=(), sums=("torque_nm",)).compile(dt=1e-3)
+    print("ready", flush=True)
+    while not os.path.exists(sys.argv[1]):
+        time.sleep(0.005)
+    print(system.simulate(1000, outputs=["probe"])["probe"][-1], flush=True)
+""")
+
+
+def test_two_processes_that_need_a_new_engine_at_once_compile_it_once(tmp_path):
+    import json
+    import os
+
+    env = {**os.environ, "REHAB_HIL_CACHE_DIR": str(tmp_path / "cache"),
+           "REHAB_HIL_COMPILE_LOG": str(tmp_path / "compiles.jsonl")}
+    go = tmp_path / "go"
+    procs = [subprocess.Popen([sys.executable, "-c", TWIN_CHILD, str(go)], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    assert [p.stdout.readline() for p in procs] == ["ready\n", "ready\n"]
+    go.touch()  # both now reach the compilation together
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [err[-2000:] for _, err in outs]
+    assert outs[0][0] == outs[1][0]  # the same run: 0.613 cos(2 t) at t = 0.999 s
+    assert abs(float(outs[0][0]) - 0.613 * np.cos(2 * 0.999)) < 1e-9
+    rows = [json.loads(line) for line in (tmp_path / "compiles.jsonl").read_text().splitlines()]
+    compiled_by = {r["pid"] for r in rows if r["module"].startswith("rehab_hil_")}
+    assert rows and compiled_by <= {p.pid for p in procs}
+    assert len(compiled_by) == 1, rows  # the other waited for it, then loaded it from the cache

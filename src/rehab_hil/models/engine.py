@@ -12,6 +12,7 @@ kernel or a helper it calls recompiles what uses it, and nothing else does.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import importlib.util
 import inspect
@@ -19,7 +20,8 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any
@@ -28,7 +30,8 @@ from rehab_hil.models.codegen import KERNELS, engine_source, part_source
 from rehab_hil.models.layout import Layout
 from rehab_hil.progress import watch_compiles
 
-__all__ = ["KERNELS", "cache_dir", "call_holding_ctrl_c", "engine_for", "kernel_modules", "prepare"]
+__all__ = ["KERNELS", "cache_dir", "call_holding_ctrl_c", "compile_for", "compiling", "engine_for", "kernel_modules",
+           "prepare"]
 
 _LOADED: dict[str, ModuleType] = {}
 
@@ -125,8 +128,27 @@ def prepare(engine: ModuleType, *entry_points: str) -> None:
         "integrate": (float64, v, v, v, v, float64, int64, v, v, m),
         "step": (float64, v, v, v, v, float64, int64, slots, v, v, v, m, v),
     }
-    for name in entry_points:
-        getattr(engine, name).compile(signatures[name])
+    with compiling(engine):
+        for name in entry_points:
+            getattr(engine, name).compile(signatures[name])
+
+
+def compile_for(engine: ModuleType, entry_point: str, args: Sequence[Any]) -> None:
+    """Compile ``engine``'s ``entry_point`` (or load it) for the types of ``args``, under its lock."""
+    from numba import typeof
+
+    with compiling(engine):
+        getattr(engine, entry_point).compile(tuple(typeof(a) for a in args))
+
+
+@contextmanager
+def compiling(engine: ModuleType) -> Iterator[None]:
+    """Hold ``engine``'s machine-wide lock while numba compiles or loads its code: another process that
+    needs the same engine meanwhile (a parallel test worker, the simulated device beside a session) waits,
+    then loads the first one's compilation from the disk cache instead of compiling it a second time."""
+    with open(cache_dir() / f"{engine.__name__}.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or when the process dies
+        yield
 
 
 def _load(prefix: str, src: str, modules: Sequence[str]) -> ModuleType:

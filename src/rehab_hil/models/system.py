@@ -24,7 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from rehab_hil.models.engine import call_holding_ctrl_c, engine_for, kernel_modules, prepare
+from rehab_hil.models.engine import call_holding_ctrl_c, compile_for, engine_for, kernel_modules, prepare
 from rehab_hil.models.jit import njit, noop
 from rehab_hil.models.layout import Layout, PartLayout
 
@@ -348,8 +348,10 @@ class CompiledSystem:
         """The compiled loop on raw arrays (``x`` and ``xd`` advanced in place): the states and outputs per
         step. For callers that keep their own workspace; a Ctrl-C during it is raised when it returns."""
         # a Ctrl-C raised inside numba's return could crash the interpreter (see call_holding_ctrl_c)
-        return call_holding_ctrl_c(self._engine.simulate, x, xd, U, P, self.dt, self.substeps, out_slots,
-                                   *workspace)
+        args = (x, xd, U, P, self.dt, self.substeps, out_slots, *workspace)
+        if not self._engine.simulate.overloads:  # the first run in this process: compile or load the loop
+            compile_for(self._engine, "simulate", args)
+        return call_holding_ctrl_c(self._engine.simulate, *args)
 
     def stepper(self, outputs: Sequence[str] | None = None, params: np.ndarray | None = None) -> Stepper:
         return Stepper(self, outputs, params)
