@@ -18,18 +18,27 @@ from collections import Counter
 from pathlib import Path
 
 _NUMBER = re.compile(r"\((-?[0-9][0-9.e+-]*)\) \* ")
-_IMPORT = re.compile(r"^from (\S+) import (\S+) as _C\d+$", re.MULTILINE)
+_IMPORT = re.compile(r"^import (rehab_hil_part_\w+) as _C\d+$", re.MULTILINE)  # an engine's part modules
+_PART_CLASS = re.compile(r"^from (\S+) import (\S+) as _C$", re.MULTILINE)  # a part module's class
+
+
+_CLASSES: dict[str, str] = {}  # part module name -> the part class it compiles (module.qualname)
 
 
 def engine_sources(cache: Path) -> list[str]:
-    """The generated engine sources under a cache folder (``engines/`` or the folder itself)."""
+    """The generated engine sources under a cache folder (``engines/`` or the folder itself); the part
+    modules beside them say which part class each engine imports."""
     folder = cache / "engines" if (cache / "engines").is_dir() else cache
+    for p in folder.glob("rehab_hil_part_*.py"):
+        found = _PART_CLASS.search(p.read_text())
+        _CLASSES[p.stem] = f"{found[1]}.{found[2]}" if found else p.stem
     return [p.read_text() for p in sorted(folder.glob("rehab_hil_engine_*.py"))]
 
 
 def part_classes(src: str) -> tuple[str, ...]:
-    """The part classes an engine imports, in diagram order (module.qualname)."""
-    return tuple(f"{m}.{q}" for m, q in _IMPORT.findall(src))
+    """The part classes an engine imports, in diagram order (module.qualname; a part module whose
+    file is gone: its name)."""
+    return tuple(_CLASSES.get(m, m) for m in _IMPORT.findall(src))
 
 
 def census(sources: list[str]) -> dict[str, int]:

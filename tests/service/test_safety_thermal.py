@@ -1,7 +1,7 @@
 """The safety's temperature estimate against the simulated rig's truth (issue 47 item 1), through
 ``open_session`` on the in-process rig (lockstep): the true wire temperature in ``sim_truth.csv`` with or
 without a simulated patient; on rigs that differ from the config the way a lab's day does (room 16-40 C,
-convection -30 %, supply +-10 %; none of them tuned on) the estimate takes the twin's stricter values and
+convection -30 %, supply +10 %; none of them tuned on) the estimate takes the twin's stricter values and
 follows the truth from the twin's first window on, and never reads cooler than the truth where the rig is
 cooler than the config (the twin's looser values are not taken)."""
 
@@ -54,12 +54,14 @@ def test_a_simulated_rig_writes_its_true_wire_temperature_with_or_without_a_pati
     assert patient["columns"][:4] == alone["columns"] and set(TRUTH_SIGNALS) <= set(patient["columns"])
 
 
+# One rig per quantity the safety can take (issue 49 cut a 26 s session here: a room of 30 C, covered by
+# "room 40 C", the same quantity taken the same way, and by tests/twin/test_thermal.py's warm-room test,
+# where the twin finds that 30 C room within 2 C).
 @pytest.mark.parametrize(("old", "new", "key"), [
-    ("ambient_c = 23.0                    # T0, Table 5", "ambient_c = 30.0  # T0", "sma.ambient_c"),
     ("ambient_c = 23.0                    # T0, Table 5", "ambient_c = 40.0  # T0", "sma.ambient_c"),
     ("h1_w_per_m2_c = 300.0", "h1_w_per_m2_c = 210.0", "sma.h1_w_per_m2_c"),
     ("supply_voltage_v = 32.0", "supply_voltage_v = 35.2", "drive.supply_voltage_v"),
-], ids=["room +7 C", "room 40 C", "convection -30 %", "supply +10 %"])
+], ids=["room 40 C", "convection -30 %", "supply +10 %"])
 def test_on_a_hotter_rig_the_estimate_takes_the_twins_value_and_follows_the_truth(tmp_path, old, new, key) -> None:
     got = session(tmp_path, 26.0, sim_plant=rig(tmp_path, old, new), twin=True)
     changes = got["metadata"]["safety_thermal"]["changes"]
@@ -76,10 +78,12 @@ def test_on_a_hotter_rig_the_estimate_takes_the_twins_value_and_follows_the_trut
     assert key in line and "taken at" in line
 
 
+# A cooler room end to end (issue 49 cut a second 26 s session, the supply 10 % low: whichever quantity
+# reads looser, it is not taken, and tests/loop/test_thermal.py's
+# test_only_the_stricter_end_of_a_stricter_estimate_is_taken_never_a_looser_one shows it for the supply too).
 @pytest.mark.parametrize(("old", "new"), [
     ("ambient_c = 23.0                    # T0, Table 5", "ambient_c = 16.0  # T0"),
-    ("supply_voltage_v = 32.0", "supply_voltage_v = 28.8"),
-], ids=["room 16 C", "supply -10 %"])
+], ids=["room 16 C"])
 def test_on_a_cooler_rig_nothing_is_loosened_and_the_estimate_never_reads_below_the_truth(tmp_path, old,
                                                                                          new) -> None:
     got = session(tmp_path, 26.0, sim_plant=rig(tmp_path, old, new), twin=True)
