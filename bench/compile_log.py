@@ -40,8 +40,8 @@ def kind(module: str) -> str:
 def summary(rows: list[dict]) -> dict[str, float]:
     """Compilations, their CPU, and the repeats: functions compiled in more than one process."""
     by_fn: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for r in rows:
-        by_fn[(r["module"], r["function"])].append(r)
+    for r in rows:  # a test that compiles into a cache of its own (its file is elsewhere) is not a repeat
+        by_fn[(r.get("file", r["module"]), r["function"])].append(r)
     repeats = [rs[1:] for rs in by_fn.values() if len({r["pid"] for r in rs}) > 1]
     return {
         "compilations": len(rows),

@@ -58,8 +58,8 @@ def announce(text: str, after_s: float = AFTER_S) -> Iterator[None]:
 class _CompileDepth:
     """numba's ``numba:compile`` events (cache misses only: a cache hit raises none); the outermost
     compilation of a thread is announced, nested ones are part of it. With ``REHAB_HIL_COMPILE_LOG``
-    set, each outermost compilation also appends a JSON line there (process, function, start, wall and
-    CPU seconds): ``bench/compile_log.py`` reads it to say what a run compiled, and what twice."""
+    set, each outermost compilation also appends a JSON line there (process, function, its file, start,
+    wall and CPU seconds): ``bench/compile_log.py`` reads it to say what a run compiled, and what twice."""
 
     def __init__(self) -> None:
         self.depth = threading.local()
@@ -86,7 +86,8 @@ class _CompileDepth:
     def _write(self, event: Any, start: float, wall0: float, cpu0: float) -> None:
         py_func = event.data["dispatcher"].py_func
         line = {"pid": os.getpid(), "module": py_func.__module__, "function": py_func.__qualname__,
-                "start": start, "wall_s": time.perf_counter() - wall0, "cpu_s": time.thread_time() - cpu0}
+                "file": py_func.__code__.co_filename, "start": start, "wall_s": time.perf_counter() - wall0,
+                "cpu_s": time.thread_time() - cpu0}
         with open(self.log, "a") as f:  # one short append per line: lines from parallel processes do not mix
             f.write(json.dumps(line) + "\n")
 
