@@ -59,7 +59,7 @@ class _CompileDepth:
     """numba's ``numba:compile`` events (cache misses only: a cache hit raises none); the outermost
     compilation of a thread is announced, nested ones are part of it. With ``REHAB_HIL_COMPILE_LOG``
     set, each outermost compilation also appends a JSON line there (process, function, its file, start,
-    wall and CPU seconds): ``bench/compile_log.py`` reads it to say what a run compiled, and what twice."""
+    wall and CPU seconds): ``bench/engine_census.py --log`` reads it to say what a run compiled, and what twice."""
 
     def __init__(self) -> None:
         self.depth = threading.local()
