@@ -130,15 +130,17 @@ def prepare(engine: ModuleType, *entry_points: str) -> None:
     }
     with compiling(engine):
         for name in entry_points:
-            getattr(engine, name).compile(signatures[name])
+            call_holding_ctrl_c(getattr(engine, name).compile, signatures[name])
 
 
 def compile_for(engine: ModuleType, entry_point: str, args: Sequence[Any]) -> None:
-    """Compile ``engine``'s ``entry_point`` (or load it) for the types of ``args``, under its lock."""
+    """Compile ``engine``'s ``entry_point`` (or load it) for the types of ``args``, under its lock. A
+    Ctrl-C meanwhile is raised when the compilation ends (``call_holding_ctrl_c``): raised inside numba's
+    compiler, it left a half-built library ("no compiled object yet") instead of a KeyboardInterrupt."""
     from numba import typeof
 
     with compiling(engine):
-        getattr(engine, entry_point).compile(tuple(typeof(a) for a in args))
+        call_holding_ctrl_c(getattr(engine, entry_point).compile, tuple(typeof(a) for a in args))
 
 
 @contextmanager
