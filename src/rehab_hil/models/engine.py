@@ -148,7 +148,11 @@ def compiling(engine: ModuleType) -> Iterator[None]:
     """Hold ``engine``'s machine-wide lock while numba compiles or loads its code: another process that
     needs the same engine meanwhile (a parallel test worker, the simulated device beside a session) waits,
     then loads the first one's compilation from the disk cache instead of compiling it a second time."""
-    with open(cache_dir() / f"{engine.__name__}.lock", "a") as lock:
+    from numba.core.compiler_lock import global_compiler_lock
+
+    # numba's own lock first: a thread that held this file while it waited for another thread of its
+    # process to finish compiling (the twin's beside the session's) kept every other process waiting too
+    with global_compiler_lock, open(cache_dir() / f"{engine.__name__}.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or when the process dies
         yield
 
