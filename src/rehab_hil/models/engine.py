@@ -128,9 +128,7 @@ def prepare(engine: ModuleType, *entry_points: str) -> None:
         "integrate": (float64, v, v, v, v, float64, int64, v, v, m),
         "step": (float64, v, v, v, v, float64, int64, slots, v, v, v, m, v),
     }
-    with compiling(engine):
-        for name in entry_points:
-            call_holding_ctrl_c(getattr(engine, name).compile, signatures[name])
+    _compile_locked(engine, [(name, signatures[name]) for name in entry_points])
 
 
 def compile_for(engine: ModuleType, entry_point: str, args: Sequence[Any]) -> None:
@@ -139,8 +137,14 @@ def compile_for(engine: ModuleType, entry_point: str, args: Sequence[Any]) -> No
     compiler, it left a half-built library ("no compiled object yet") instead of a KeyboardInterrupt."""
     from numba import typeof
 
+    _compile_locked(engine, [(entry_point, tuple(typeof(a) for a in args))])
+
+
+def _compile_locked(engine: ModuleType, signatures: Sequence[tuple[str, tuple[Any, ...]]]) -> None:
+    """Each (entry point, argument types) compiled or loaded under ``engine``'s lock, a Ctrl-C held."""
     with compiling(engine):
-        call_holding_ctrl_c(getattr(engine, entry_point).compile, tuple(typeof(a) for a in args))
+        for name, sig in signatures:
+            call_holding_ctrl_c(getattr(engine, name).compile, sig)
 
 
 @contextmanager
