@@ -161,13 +161,10 @@ def summary_table(r: RunResult) -> Table:
             t.add_row("  cause", ev.cause)
     if not r.events:
         t.add_row("safety events", "none")
-    for got in r.features.values():  # each feature's own lines (the safety's temperature estimate, ...)
-        for label, text in got.lines:
-            t.add_row(label, text)
     _stall_rows(t, r.stalls)
     off = r.pwm_off_at_end
     t.add_row("device PWM off at end", "yes" if off else (f"[yellow]{r.pwm_unconfirmed}" if off is None else "[red]NO"))
-    for feature in r.features.values():  # each feature's own lines (the twin, the learning, a kept assistance)
+    for feature in r.features.values():  # each feature's own lines (the twin, the learning, the safety's temperature)
         for label, text in feature.lines:
             t.add_row(label, text)
     return t
