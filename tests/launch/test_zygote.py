@@ -136,3 +136,14 @@ def test_a_warm_up_runs_in_the_zygote_once_before_the_child_and_its_failure_is_i
     broken = launch.popen([sys.executable, "-c", "print('ran')"], stdout=subprocess.PIPE,
                           warm=("no_such_module:f", ()))
     assert broken.stdout.read().decode().strip() == "ran" and broken.wait(10) == 0
+
+
+def test_a_module_the_zygote_preloaded_runs_with_m_without_runpys_warning() -> None:
+    """``rehab-hil run`` starts its loop process as ``-m rehab_hil.loop.process``, a module the zygote has
+    imported: the child's stderr is the module's own, with no RuntimeWarning of runpy's about it."""
+    p = launch.popen([sys.executable, "-m", "rehab_hil.loop.process", "99"], stdin=subprocess.DEVNULL,
+                     stderr=subprocess.PIPE)
+    assert isinstance(p, launch.ForkedChild)
+    assert p.wait(20) == 1  # fd 99 is not open: the module's own error, raised from its __main__ block
+    err = p.stderr.read().decode()
+    assert "Bad file descriptor" in err and "RuntimeWarning" not in err

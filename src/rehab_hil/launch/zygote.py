@@ -170,9 +170,12 @@ def _run(req: dict[str, Any]) -> int:
         exec(compile(req["target"], "<string>", "exec"), {"__name__": "__main__", "__builtins__": __builtins__})
     else:
         import runpy
+        import warnings
 
         sys.argv = [req["target"], *req["args"]]
-        runpy.run_module(req["target"], run_name="__main__", alter_sys=True)
+        with warnings.catch_warnings():  # a preloaded module: runpy runs its code again as __main__, as -m would
+            warnings.filterwarnings("ignore", "'.*' found in sys.modules after import", RuntimeWarning)
+            runpy.run_module(req["target"], run_name="__main__", alter_sys=True)
     return 0
 
 
