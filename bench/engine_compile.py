@@ -8,9 +8,11 @@ Each figure is measured in a child process whose ``PYTHONPATH`` is the tree's ``
 - per structure: each further distinct structure of the same size (the plant plus a probe part whose
   wire gain differs), the cost the suite pays about 400 times; CPU seconds, the median of ``--structures``;
 - load: a new process loading the compiled plant from the disk cache;
-- speed: real-time factor of 60 s of the plant alone at 1 kHz (6 V step) and of the plant under its PID
-  (the ``cycle`` scenario), one core, the median of 5 runs; the two trees run interleaved ``--rounds``
-  times so that other work on the machine weighs on both alike.
+- speed: real-time factor of 60 s of the plant alone at 1 kHz (6 V step), of the plant under its PID
+  (the ``cycle`` scenario) and of the SMA exoskeleton's plant over its ``session`` scenario (its wire's
+  hysteresis solved every step), one core, the median of 5 runs; the two trees run interleaved
+  ``--rounds`` times so that other work on the machine weighs on both alike. Each tree's SMA outputs are
+  hashed: the table says whether the two trees computed the same numbers, bit for bit.
 
 Prints a table and writes bench/results/engine_compile.json.
 
@@ -101,7 +103,29 @@ def child_speed() -> dict:
             system.simulate(n, inputs)
             walls.append(time.perf_counter() - t0)
         out[name] = SIM_SECONDS / statistics.median(walls)
-    return out
+    return {**out, **_sma_speed()}
+
+
+def _sma_speed() -> dict:
+    """Real-time factor of the SMA exoskeleton's plant over its session scenario, and a hash of its outputs."""
+    import hashlib
+
+    from rehab_hil.loading import load_config
+    from rehab_hil.models.system import Diagram
+    from rehab_hil.plants import get_plant
+
+    cfg = load_config(ROOT / "configs" / "sma_exoskeleton.toml")
+    spec = get_plant("sma_exoskeleton")
+    sc = spec.scenarios["session"](cfg, duration_s=SIM_SECONDS)
+    system = Diagram(spec.build(cfg), inputs=spec.inputs, sums=spec.ports(cfg).sums).compile(*spec.step(cfg))
+    system.simulate(10, sc.inputs)
+    walls = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        res = system.simulate(sc.n_steps, sc.inputs, outputs=list(spec.outputs))
+        walls.append(time.perf_counter() - t0)
+    digest = hashlib.sha1(b"".join(res[n].tobytes() for n in spec.outputs)).hexdigest()[:12]
+    return {"sma_rtf": SIM_SECONDS / statistics.median(walls), "sma_outputs": digest}
 
 
 def _run_child(src: Path, cache: Path, mode: str, n: int) -> dict:
@@ -132,7 +156,8 @@ def measure(trees: dict[str, Path], n: int, rounds: int) -> dict[str, dict]:
                 speeds[label].append(_run_child(src, Path(tmp) / label, "speed", n))
     for label, runs in speeds.items():
         for key in runs[0]:
-            results[label][key] = statistics.median(r[key] for r in runs)
+            values = [r[key] for r in runs]
+            results[label][key] = values[0] if isinstance(values[0], str) else statistics.median(values)
     return results
 
 
@@ -150,11 +175,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="engine_rev_") as rev_dir:
         trees = {"this tree": ROOT / "src", args.against: _export(args.against, Path(rev_dir))}
         results = measure(trees, args.structures, args.rounds)
-    print(f"{'':12s} {'first compile':>18s} {'per structure':>18s} {'load':>8s} {'plant':>9s} {'plant+PID':>10s}")
+    print(f"{'':12s} {'first compile':>18s} {'per structure':>18s} {'load':>8s} {'plant':>9s} {'plant+PID':>10s}"
+          f" {'SMA plant':>10s} {'SMA outputs':>12s}")
     for label, r in results.items():
         print(f"{label:12s} {r['first_wall_s']:6.1f} s ({r['first_cpu_s']:5.1f} cpu) "
               f"{r['per_structure_wall_s']:6.2f} s ({r['per_structure_cpu_s']:5.2f} cpu) {r['load_wall_s']:6.2f} s "
-              f"{r['plant_rtf']:7.0f}x {r['pid_cycle_rtf']:9.0f}x")
+              f"{r['plant_rtf']:7.0f}x {r['pid_cycle_rtf']:9.0f}x {r['sma_rtf']:9.0f}x {r['sma_outputs']:>12s}")
+    same = len({r["sma_outputs"] for r in results.values()}) == 1
+    print(f"SMA outputs of the two trees: {'the same, bit for bit' if same else 'DIFFERENT'}")
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (real-time factors: one core, 1 kHz)")
     out = {"benchmark": "engine_compile", "against": args.against, "structures": args.structures,
            "rounds": args.rounds, "load_average": os.getloadavg()[0], "results": results}
