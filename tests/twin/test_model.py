@@ -119,3 +119,21 @@ def test_a_smooth_model_reads_the_encoder_angle_before_its_quantisation() -> Non
     assert np.array_equal(out[False][0], out[False][1])  # a 0.1 % change shows in no count
     assert 0.0 < np.max(np.abs(out[True][1] - out[True][0])) < count_deg  # ... but moves the smooth angle
     assert np.max(np.abs(out[True][0] - out[False][0])) <= 0.5 * count_deg + 1e-9  # the same angle, unrounded
+
+
+def test_a_segment_whose_last_readings_are_all_lost_is_not_corrected_and_raises_no_warning() -> None:
+    """The readings that end a segment, where the twin takes the error it anchors on, never came
+    (the samples were lost, the channel stopped): no correction, a finite prediction, no RuntimeWarning."""
+    import warnings
+
+    cfg, binding, records = plant_records(CONFIGS / "finger_extensor.toml", _levels(True))
+    twin = TwinModel(cfg, binding, 1.0 / cfg.rig.sample_rate_hz, 0.25)
+    index = np.array([round(r.time_s * 1000) for r in records])
+    U = np.array([twin.inputs_of(r.sample.duty0, 0, r.sample.direction, {}) for r in records])
+    Y = np.array([[r.state.angle_deg + twin.encoder_centre_deg] for r in records])
+    Y[: twin.segment_samples] = np.nan  # the whole first segment unread
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        block = twin.advance(index[: twin.segment_samples], U[: twin.segment_samples], Y[: twin.segment_samples])
+    assert block.anchored[-1] and np.all(twin.last_correction == 0.0)
+    assert np.all(np.isfinite(block.predicted)) and np.all(np.isfinite(twin.x))

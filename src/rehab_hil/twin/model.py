@@ -231,7 +231,9 @@ class TwinModel:
             self._since_anchor += j - k
             if self._since_anchor >= self.segment_samples:
                 tail = slice(max(k, j - ANCHOR_SAMPLES), j)  # the error's mean over the segment's last samples
-                err = np.nanmean(measured[tail] - pred[tail], axis=0)
+                d = measured[tail] - pred[tail]
+                ok = np.isfinite(d)  # a channel whose tail samples were all lost is not corrected (no warning)
+                err = np.where(ok, d, 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
                 self.last_correction = self.beyond_resolution(err)
                 self.x += self.anchor_gain @ self.last_correction
                 anchored[j - 1] = True
