@@ -76,3 +76,30 @@ def test_fraction_is_consistent_with_its_own_stress():
     sigma = wire_stress_pa(xi, VALUES["prestrain"] - excursion / VALUES["length_m"], 85.0, P)
     assert 0.0 < xi < 1.0
     assert xi == pytest.approx(branch_fraction(85.0, sigma, 66.0, 78.0, 13.6e6), abs=1e-8)
+
+
+def _consistency(f: float, temp: float, strain: float, start: float, finish: float) -> float:
+    """f - xi_branch(T, sigma(f)): zero at the fraction consistent with its own stress."""
+    return f - branch_fraction(temp, wire_stress_pa(f, strain, temp, P), start, finish, 13.6e6)
+
+
+def test_the_solved_fraction_is_scipys_root_of_its_own_stress_on_both_branches():
+    """Over the heating and the cooling band, at rest and bent, from any previous fraction: the fraction
+    ``transform`` solves is the root scipy's brentq finds for xi = xi_branch(T, sigma(xi)), to 1e-11."""
+    from scipy.optimize import brentq
+
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(400):
+        temp, excursion, xi_old = rng.uniform(40.0, 125.0), rng.uniform(0.0, 0.02), rng.uniform(0.0, 1.0)
+        strain = VALUES["prestrain"] - excursion / VALUES["length_m"]
+        xi = transform(xi_old, temp, excursion, P)
+        if xi == xi_old or xi in (0.0, 1.0):
+            continue  # inside the hysteresis band, or at a branch's end: nothing solved
+        heating = xi < xi_old
+        start, finish = (66.0, 78.0) if heating else (52.0, 42.0)
+
+        root = brentq(_consistency, 0.0, 1.0, args=(temp, strain, start, finish), xtol=1e-14)
+        assert xi == pytest.approx(root, abs=1e-11), (temp, excursion, xi_old)
+        checked += 1
+    assert checked > 100  # most draws land in a transformation band

@@ -21,8 +21,8 @@ would make the stress shift vanish). Seed 000 gives only the
 heating branch; M_s, M_f come from the Flexinol data (configs/sma_exoskeleton.toml).
 Hysteresis: xi stays inside the band [xi_M, xi_A] and moves only when a branch pushes it
 (heating lowers xi to xi_A, cooling raises it to xi_M): the major loop exactly, flat minor loops.
-Because sigma depends on xi and xi on sigma, each sample solves xi = xi_branch(T, sigma(xi)) by
-bisection (the residual is monotone), so there is no algebraic lag.
+Because sigma depends on xi and xi on sigma, each sample solves xi = xi_branch(T, sigma(xi)) (the
+residual is monotone: Newton's steps kept inside a shrinking bracket), so there is no algebraic lag.
 """
 
 from __future__ import annotations
@@ -64,19 +64,52 @@ def wire_stress_pa(xi, strain, temp_c, p):
 
 
 @njit
-def _solve_branch(temp_c, strain, p, start_c, finish_c):
-    """Root of xi - xi_branch(T, sigma(xi)): the fraction consistent with its own stress."""
+def _residual(xi, temp_c, strain, p, start_c, finish_c):
+    """g(xi) = xi - xi_branch(T, sigma(xi)) and its slope dg/dxi (increasing in xi: the root is unique)."""
+    e_mod = p[1] + xi * (p[0] - p[1])
+    raw = e_mod * (strain - p[8] * xi) + p[2] * (temp_c - p[12])
+    sigma = min(max(raw, 0.0), p[9])
+    lo = min(start_c, finish_c)
+    hi = max(start_c, finish_c)
+    te = temp_c - sigma / p[3]
+    if te <= lo:
+        return xi - 1.0, 1.0
+    if te >= hi:
+        return xi, 1.0
+    phase = math.pi * (te - lo) / (hi - lo)
+    d_sigma = (p[0] - p[1]) * (strain - p[8] * xi) - e_mod * p[8] if 0.0 < raw < p[9] else 0.0
+    # d xi_branch / d xi = -1/2 sin(phase) d phase/d te d te/d sigma d sigma/d xi, d te/d sigma = -1/C_A
+    slope = 1.0 - 0.5 * math.sin(phase) * math.pi / (hi - lo) * d_sigma / p[3]
+    return xi - 0.5 * (math.cos(phase) + 1.0), slope
+
+
+@njit
+def _solve_branch(temp_c, strain, p, start_c, finish_c, guess):
+    """Root of xi - xi_branch(T, sigma(xi)): the fraction consistent with its own stress. Newton's
+    steps from ``guess`` (the previous sample's fraction: two or three steps), each kept inside a
+    bracket of the root that shrinks every step, a step that would leave it replaced by the bracket's
+    midpoint (the residual has kinks where the stress meets its bounds): as sure as bisection, which
+    took 32 cosines per solve to reach 2e-10 where this reaches 1e-13."""
     if branch_fraction(temp_c, wire_stress_pa(0.0, strain, temp_c, p), start_c, finish_c, p[3]) == 0.0:
         return 0.0
     if branch_fraction(temp_c, wire_stress_pa(1.0, strain, temp_c, p), start_c, finish_c, p[3]) == 1.0:
         return 1.0
     lo, hi = 0.0, 1.0
-    for _ in range(32):
-        mid = 0.5 * (lo + hi)
-        if mid - branch_fraction(temp_c, wire_stress_pa(mid, strain, temp_c, p), start_c, finish_c, p[3]) > 0.0:
-            hi = mid
+    xi = min(max(guess, 0.0), 1.0)
+    for _ in range(64):
+        g, slope = _residual(xi, temp_c, strain, p, start_c, finish_c)
+        if g > 0.0:
+            hi = xi
+        elif g < 0.0:
+            lo = xi
         else:
-            lo = mid
+            return xi
+        nxt = xi - g / slope if slope > 0.0 else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - xi) <= 1e-13 or hi - lo <= 1e-13:
+            return nxt
+        xi = nxt
     return 0.5 * (lo + hi)
 
 
@@ -88,9 +121,9 @@ def transform(xi_old, temp_c, excursion_m, p):
     # the residual xi - xi_branch(sigma(xi)) increases with xi: its sign at xi_old says whether
     # the branch's consistent fraction lies below (heating moves xi) or above (cooling moves xi)
     if xi_old > branch_fraction(temp_c, sigma, p[4], p[5], p[3]):
-        return _solve_branch(temp_c, strain, p, p[4], p[5])
+        return _solve_branch(temp_c, strain, p, p[4], p[5], xi_old)
     if xi_old < branch_fraction(temp_c, sigma, p[6], p[7], p[3]):
-        return _solve_branch(temp_c, strain, p, p[6], p[7])
+        return _solve_branch(temp_c, strain, p, p[6], p[7], xi_old)
     return xi_old
 
 
