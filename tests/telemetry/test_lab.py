@@ -5,9 +5,11 @@ router's access control, and the one-line errors."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -59,8 +61,17 @@ def start_router(*extra: str) -> tuple[subprocess.Popen[str], str]:
 
 
 def stop_router(proc: subprocess.Popen[str]) -> str:
+    """SIGTERM, then its output; a router still running 20 s later is asked where its threads are
+    (SIGUSR1: faulthandler), killed, and the test fails showing that."""
     proc.terminate()
-    out, _ = proc.communicate(timeout=20)
+    try:
+        out, _ = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)
+        proc.kill()
+        out, err = proc.communicate(timeout=10)
+        raise AssertionError(f"the router did not stop within 20 s of SIGTERM; its stderr:\n{err[-6000:]}") from None
     return out
 
 

@@ -5,6 +5,7 @@ connect to it as clients (``--connect``). docs/telemetry.md, "A lab of rigs"."""
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import os
 import signal
@@ -69,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(e)) from None
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda n, f: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # kill -USR1: where a router that will not stop is
     t0, cpu0 = time.monotonic(), _cpu_s()
     try:
         print(f"zenoh router listening on {', '.join(net.endpoints())}"
