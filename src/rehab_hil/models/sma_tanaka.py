@@ -56,31 +56,33 @@ def branch_fraction(temp_c, stress_pa, start_c, finish_c, c_pa_per_c):
 
 
 @njit
+def _unbounded_stress_pa(xi, strain, temp_c, p):
+    """Tanaka stress (eq 14-15 integrated, see module doc) before its bounds."""
+    e_mod = p[1] + xi * (p[0] - p[1])
+    return e_mod * (strain - p[8] * xi) + p[2] * (temp_c - p[12])
+
+
+@njit
 def wire_stress_pa(xi, strain, temp_c, p):
     """Tanaka stress (eq 14-15 integrated, see module doc), bounded to [0, sigma_max]."""
-    e_mod = p[1] + xi * (p[0] - p[1])
-    s = e_mod * (strain - p[8] * xi) + p[2] * (temp_c - p[12])
-    return min(max(s, 0.0), p[9])
+    return min(max(_unbounded_stress_pa(xi, strain, temp_c, p), 0.0), p[9])
 
 
 @njit
 def _residual(xi, temp_c, strain, p, start_c, finish_c):
     """g(xi) = xi - xi_branch(T, sigma(xi)) and its slope dg/dxi (increasing in xi: the root is unique)."""
-    e_mod = p[1] + xi * (p[0] - p[1])
-    raw = e_mod * (strain - p[8] * xi) + p[2] * (temp_c - p[12])
+    raw = _unbounded_stress_pa(xi, strain, temp_c, p)
     sigma = min(max(raw, 0.0), p[9])
+    g = xi - branch_fraction(temp_c, sigma, start_c, finish_c, p[3])
     lo = min(start_c, finish_c)
     hi = max(start_c, finish_c)
     te = temp_c - sigma / p[3]
-    if te <= lo:
-        return xi - 1.0, 1.0
-    if te >= hi:
-        return xi, 1.0
-    phase = math.pi * (te - lo) / (hi - lo)
-    d_sigma = (p[0] - p[1]) * (strain - p[8] * xi) - e_mod * p[8] if 0.0 < raw < p[9] else 0.0
+    if not (lo < te < hi and 0.0 < raw < p[9]):  # outside the band, or the stress at a bound: xi_branch is flat
+        return g, 1.0
+    d_sigma = (p[0] - p[1]) * (strain - p[8] * xi) - (p[1] + xi * (p[0] - p[1])) * p[8]
     # d xi_branch / d xi = -1/2 sin(phase) d phase/d te d te/d sigma d sigma/d xi, d te/d sigma = -1/C_A
-    slope = 1.0 - 0.5 * math.sin(phase) * math.pi / (hi - lo) * d_sigma / p[3]
-    return xi - 0.5 * (math.cos(phase) + 1.0), slope
+    slope = 1.0 - 0.5 * math.sin(math.pi * (te - lo) / (hi - lo)) * math.pi / (hi - lo) * d_sigma / p[3]
+    return g, slope
 
 
 @njit
